@@ -1,0 +1,11 @@
+"""hybridpose — 6-DoF pose tracking of a known rigid object in monocular video.
+
+Conventions (see docs/conventions.md): ``Pose`` is ``T_cam_obj`` in metres, OpenCV camera frame,
+quaternions (w, x, y, z), tangent ``[ω, v]``, images (H, W, 3) uint8 RGB.
+"""
+from .core import Estimate, Frame, Measurement
+from .geometry import Camera, Pose
+from .objects import ObjectModel
+
+__version__ = "0.1.0"
+__all__ = ["Camera", "Estimate", "Frame", "Measurement", "ObjectModel", "Pose", "__version__"]

@@ -1,0 +1,98 @@
+"""The data that flows between the parts: ``Frame`` in, ``Measurement`` and ``Estimate`` out."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .geometry import Camera, Pose
+from .geometry.checks import as_array
+
+ESTIMATE_STATUSES = ("init", "tracking", "lost", "reinit")
+
+
+def as_covariance6(cov, name: str = "covariance") -> np.ndarray:
+    """(6, 6) symmetric positive semi-definite covariance of a tangent ``[ω (rad), v (m)]``."""
+    cov = as_array(cov, name, (6, 6))
+    if not np.allclose(cov, cov.T, atol=1e-9 * max(1.0, np.abs(cov).max())):
+        raise ValueError(f"{name}: expected a symmetric (6, 6) matrix")
+    if np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() < -1e-9 * max(1.0, np.abs(cov).max()):
+        raise ValueError(f"{name}: not positive semi-definite")
+    cov = np.array(cov, copy=True)
+    cov.flags.writeable = False
+    return cov
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One image and what is known about it.
+
+    Attributes:
+        image: (H, W, 3) uint8 RGB, size matching ``camera``.
+        camera: intrinsics of the image.
+        timestamp: seconds.
+        index: frame number in its sequence.
+    """
+
+    image: np.ndarray
+    camera: Camera
+    timestamp: float
+    index: int = 0
+
+    def __post_init__(self) -> None:
+        self.camera.check_image(self.image, "image")
+        if not np.isfinite(self.timestamp):
+            raise ValueError(f"timestamp: expected finite seconds, got {self.timestamp}")
+
+
+@dataclass(frozen=True, eq=False)
+class Measurement:
+    """What one estimator says about one frame.
+
+    Attributes:
+        pose: ``T_cam_obj`` or None when the estimator has nothing to say.
+        covariance: (6, 6) tangent ``[ω, v]`` right-perturbation covariance (rad², m²).
+        quality: 0..1, backend-specific meaning documented per backend.
+        source: e.g. ``"tracker:rapid-gos"`` or ``"regressor:default"``.
+        timestamp: seconds.
+        lost: True when the estimator believes it has lost the object.
+    """
+
+    pose: Pose | None
+    covariance: np.ndarray
+    quality: float
+    source: str
+    timestamp: float
+    lost: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "covariance", as_covariance6(self.covariance))
+        q = float(self.quality)
+        if not 0.0 <= q <= 1.0:
+            raise ValueError(f"quality: expected a value in [0, 1], got {self.quality}")
+        object.__setattr__(self, "quality", q)
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """The fused belief at one time.
+
+    Attributes:
+        pose: ``T_cam_obj`` or None before initialisation.
+        covariance: (6, 6) right-perturbation covariance of ``pose``, tangent ``[ω, v]``.
+        velocity: (6,) body-frame twist ``[ω (rad/s), v (m/s)]``.
+        status: one of ``"init"``, ``"tracking"``, ``"lost"``, ``"reinit"``.
+        timestamp: seconds.
+    """
+
+    pose: Pose | None
+    covariance: np.ndarray
+    timestamp: float
+    status: str = "init"
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    def __post_init__(self) -> None:
+        if self.status not in ESTIMATE_STATUSES:
+            raise ValueError(f"status: expected one of {ESTIMATE_STATUSES}, got {self.status!r}")
+        object.__setattr__(self, "covariance", as_covariance6(self.covariance))
+        object.__setattr__(self, "velocity", as_array(self.velocity, "velocity", (6,)))

@@ -1,0 +1,105 @@
+"""A torch ``Dataset`` over BOP scenes: resized full images or object-centred crops, with K.
+
+The crop is the paper's "bounded image": a square around the object's projected bounding box,
+enlarged by ``crop_margin``, resampled to ``size``; pixels outside the frame are black (space).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from ..geometry import parse_size
+from .bop import BopScene, find_scenes
+
+MIN_CROP_PX = 16
+
+
+def split_indices(n: int, val_fraction: float = 0.2, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded random split of ``range(n)`` into (train, val) index arrays (the paper's 80/20)."""
+    if n < 2:
+        raise ValueError(f"n: need at least 2 samples to split, got {n}")
+    if not 0 < val_fraction < 1:
+        raise ValueError(f"val_fraction: expected a value in (0, 1), got {val_fraction}")
+    perm = np.random.default_rng(seed).permutation(n)
+    n_val = max(1, int(round(n * val_fraction)))
+    return np.sort(perm[n_val:]), np.sort(perm[:n_val])
+
+
+def crop_box(bbox_xywh, margin: float = 1.2) -> tuple[float, float, float]:
+    """Square crop ``(cx, cy, side)`` in pixels around a BOP bbox, ``side = margin · max(w, h)``."""
+    x, y, w, h = (float(v) for v in bbox_xywh)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"bbox: expected positive width and height, got {bbox_xywh}")
+    return x + (w - 1) / 2, y + (h - 1) / 2, max(MIN_CROP_PX, margin * max(w, h))
+
+
+def crop_affine(cx: float, cy: float, side: float, out_w: int, out_h: int) -> np.ndarray:
+    """(2, 3) affine mapping source pixels to crop pixels (pixel centres at integers)."""
+    sx, sy = out_w / side, out_h / side
+    return np.array([[sx, 0.0, (out_w - 1) / 2 - sx * cx], [0.0, sy, (out_h - 1) / 2 - sy * cy]])
+
+
+class PoseDataset(Dataset):
+    """Images and labels of one or more BOP scenes for training a pose regressor.
+
+    Args:
+        root: dataset root, split or scene directory.
+        size: output size N or (W, H).
+        crop: False → whole image resized to ``size`` (K rescaled; aspect may change as in the
+            paper); True → object-centred square crop from ``bbox_obj``.
+        indices: subset of sample indices (e.g. from :func:`split_indices`); None = all.
+        crop_margin: crop side / max(bbox w, h).
+
+    Each item is a dict of tensors: ``image`` (3, H, W) float32 in [0, 1]; ``t`` (3,) metres;
+    ``q`` (4,) (w, x, y, z), w ≥ 0; ``K`` (3, 3) intrinsics *of the returned image*;
+    ``crop`` (3,) (cx, cy, side) in source pixels (the full image when ``crop`` is False);
+    ``index`` the sample index.
+    """
+
+    def __init__(self, root, size=224, crop: bool = False, indices=None, crop_margin: float = 1.2) -> None:
+        self.scenes = [BopScene(p) for p in find_scenes(root)]
+        self.samples = [(s, i) for s, sc in enumerate(self.scenes) for i in sc.image_ids]
+        if not self.samples:
+            raise ValueError(f"root: {Path(root)} holds no images (empty dataset)")
+        self.size = parse_size(size)
+        self.crop, self.crop_margin = bool(crop), float(crop_margin)
+        self.indices = np.arange(len(self.samples)) if indices is None else np.asarray(indices, dtype=np.int64)
+        if len(self.indices) and (self.indices.min() < 0 or self.indices.max() >= len(self.samples)):
+            raise ValueError(f"indices: expected values in [0, {len(self.samples)}), got {self.indices.min()}..{self.indices.max()}")
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, k: int) -> dict:
+        idx = int(self.indices[k])
+        scene_i, im_id = self.samples[idx]
+        scene = self.scenes[scene_i]
+        gt = scene.image(im_id)
+        img = scene.rgb(im_id)
+        w, h = self.size
+        if self.crop:
+            if gt.bbox_obj[2] <= 0:
+                raise ValueError(f"{scene.dir} image {im_id}: no bbox_obj in scene_gt_info.json; cannot crop")
+            cx, cy, side = crop_box(gt.bbox_obj, self.crop_margin)
+            A = crop_affine(cx, cy, side, w, h)
+            out = cv2.warpAffine(img, A, (w, h), flags=cv2.INTER_AREA if side > w else cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            K = np.vstack([A, [0, 0, 1]]) @ gt.camera.K
+            crop = (cx, cy, side)
+        else:
+            cam = gt.camera.scaled((w, h))
+            out = img if (w, h) == (img.shape[1], img.shape[0]) else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+            K = cam.K
+            crop = ((img.shape[1] - 1) / 2, (img.shape[0] - 1) / 2, float(max(img.shape[:2])))
+        return {
+            "image": torch.from_numpy(np.ascontiguousarray(out)).permute(2, 0, 1).float() / 255.0,
+            "t": torch.tensor(gt.pose.t, dtype=torch.float32),
+            "q": torch.tensor(gt.pose.quat_wxyz, dtype=torch.float32),
+            "K": torch.tensor(K, dtype=torch.float32),
+            "crop": torch.tensor(crop, dtype=torch.float32),
+            "index": idx,
+        }

@@ -1,0 +1,210 @@
+"""Pinhole camera with optional OpenCV distortion. Pixel centres at integer coordinates."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .checks import as_array, as_points3d
+from .pose import Pose
+
+_MIN_DEPTH_M = 1e-6
+
+
+def parse_size(size) -> tuple[int, int]:
+    """``224`` / ``"224"`` → (224, 224); ``"640x480"`` / ``(640, 480)`` → (640, 480) as (W, H)."""
+    if isinstance(size, str):
+        parts = size.lower().replace("×", "x").split("x")
+        try:
+            vals = [int(p) for p in parts]
+        except ValueError:
+            raise ValueError(f"size: expected 'N' or 'WxH' (e.g. 224 or 640x480), got {size!r}") from None
+        size = vals[0] if len(vals) == 1 else tuple(vals)
+    if isinstance(size, (int, np.integer)):
+        size = (int(size), int(size))
+    if len(size) != 2 or any(int(s) <= 0 for s in size):
+        raise ValueError(f"size: expected positive (W, H), got {size!r}")
+    return int(size[0]), int(size[1])
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Intrinsics of a pinhole camera (OpenCV model).
+
+    Attributes:
+        width, height: image size in pixels.
+        fx, fy: focal lengths in pixels.
+        cx, cy: principal point in pixels (origin at the centre of the top-left pixel).
+        dist: OpenCV distortion coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]); empty = none.
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: tuple[float, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if int(v) != v or v <= 0:
+                raise ValueError(f"{name}: expected a positive integer number of pixels, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        for name in ("fx", "fy"):
+            v = float(getattr(self, name))
+            if not math.isfinite(v) or v <= 0:
+                raise ValueError(f"{name}: expected a positive focal length in pixels, got {v!r}")
+            object.__setattr__(self, name, v)
+        for name in ("cx", "cy"):
+            v = float(getattr(self, name))
+            if not math.isfinite(v):
+                raise ValueError(f"{name}: expected a finite principal point in pixels, got {v!r}")
+            object.__setattr__(self, name, v)
+        dist = tuple(float(d) for d in np.asarray(self.dist, dtype=np.float64).ravel())
+        if len(dist) not in (0, 4, 5, 8, 12, 14):
+            raise ValueError(f"dist: expected 0, 4, 5, 8, 12 or 14 OpenCV coefficients, got {len(dist)}")
+        if all(d == 0.0 for d in dist):
+            dist = ()
+        object.__setattr__(self, "dist", dist)
+
+    # --- constructors ---------------------------------------------------------------------------
+    @classmethod
+    def default(cls) -> "Camera":
+        """640×480, fx = fy = 600 px (≈ 56° horizontal FOV), centred principal point, no distortion."""
+        return cls(640, 480, 600.0, 600.0, 319.5, 239.5)
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, hfov_deg: float) -> "Camera":
+        """Square pixels, centred principal point, horizontal field of view in degrees."""
+        if not 0 < hfov_deg < 180:
+            raise ValueError(f"hfov_deg: expected a field of view in (0, 180) degrees, got {hfov_deg}")
+        f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
+        return cls(width, height, f, f, width / 2 - 0.5, height / 2 - 0.5)
+
+    @classmethod
+    def from_K(cls, K, width: int, height: int, dist=()) -> "Camera":
+        """From a (3, 3) matrix or BOP's flat 9-list ``cam_K`` (pixels)."""
+        K = np.asarray(K, dtype=np.float64)
+        if K.shape == (9,):
+            K = K.reshape(3, 3)
+        K = as_array(K, "K", (3, 3))
+        if abs(K[0, 1]) > 1e-9 or np.any(np.abs(K[2] - [0, 0, 1]) > 1e-9) or abs(K[1, 0]) > 1e-9:
+            raise ValueError(f"K: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+        return cls(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], tuple(dist))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Camera":
+        """From ``{"width", "height", "K" | fx/fy/cx/cy, "dist"?}`` (the camera file format)."""
+        try:
+            if "K" in d:
+                return cls.from_K(d["K"], d["width"], d["height"], d.get("dist", ()))
+            return cls(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"], tuple(d.get("dist", ())))
+        except KeyError as exc:
+            raise ValueError(f"camera: missing key {exc.args[0]!r}; expected width, height and K (or fx, fy, cx, cy)") from None
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["dist"] = list(self.dist)
+        return d
+
+    # --- derived ---------------------------------------------------------------------------------
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsic matrix in pixels."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(W, H) in pixels."""
+        return self.width, self.height
+
+    @property
+    def hfov_deg(self) -> float:
+        return math.degrees(2 * math.atan2(self.width / 2, self.fx))
+
+    @property
+    def vfov_deg(self) -> float:
+        return math.degrees(2 * math.atan2(self.height / 2, self.fy))
+
+    def scaled(self, size) -> "Camera":
+        """The same camera resampled to a new pixel grid ``size`` (N or (W, H) or "WxH").
+
+        The field of view is unchanged; a change of aspect ratio gives non-square pixels, as when
+        the paper squeezed 1280×720 renders to 224×224.
+        """
+        w, h = parse_size(size)
+        sx, sy = w / self.width, h / self.height
+        return Camera(w, h, self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.dist)
+
+    # --- projection ------------------------------------------------------------------------------
+    def project(self, points_obj, T_cam_obj: Pose) -> np.ndarray:
+        """Project object-frame points to pixels.
+
+        Args:
+            points_obj: (N, 3) float, metres, object frame.
+            T_cam_obj: object → camera pose.
+        Returns:
+            (N, 2) float64 pixel coordinates (OpenCV convention).
+        Raises:
+            ValueError: if a point lies at or behind the camera plane (z ≤ 0).
+        """
+        points_obj = as_points3d(points_obj, "points_obj")
+        return self.project_cam(T_cam_obj @ points_obj)
+
+    def project_cam(self, points_cam) -> np.ndarray:
+        """Project (N, 3) camera-frame points (metres) to (N, 2) pixels; z must be > 0."""
+        p = as_points3d(points_cam, "points_cam")
+        if p.shape[0] and p[:, 2].min() <= _MIN_DEPTH_M:
+            raise ValueError(
+                f"points: {int((p[:, 2] <= _MIN_DEPTH_M).sum())} of {len(p)} points are behind the camera "
+                "(z ≤ 0 in the camera frame); check T_cam_obj (t_z must be positive, in metres)"
+            )
+        if self.dist:
+            import cv2
+
+            uv, _ = cv2.projectPoints(p.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K, np.array(self.dist))
+            return uv.reshape(-1, 2).astype(np.float64)
+        x = p[:, 0] / p[:, 2]
+        y = p[:, 1] / p[:, 2]
+        return np.stack([self.fx * x + self.cx, self.fy * y + self.cy], -1)
+
+    def check_image(self, image, name: str = "image") -> np.ndarray:
+        """Validate an RGB image for this camera: (H, W, 3) uint8."""
+        img = np.asarray(image)
+        if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+            raise ValueError(f"{name}: expected (H, W, 3) uint8 RGB, got shape {img.shape} dtype {img.dtype}")
+        if img.shape[:2] != (self.height, self.width):
+            raise ValueError(
+                f"{name}: size {img.shape[1]}×{img.shape[0]} does not match the camera ({self.width}×{self.height}); "
+                "use Camera.scaled() or resize the image"
+            )
+        return img
+
+
+def load_camera(path) -> Camera:
+    """Read a camera file (.json or .yaml/.yml) with width, height, K (or fx, fy, cx, cy), dist."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"camera file not found: {path}")
+    text = path.read_text()
+    try:
+        if path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            data = json.loads(text)
+    except Exception as exc:  # noqa: BLE001 — any parser error becomes one message naming the file
+        raise ValueError(f"{path}: cannot parse camera file ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping with width, height, K")
+    return Camera.from_dict(data)
+
+
+def save_camera(camera: Camera, path) -> None:
+    Path(path).write_text(json.dumps(camera.to_dict(), indent=2))

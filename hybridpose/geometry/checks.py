@@ -1,0 +1,77 @@
+"""Boundary validation: every public function checks its inputs here and says what it wanted.
+
+Errors name the argument, the expected shape/unit and what was received, so a user never meets a
+crash deep inside OpenCV or a silent NaN.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+ROTATION_ATOL = 1e-5
+QUAT_NORM_ATOL = 1e-4
+
+
+def _describe(x: np.ndarray) -> str:
+    return f"shape {tuple(x.shape)} dtype {x.dtype}"
+
+
+def as_array(x, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+    """Convert ``x`` to an array and check its shape; ``None`` in ``shape`` matches any length.
+
+    Raises:
+        ValueError: naming ``name`` when the shape differs or values are not finite.
+    """
+    try:
+        arr = np.asarray(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected a numeric array of shape {_fmt_shape(shape)}, got {type(x).__name__}") from exc
+    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+        raise ValueError(f"{name}: expected shape {_fmt_shape(shape)}, got {tuple(arr.shape)}")
+    if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: contains NaN or inf")
+    return arr
+
+
+def _fmt_shape(shape: tuple) -> str:
+    return "(" + ", ".join("N" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+
+
+def as_points3d(x, name: str) -> np.ndarray:
+    """(N, 3) float64 array of 3D points."""
+    return as_array(x, name, (None, 3))
+
+
+def as_vector(x, name: str, n: int) -> np.ndarray:
+    """(n,) float64 vector."""
+    return as_array(x, name, (n,))
+
+
+def as_rotation_matrix(R, name: str = "R", atol: float = ROTATION_ATOL) -> np.ndarray:
+    """(3, 3) float64 proper rotation, re-orthonormalised (SVD) after the check.
+
+    Raises:
+        ValueError: when ``R`` is not orthonormal within ``atol`` or its determinant is not +1.
+    """
+    R = as_array(R, name, (3, 3))
+    err = np.abs(R.T @ R - np.eye(3)).max()
+    if err > atol:
+        raise ValueError(f"{name}: not a rotation matrix (max |RᵀR − I| = {err:.3g} > {atol:g})")
+    det = np.linalg.det(R)
+    if det < 0:
+        raise ValueError(f"{name}: a reflection, not a rotation (det = {det:.3f}, expected +1)")
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
+
+
+def as_unit_quat(q, name: str = "q", atol: float = QUAT_NORM_ATOL) -> np.ndarray:
+    """(4,) or (N, 4) quaternion (w, x, y, z), normalised after checking ‖q‖ = 1 within ``atol``."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape[-1:] != (4,) or q.ndim > 2:
+        raise ValueError(f"{name}: expected a quaternion (w, x, y, z) of shape (4,) or (N, 4), got {tuple(q.shape)}")
+    if not np.all(np.isfinite(q)):
+        raise ValueError(f"{name}: contains NaN or inf")
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    bad = np.abs(norm - 1.0) > atol
+    if np.any(bad):
+        raise ValueError(f"{name}: not a unit quaternion (‖q‖ = {float(norm[bad][0]):.6g}, expected 1 ± {atol:g})")
+    return q / norm

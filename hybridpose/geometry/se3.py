@@ -1,0 +1,44 @@
+"""SE(3) exponential and logarithm with tangent ``ξ = [ω (rad), v (m)]`` (gtsam order).
+
+Matches ``gtsam.Pose3.Expmap``/``Logmap``: ``Exp(ξ) = (exp(ω), V(ω)·v)``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .rotations import matrix_to_rotvec, rotvec_to_matrix, skew
+
+
+def _left_jacobian_coeffs(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    small = theta < 1e-4
+    safe = np.where(small, 1.0, theta)
+    t2 = theta * theta
+    b = np.where(small, 0.5 - t2 / 24, (1 - np.cos(safe)) / (safe * safe))
+    c = np.where(small, 1.0 / 6 - t2 / 120, (safe - np.sin(safe)) / (safe**3))
+    return b, c
+
+
+def so3_left_jacobian(omega: np.ndarray) -> np.ndarray:
+    """``V(ω) = I + b·[ω]× + c·[ω]×²`` for (..., 3) ω; maps v to the translation of ``Exp``."""
+    omega = np.asarray(omega, dtype=np.float64)
+    theta = np.linalg.norm(omega, axis=-1)[..., None, None]
+    b, c = _left_jacobian_coeffs(theta)
+    W = skew(omega)
+    return np.eye(3) + b * W + c * (W @ W)
+
+
+def se3_exp(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., 6) tangent ``[ω, v]`` → rotation (..., 3, 3) and translation (..., 3) in metres."""
+    xi = np.asarray(xi, dtype=np.float64)
+    omega, v = xi[..., :3], xi[..., 3:]
+    R = rotvec_to_matrix(omega)
+    t = np.einsum("...ij,...j->...i", so3_left_jacobian(omega), v)
+    return R, t
+
+
+def se3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`se3_exp`: (..., 3, 3), (..., 3) → (..., 6) ``[ω, v]``."""
+    omega = matrix_to_rotvec(R)
+    V = so3_left_jacobian(omega)
+    v = np.linalg.solve(V, np.asarray(t, dtype=np.float64)[..., None])[..., 0]
+    return np.concatenate([omega, v], -1)

@@ -1,0 +1,120 @@
+"""``ObjectModel``: the CAD model of the tracked object, in metres, in its own object frame."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import trimesh
+
+SHARP_EDGE_ANGLE_DEG = 30.0
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectModel:
+    """A rigid object known by its mesh.
+
+    Attributes:
+        name: identifier (e.g. ``"truss"`` or the file stem).
+        mesh: ``trimesh.Trimesh`` in metres, object frame (the frame ``T_cam_obj`` refers to).
+        keypoints: (K, 3) float64 3D keypoints in metres (corners / extremal points), for keypoint
+            CNNs and PnP. Computed by :func:`default_keypoints` when not given.
+        symmetric: True when some rotation maps the object onto itself (use ADD-S, not ADD).
+    """
+
+    name: str
+    mesh: trimesh.Trimesh
+    keypoints: np.ndarray = field(default=None)
+    symmetric: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.mesh, trimesh.Trimesh) or len(self.mesh.faces) == 0:
+            raise ValueError(f"mesh: expected a non-empty trimesh.Trimesh, got {type(self.mesh).__name__}")
+        kp = default_keypoints(self.mesh) if self.keypoints is None else np.asarray(self.keypoints, np.float64)
+        if kp.ndim != 2 or kp.shape[1] != 3:
+            raise ValueError(f"keypoints: expected (K, 3) metres, got shape {kp.shape}")
+        kp = kp.copy()
+        kp.flags.writeable = False
+        object.__setattr__(self, "keypoints", kp)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(N, 3) float64 mesh vertices, metres."""
+        return np.asarray(self.mesh.vertices, dtype=np.float64)
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(M, 3) int64 triangle vertex indices."""
+        return np.asarray(self.mesh.faces, dtype=np.int64)
+
+    @cached_property
+    def sharp_edges(self) -> np.ndarray:
+        """(E, 2, 3) float64 segments (metres) where adjacent faces meet at more than
+        ``SHARP_EDGE_ANGLE_DEG``, plus open boundary edges: the edges an edge tracker can see."""
+        return sharp_edges(self.mesh, SHARP_EDGE_ANGLE_DEG)
+
+    @cached_property
+    def diameter(self) -> float:
+        """Largest distance between two points of the model, metres (BOP's diameter)."""
+        hull = np.asarray(self.mesh.convex_hull.vertices)
+        d = hull[:, None, :] - hull[None, :, :]
+        return float(np.sqrt((d**2).sum(-1)).max())
+
+    @property
+    def bbox_min(self) -> np.ndarray:
+        return np.asarray(self.mesh.bounds[0], dtype=np.float64)
+
+    @property
+    def bbox_max(self) -> np.ndarray:
+        return np.asarray(self.mesh.bounds[1], dtype=np.float64)
+
+    @property
+    def extents(self) -> np.ndarray:
+        """(3,) size of the axis-aligned bounding box, metres."""
+        return self.bbox_max - self.bbox_min
+
+    @property
+    def bbox_corners(self) -> np.ndarray:
+        """(8, 3) corners of the axis-aligned bounding box, metres."""
+        lo, hi = self.bbox_min, self.bbox_max
+        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+    @cached_property
+    def center(self) -> np.ndarray:
+        """(3,) centre of the bounding box, metres."""
+        return 0.5 * (self.bbox_min + self.bbox_max)
+
+    def sample_surface(self, count: int, rng: np.random.Generator | int | None = 0) -> np.ndarray:
+        """(count, 3) points uniformly on the surface (for ADD / ADD-S), seeded."""
+        seed = int(np.random.default_rng(rng).integers(2**31))
+        pts, _ = trimesh.sample.sample_surface(self.mesh, count, seed=seed)
+        return np.asarray(pts, dtype=np.float64)
+
+
+def sharp_edges(mesh: trimesh.Trimesh, angle_deg: float = SHARP_EDGE_ANGLE_DEG) -> np.ndarray:
+    """(E, 2, 3) segments of a mesh's crease and boundary edges."""
+    idx = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(angle_deg)]
+    edges_sorted = np.sort(mesh.edges, axis=1)
+    uniq, counts = np.unique(edges_sorted, axis=0, return_counts=True)
+    boundary = uniq[counts == 1]
+    all_idx = np.concatenate([idx.reshape(-1, 2), boundary.reshape(-1, 2)], 0)
+    return np.asarray(mesh.vertices, dtype=np.float64)[all_idx]
+
+
+def default_keypoints(mesh: trimesh.Trimesh, count: int = 12) -> np.ndarray:
+    """(count, 3) well-spread extremal points: hull vertices nearest the 8 bounding-box corners,
+    then farthest-point sampling over the remaining hull vertices."""
+    hull = np.asarray(mesh.convex_hull.vertices, dtype=np.float64)
+    lo, hi = mesh.bounds
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    chosen: list[int] = []
+    for c in corners:
+        i = int(np.argmin(np.linalg.norm(hull - c, axis=1)))
+        if i not in chosen:
+            chosen.append(i)
+    dist = np.min(np.linalg.norm(hull[:, None] - hull[chosen][None], axis=2), axis=1)
+    while len(chosen) < min(count, len(hull)):
+        i = int(np.argmax(dist))
+        chosen.append(i)
+        dist = np.minimum(dist, np.linalg.norm(hull - hull[i], axis=1))
+    return hull[chosen[:count]]

@@ -1,0 +1,75 @@
+"""Load an :class:`ObjectModel` by built-in name or from a mesh file (anything trimesh reads)."""
+from __future__ import annotations
+
+import logging
+import warnings
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .. import registry
+from .base import ObjectModel
+
+log = logging.getLogger(__name__)
+
+# A rigid object that a monocular camera tracks at arm's reach is centimetres to metres across;
+# outside these bounds the file is almost surely in other units.
+MAX_PLAUSIBLE_DIAMETER_M = 5.0
+MIN_PLAUSIBLE_DIAMETER_M = 0.005
+
+
+def load_object(name_or_path, scale: float = 1.0, name: str | None = None) -> ObjectModel:
+    """A built-in object (``"truss"``) or a mesh file (.obj, .ply, .stl, ...).
+
+    Args:
+        name_or_path: registered object name or path to a mesh file.
+        scale: multiplies the file's coordinates to get metres (``0.001`` for a file in mm).
+        name: model name; defaults to the registered name or the file stem.
+    Raises:
+        FileNotFoundError: neither a built-in name nor an existing file.
+        ValueError: unreadable file, empty mesh, or non-positive ``scale``.
+    Warns:
+        UserWarning: when the diameter suggests the file is not in metres.
+    """
+    if not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"scale: expected a positive factor to metres (e.g. 0.001 for mm), got {scale}")
+    key = str(name_or_path)
+    if key in registry.available("object"):
+        model = registry.create("object", key)
+        if scale != 1.0:
+            mesh = model.mesh.copy()
+            mesh.apply_scale(scale)
+            model = ObjectModel(name or model.name, mesh, symmetric=model.symmetric)
+        return model
+    path = Path(key)
+    if not path.exists():
+        raise FileNotFoundError(
+            f"object: {key!r} is neither a built-in object ({', '.join(registry.available('object'))}) "
+            "nor an existing mesh file"
+        )
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as exc:  # noqa: BLE001 — any loader error becomes one message naming the file
+        raise ValueError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"{path}: no triangles found; expected a mesh file trimesh can read (.obj, .ply, .stl)")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise ValueError(f"{path}: vertices contain NaN or inf")
+    mesh.apply_scale(scale)
+    model = ObjectModel(name or path.stem, mesh)
+    d = model.diameter
+    if d > MAX_PLAUSIBLE_DIAMETER_M:
+        warnings.warn(
+            f"{path}: diameter {d:.3g} m after scale={scale:g} — the file looks like it is in millimetres; "
+            f"pass scale={scale * 0.001:g}",
+            UserWarning,
+            stacklevel=2,
+        )
+    elif d < MIN_PLAUSIBLE_DIAMETER_M:
+        warnings.warn(
+            f"{path}: diameter {d:.3g} m after scale={scale:g} is tiny — is the file in another unit?",
+            UserWarning,
+            stacklevel=2,
+        )
+    return model

@@ -1,0 +1,259 @@
+"""MuJoCo offscreen renderer: exact pinhole intrinsics, space lighting, arm occluder, masks, depth.
+
+The MuJoCo camera sits at the world origin with ``xyaxes="1 0 0 0 -1 0"``, so the world frame *is*
+the OpenCV camera frame and the object's mocap pose is ``T_cam_obj`` itself. Intrinsics are given
+in pixels (``focalpixel``/``principalpixel``); the alignment with ``cv2.projectPoints`` is tested.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+if os.environ["MUJOCO_GL"] == "egl":
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+from dataclasses import dataclass  # noqa: E402
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..geometry import Camera, Pose, matrix_to_quat_wxyz  # noqa: E402
+from ..objects import ObjectModel  # noqa: E402
+from .lighting import SensorModel, SpaceLighting, earth_background  # noqa: E402
+from .occluder import ArmState  # noqa: E402
+
+_ARM_GROUP = 1
+_NEAR_M = 0.01
+_FAR_M = 50.0
+
+
+@dataclass(frozen=True, eq=False)
+class RenderResult:
+    """One rendered view.
+
+    Attributes:
+        rgb: (H, W, 3) uint8 RGB after lighting, background and sensor effects.
+        depth: (H, W) float32 depth along the optical axis (z), metres; 0 where nothing is hit.
+        mask_visib: (H, W) bool, pixels where the object is visible (not hidden by the arm).
+        mask: (H, W) bool, the object's full silhouette (ignoring the arm).
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    mask_visib: np.ndarray
+    mask: np.ndarray
+
+    @property
+    def visible_fraction(self) -> float:
+        """Visible share of the silhouette, 0..1 (BOP's ``visib_fract``)."""
+        n = int(self.mask.sum())
+        return float(self.mask_visib.sum()) / n if n else 0.0
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{float(x):.9g}" for x in np.ravel(v))
+
+
+def _quat_z_to(axis: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) rotating +z onto ``axis``."""
+    a = axis / np.linalg.norm(axis)
+    z = np.array([0.0, 0.0, 1.0])
+    c = float(np.dot(z, a))
+    if c < -1 + 1e-12:
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    v = np.cross(z, a)
+    q = np.array([1.0 + c, *v])
+    return q / np.linalg.norm(q)
+
+
+def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_size: int = 2048) -> str:
+    """The MJCF scene: camera at the origin, one directional sun, the object and the arm (mocap)."""
+    w, h = camera.width, camera.height
+    # one vertex per face corner: MuJoCo then shades every face flat, as machined metal looks,
+    # instead of averaging normals across the 90° creases of the beams
+    v = obj.vertices[obj.faces].reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    # a directional light in MuJoCo projects its shadow map around its position; we move the
+    # light with the object each frame (see Renderer.render), the clip box spans the arm too.
+    return f"""
+<mujoco model="hybridpose">
+  <compiler angle="radian"/>
+  <option gravity="0 0 0"/>
+  <statistic extent="1" center="0 0 0.7"/>
+  <visual>
+    <global offwidth="{w}" offheight="{h}"/>
+    <quality shadowsize="{shadow_size}" offsamples="4"/>
+    <headlight active="0" ambient="0 0 0" diffuse="0 0 0" specular="0 0 0"/>
+    <map znear="{_NEAR_M}" zfar="{_FAR_M}" shadowclip="0.8" shadowscale="0.6"/>
+    <rgba haze="0 0 0 1"/>
+  </visual>
+  <asset>
+    <mesh name="object" vertex="{_fmt(v)}" face="{_fmt(f)}"/>
+    <material name="object_metal" rgba="0.78 0.78 0.80 1" specular="0.9" shininess="0.7" reflectance="0"/>
+    <material name="arm_paint" rgba="0.85 0.85 0.82 1" specular="0.3" shininess="0.3" reflectance="0"/>
+    <material name="tool_metal" rgba="0.45 0.45 0.48 1" specular="0.8" shininess="0.6" reflectance="0"/>
+  </asset>
+  <worldbody>
+    <camera name="cam" pos="0 0 0" xyaxes="1 0 0 0 -1 0" resolution="{w} {h}" sensorsize="{w * 1e-5:.9g} {h * 1e-5:.9g}"
+            focalpixel="{camera.fx:.9g} {camera.fy:.9g}" principalpixel="{-(camera.cx - (w / 2 - 0.5)):.9g} {-(camera.cy - (h / 2 - 0.5)):.9g}"/>
+    <light name="sun" directional="true" castshadow="true" pos="0 0 -1" dir="{_fmt(lighting.sun_direction_cam)}"
+           diffuse="1 1 1" specular="1 1 1" ambient="0 0 0"/>
+    <body name="object" mocap="true" pos="0 0 1">
+      <geom name="object" type="mesh" mesh="object" material="object_metal" contype="0" conaffinity="0" group="0"/>
+    </body>
+    <body name="arm_upper" mocap="true" pos="0 0 -10">
+      <geom name="arm_upper" type="capsule" size="0.04 0.1" material="arm_paint" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>
+    </body>
+    <body name="arm_fore" mocap="true" pos="0 0 -10">
+      <geom name="arm_fore" type="capsule" size="0.035 0.1" material="arm_paint" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>
+    </body>
+    <body name="arm_tool" mocap="true" pos="0 0 -10">
+      <geom name="arm_tool" type="cylinder" size="0.1 0.015" material="tool_metal" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>
+    </body>
+  </worldbody>
+</mujoco>"""
+
+
+class Renderer:
+    """Render an object at ``T_cam_obj`` as a space camera sees it.
+
+    Args:
+        obj: the object model (metres).
+        camera: intrinsics; every render has ``camera.width × camera.height`` pixels. Distortion
+            is not rendered (MuJoCo is a pinhole); a camera with ``dist`` raises ValueError.
+        lighting: sun direction/intensity, exposure, background.
+        sensor: blur / noise / gamma applied to ``rgb`` (None = ideal sensor).
+        shadow_size: shadow-map resolution (pixels per side).
+    """
+
+    def __init__(
+        self,
+        obj: ObjectModel,
+        camera: Camera,
+        lighting: SpaceLighting | None = None,
+        sensor: SensorModel | None = None,
+        shadow_size: int = 2048,
+    ) -> None:
+        if camera.dist:
+            raise ValueError("camera: the renderer is a pinhole; pass a camera without distortion (dist=())")
+        self.obj, self.camera = obj, camera
+        self.lighting = lighting or SpaceLighting()
+        self.sensor = sensor or SensorModel()
+        self._model = mujoco.MjModel.from_xml_string(scene_xml(obj, camera, self.lighting, shadow_size))
+        self._data = mujoco.MjData(self._model)
+        self._renderer = mujoco.Renderer(self._model, camera.height, camera.width)
+        m = self._model
+        self._object_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+        self._mocap = {n: int(m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)])
+                       for n in ("object", "arm_upper", "arm_fore", "arm_tool")}
+        self._geom = {n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in ("arm_upper", "arm_fore", "arm_tool")}
+        self._light = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, "sun")
+        self._opt_all = mujoco.MjvOption()
+        self._opt_no_arm = mujoco.MjvOption()
+        self._opt_no_arm.geomgroup[_ARM_GROUP] = 0
+        # MuJoCo re-centres a mesh on its centre of mass; the geom frame carries the offset so the
+        # vertices appear where the file puts them. The alignment test checks this end to end.
+
+    def close(self) -> None:
+        self._renderer.close()
+
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- scene state ---------------------------------------------------------------------------
+    def _set_mocap(self, name: str, pos, quat_wxyz) -> None:
+        i = self._mocap[name]
+        self._data.mocap_pos[i] = pos
+        self._data.mocap_quat[i] = quat_wxyz
+
+    def _set_arm(self, arm: ArmState | None) -> None:
+        if arm is None:
+            for name in ("arm_upper", "arm_fore", "arm_tool"):
+                self._set_mocap(name, [0.0, 0.0, -10.0], [1.0, 0.0, 0.0, 0.0])  # behind the camera
+            return
+        for name, cap in zip(("arm_upper", "arm_fore"), arm.links):
+            d = cap.p1 - cap.p0
+            half = 0.5 * float(np.linalg.norm(d))
+            self._model.geom_size[self._geom[name]][:2] = (cap.radius_m, max(half, 1e-4))
+            self._model.geom_rbound[self._geom[name]] = half + cap.radius_m
+            self._set_mocap(name, 0.5 * (cap.p0 + cap.p1), _quat_z_to(d))
+        g = self._geom["arm_tool"]
+        self._model.geom_size[g][:2] = (arm.tool_radius_m, arm.tool_half_thickness_m)
+        self._model.geom_rbound[g] = float(np.hypot(arm.tool_radius_m, arm.tool_half_thickness_m))
+        self._set_mocap("arm_tool", arm.tool_centre, _quat_z_to(arm.tool_axis))
+
+    def _set_sun(self, T_cam_obj: Pose, sun_scale: float) -> None:
+        d = np.asarray(self.lighting.sun_direction_cam)
+        self._model.light_pos[self._light] = T_cam_obj.t - 1.5 * d
+        self._model.light_dir[self._light] = d
+        k = self.lighting.sun_intensity * sun_scale
+        self._model.light_diffuse[self._light] = (k, k, k)
+        s = self.lighting.sun_specular * sun_scale
+        self._model.light_specular[self._light] = (s, s, s)
+
+    def _segment(self, option: mujoco.MjvOption) -> np.ndarray:
+        self._renderer.update_scene(self._data, camera="cam", scene_option=option)
+        self._renderer.enable_segmentation_rendering()
+        try:
+            seg = self._renderer.render()
+        finally:
+            self._renderer.disable_segmentation_rendering()
+        return seg
+
+    # --- rendering -----------------------------------------------------------------------------
+    def render(
+        self,
+        T_cam_obj: Pose,
+        arm: ArmState | None = None,
+        sun_scale: float = 1.0,
+        rng: np.random.Generator | int | None = None,
+    ) -> RenderResult:
+        """Render the object at ``T_cam_obj`` (object → camera, metres).
+
+        Args:
+            T_cam_obj: pose of the object; its origin must be in front of the camera (t_z > 0).
+            arm: arm geometry for this frame (None = no arm in view).
+            sun_scale: multiplies the sun's intensity (0 = eclipse).
+            rng: seed for the background and sensor noise of this frame.
+        """
+        if not isinstance(T_cam_obj, Pose):
+            raise TypeError(f"T_cam_obj: expected a hybridpose Pose, got {type(T_cam_obj).__name__}")
+        if T_cam_obj.t[2] <= _NEAR_M:
+            raise ValueError(f"T_cam_obj: the object is behind the camera (t_z = {T_cam_obj.t[2]:.3f} m; expected > {_NEAR_M} m)")
+        if not np.isfinite(sun_scale) or sun_scale < 0:
+            raise ValueError(f"sun_scale: expected a non-negative factor, got {sun_scale}")
+        rng = np.random.default_rng(rng)
+        self._set_mocap("object", T_cam_obj.t, matrix_to_quat_wxyz(T_cam_obj.R))
+        self._set_arm(arm)
+        self._set_sun(T_cam_obj, sun_scale)
+        mujoco.mj_forward(self._model, self._data)
+
+        r = self._renderer
+        r.update_scene(self._data, camera="cam", scene_option=self._opt_all)
+        rgb = r.render()
+        r.enable_depth_rendering()
+        try:
+            depth = r.render()
+        finally:
+            r.disable_depth_rendering()
+        seg = self._segment(self._opt_all)
+        hit = seg[..., 0] >= 0
+        depth = np.where(hit, depth, 0.0).astype(np.float32)
+        is_obj = (seg[..., 0] == self._object_geom) & (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
+        mask_visib = is_obj
+        if arm is not None and np.any(hit & ~is_obj):
+            seg_full = self._segment(self._opt_no_arm)
+            mask = (seg_full[..., 0] == self._object_geom) & (seg_full[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
+        else:
+            mask = is_obj
+
+        if self.lighting.exposure != 1.0:
+            rgb = np.clip(rgb.astype(np.float32) * self.lighting.exposure, 0, 255).astype(np.uint8)
+        if self.lighting.background == "earth":
+            bg = earth_background(self.camera.width, self.camera.height, rng)
+            rgb = np.where(hit[..., None], rgb, bg)
+        rgb = self.sensor.apply(rgb, rng)
+        return RenderResult(rgb=rgb, depth=depth, mask_visib=mask_visib, mask=mask)

@@ -1,0 +1,132 @@
+"""Object motion relative to the camera: random poses and smooth, seeded trajectories.
+
+Every trajectory maps a time (s) to ``T_cam_obj``; all are registered under the role
+``"trajectory"`` (``hybridpose.registry.available("trajectory")``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import Camera, Pose, random_quat, rotvec_to_matrix
+from ..registry import register
+
+ARM_REACH_M = (0.3, 1.2)
+
+
+def random_poses(
+    count: int,
+    camera: Camera,
+    distance_range_m: tuple[float, float] = ARM_REACH_M,
+    rng: np.random.Generator | int | None = None,
+) -> list[Pose]:
+    """Poses within arm's reach with the object centre inside the image (so at least partly in view).
+
+    Depth uniform in ``distance_range_m`` (metres along the optical axis), object centre uniform
+    over the image, orientation uniform on SO(3).
+    """
+    lo, hi = distance_range_m
+    if not 0 < lo <= hi:
+        raise ValueError(f"distance_range_m: expected 0 < near ≤ far metres, got {distance_range_m}")
+    if count < 0:
+        raise ValueError(f"count: expected ≥ 0, got {count}")
+    rng = np.random.default_rng(rng)
+    z = rng.uniform(lo, hi, count)
+    u = rng.uniform(-0.5, camera.width - 0.5, count)
+    v = rng.uniform(-0.5, camera.height - 0.5, count)
+    q = random_quat(count, rng)
+    x = (u - camera.cx) / camera.fx * z
+    y = (v - camera.cy) / camera.fy * z
+    return [Pose.from_quat_t(q[i], [x[i], y[i], z[i]]) for i in range(count)]
+
+
+def _smoothstep(x: np.ndarray | float) -> np.ndarray | float:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+def _random_axis(rng: np.random.Generator) -> np.ndarray:
+    a = rng.normal(size=3)
+    return a / np.linalg.norm(a)
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """``T_cam_obj(t) = Pose(R_spin(t) · R0, centre(t))`` with a constant body-frame spin.
+
+    Attributes:
+        R0: (3, 3) orientation at t = 0.
+        omega_body: (3,) constant angular velocity in the object frame, rad/s.
+        waypoints_m: (K, 3) object-centre waypoints in the camera frame, passed through with
+            smooth (ease-in/out) timing over ``duration_s``; one row = fixed centre.
+        orbit_rate: rad/s of an additional rotation of the object about the camera's y axis
+            through its centre (a fly-around seen from the camera).
+        duration_s: length of the trajectory, seconds.
+    """
+
+    R0: np.ndarray
+    omega_body: np.ndarray
+    waypoints_m: np.ndarray
+    duration_s: float
+    orbit_rate: float = 0.0
+
+    def pose_at(self, t: float) -> Pose:
+        """``T_cam_obj`` at time ``t`` seconds (clamped to [0, duration_s])."""
+        t = float(np.clip(t, 0.0, self.duration_s))
+        R = rotvec_to_matrix(np.array([0.0, self.orbit_rate * t, 0.0])) @ self.R0 @ rotvec_to_matrix(self.omega_body * t)
+        wp = self.waypoints_m
+        if len(wp) == 1:
+            centre = wp[0]
+        else:
+            # equal time per leg, eased in and out so the centre stops at each waypoint
+            x = t / self.duration_s * (len(wp) - 1)
+            i = min(int(x), len(wp) - 2)
+            centre = wp[i] + _smoothstep(x - i) * (wp[i + 1] - wp[i])
+        return Pose(R, centre)
+
+    def poses(self, timestamps) -> list[Pose]:
+        return [self.pose_at(t) for t in timestamps]
+
+
+def _check_duration(duration_s: float) -> float:
+    if not np.isfinite(duration_s) or duration_s <= 0:
+        raise ValueError(f"duration_s: expected a positive duration in seconds, got {duration_s}")
+    return float(duration_s)
+
+
+@register("trajectory", "tumble")
+def tumble(duration_s: float, rng=None, distance_m: float = 0.6, rate_deg_s: float = 20.0) -> Trajectory:
+    """Object held at ``distance_m`` spinning at a constant ``rate_deg_s`` about a random body axis."""
+    rng = np.random.default_rng(rng)
+    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    centre = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), distance_m])
+    return Trajectory(R0, _random_axis(rng) * np.radians(rate_deg_s), centre[None], _check_duration(duration_s))
+
+
+@register("trajectory", "approach")
+def approach(duration_s: float, rng=None, start_m: float = 1.15, end_m: float = 0.4, rate_deg_s: float = 5.0) -> Trajectory:
+    """Closing in from ``start_m`` to ``end_m`` along the optical axis, slowly rotating (a grasp approach)."""
+    rng = np.random.default_rng(rng)
+    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    off = rng.uniform(-0.05, 0.05, 2)
+    wp = np.array([[off[0], off[1], start_m], [0.3 * off[0], 0.3 * off[1], end_m]])
+    return Trajectory(R0, _random_axis(rng) * np.radians(rate_deg_s), wp, _check_duration(duration_s))
+
+
+@register("trajectory", "fly-around")
+def fly_around(duration_s: float, rng=None, distance_m: float = 0.65, rate_deg_s: float = 15.0) -> Trajectory:
+    """The camera circles the object at ``distance_m``: the object turns about the camera's y axis."""
+    rng = np.random.default_rng(rng)
+    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    centre = np.array([0.0, rng.uniform(-0.03, 0.03), distance_m])
+    return Trajectory(R0, np.zeros(3), centre[None], _check_duration(duration_s), orbit_rate=np.radians(rate_deg_s))
+
+
+@register("trajectory", "distance-sweep")
+def distance_sweep(duration_s: float, rng=None, near_m: float = 0.35, far_m: float = 1.15, rate_deg_s: float = 8.0) -> Trajectory:
+    """Out from ``near_m`` to ``far_m`` and back, slowly rotating: error versus distance."""
+    rng = np.random.default_rng(rng)
+    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    wp = np.array([[0.0, 0.0, near_m], [0.0, 0.0, far_m], [0.0, 0.0, near_m]])
+    return Trajectory(R0, _random_axis(rng) * np.radians(rate_deg_s), wp, _check_duration(duration_s))

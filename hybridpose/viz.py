@@ -1,0 +1,102 @@
+"""Pictures of what the tracker sees: wireframe and axes overlays, contact sheets."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .geometry import Camera, Pose
+from .objects import ObjectModel
+
+_MIN_Z_M = 1e-3
+
+
+def _draw_segments(img: np.ndarray, seg_cam: np.ndarray, camera: Camera, color, thickness: int) -> None:
+    """Draw (E, 2, 3) camera-frame segments, clipped to z > 1 mm."""
+    p0, p1 = seg_cam[:, 0], seg_cam[:, 1]
+    keep = (p0[:, 2] > _MIN_Z_M) | (p1[:, 2] > _MIN_Z_M)
+    p0, p1 = p0[keep], p1[keep]
+    # clip segments that cross the camera plane so that projection stays finite
+    for a, b in ((p0, p1), (p1, p0)):
+        bad = a[:, 2] <= _MIN_Z_M
+        if np.any(bad):
+            s = (_MIN_Z_M - b[bad, 2]) / (a[bad, 2] - b[bad, 2])
+            a[bad] = b[bad] + s[:, None] * (a[bad] - b[bad])
+    if len(p0) == 0:
+        return
+    uv0, uv1 = camera.project_cam(p0), camera.project_cam(p1)
+    shift = 4
+    for a, b in zip(np.round(uv0 * (1 << shift)).astype(np.int64), np.round(uv1 * (1 << shift)).astype(np.int64)):
+        if np.all(np.abs(a) < 2**30) and np.all(np.abs(b) < 2**30):
+            cv2.line(img, tuple(int(x) for x in a), tuple(int(x) for x in b), color, thickness, cv2.LINE_AA, shift)
+
+
+def draw_wireframe(image: np.ndarray, obj: ObjectModel, T_cam_obj: Pose, camera: Camera,
+                   color=(0, 255, 0), thickness: int = 1) -> np.ndarray:
+    """Copy of ``image`` (H, W, 3) uint8 RGB with the model's sharp edges projected at ``T_cam_obj``."""
+    img = camera.check_image(image).copy()
+    edges = obj.sharp_edges
+    seg = (T_cam_obj @ edges.reshape(-1, 3)).reshape(-1, 2, 3)
+    _draw_segments(img, seg, camera, color, thickness)
+    return img
+
+
+def draw_axes(image: np.ndarray, T_cam_obj: Pose, camera: Camera, length_m: float = 0.1, thickness: int = 2) -> np.ndarray:
+    """Copy of ``image`` with the object frame's x (red), y (green), z (blue) axes."""
+    img = camera.check_image(image).copy()
+    o = T_cam_obj.t
+    for axis, color in zip(np.eye(3), ((255, 0, 0), (0, 255, 0), (0, 0, 255))):
+        seg = np.stack([o, T_cam_obj @ (axis * length_m)])[None]
+        _draw_segments(img, seg, camera, color, thickness)
+    return img
+
+
+def draw_mask_contour(image: np.ndarray, mask: np.ndarray, color=(255, 0, 255), thickness: int = 1) -> np.ndarray:
+    """Copy of ``image`` with the outline of a boolean mask."""
+    img = np.ascontiguousarray(image).copy()
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(img, contours, -1, color, thickness)
+    return img
+
+
+def put_label(image: np.ndarray, text: str) -> np.ndarray:
+    img = np.ascontiguousarray(image).copy()
+    for color, th in (((0, 0, 0), 3), ((255, 255, 255), 1)):
+        cv2.putText(img, text, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, color, th, cv2.LINE_AA)
+    return img
+
+
+def contact_sheet(images: list[np.ndarray], columns: int = 4, tile_width: int = 320) -> np.ndarray:
+    """Tile RGB images (resized to ``tile_width``, keeping aspect) into one (H, W, 3) uint8 sheet."""
+    if not images:
+        raise ValueError("images: need at least one image")
+    columns = max(1, min(columns, len(images)))
+    h0, w0 = images[0].shape[:2]
+    tile_h = int(round(h0 * tile_width / w0))
+    tiles = [cv2.resize(im, (tile_width, tile_h), interpolation=cv2.INTER_AREA) for im in images]
+    rows = -(-len(tiles) // columns)
+    sheet = np.full((rows * tile_h + (rows - 1) * 2, columns * tile_width + (columns - 1) * 2, 3), 40, np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, columns)
+        sheet[r * (tile_h + 2): r * (tile_h + 2) + tile_h, c * (tile_width + 2): c * (tile_width + 2) + tile_width] = tile
+    return sheet
+
+
+def silhouette(obj: ObjectModel, T_cam_obj: Pose, camera: Camera, supersample: int = 8) -> np.ndarray:
+    """(H, W) bool silhouette of the projected mesh, sampled at pixel centres.
+
+    Each triangle is filled with ``cv2.fillConvexPoly`` on a grid ``supersample`` times finer and the
+    coverage is thresholded at one half; OpenCV's fill includes every touched pixel, which would
+    otherwise fatten thin beams by about half a pixel on each side.
+    """
+    s = int(supersample)
+    uv = camera.project(obj.vertices, T_cam_obj)
+    uv_hr = (uv + 0.5) * s - 0.5  # pixel centre (u) of the coarse grid → centre of the fine block
+    canvas = np.zeros((camera.height * s, camera.width * s), np.uint8)
+    shift = 4
+    pts = np.round(uv_hr * (1 << shift)).astype(np.int64)
+    for f in obj.faces:
+        tri = pts[f]
+        if np.all(np.abs(tri) < 2**30):
+            cv2.fillConvexPoly(canvas, tri.astype(np.int32), 1, cv2.LINE_8, shift)
+    coverage = canvas.reshape(camera.height, s, camera.width, s).mean(axis=(1, 3))
+    return coverage >= 0.5

@@ -1,0 +1,171 @@
+"""Geometry against independent oracles: scipy Rotation, gtsam Pose3, cv2.projectPoints."""
+import cv2
+import gtsam
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from hybridpose.geometry import (
+    Camera, Pose, matrix_to_quat_wxyz, matrix_to_rotvec, quat_angle_between, quat_multiply, quat_slerp,
+    quat_wxyz_to_matrix, random_quat, rotvec_to_matrix, rotvec_to_quat, se3_exp, se3_log,
+)
+
+N = 3000
+
+
+def xyzw_to_wxyz(q):
+    return np.concatenate([q[..., 3:], q[..., :3]], -1)
+
+
+def edge_case_rotvecs(rng):
+    """Random axes at angles ≈ 0, tiny, ≈ π and exactly π, plus uniform ones."""
+    axes = rng.normal(size=(N, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([
+        np.zeros(50), rng.uniform(0, 1e-7, 200), rng.uniform(1e-7, 1e-3, 200),
+        np.pi - rng.uniform(0, 1e-6, 200), np.full(50, np.pi), rng.uniform(0, np.pi, N - 700),
+    ])
+    return axes * angles[:, None]
+
+
+def test_quat_to_matrix_matches_scipy(rng):
+    q = random_quat(N, rng)
+    q[: N // 2] *= -1  # w < 0 half of the time: same rotation
+    ours = quat_wxyz_to_matrix(q)
+    ref = Rotation.from_quat(np.concatenate([q[:, 1:], q[:, :1]], 1)).as_matrix()
+    np.testing.assert_allclose(ours, ref, atol=1e-12)
+
+
+def test_matrix_to_quat_matches_scipy_including_pi(rng):
+    rv = edge_case_rotvecs(rng)
+    R = Rotation.from_rotvec(rv).as_matrix()
+    ours = matrix_to_quat_wxyz(R)
+    ref = xyzw_to_wxyz(Rotation.from_matrix(R).as_quat())
+    # q and -q are the same rotation; ours is canonical w >= 0
+    dots = np.abs(np.sum(ours * ref, axis=1))
+    np.testing.assert_allclose(dots, 1.0, atol=1e-9)
+    assert np.all(ours[:, 0] >= 0)
+    np.testing.assert_allclose(quat_wxyz_to_matrix(ours), R, atol=1e-12)
+
+
+def test_rotvec_exp_log_match_scipy(rng):
+    rv = edge_case_rotvecs(rng)
+    np.testing.assert_allclose(rotvec_to_matrix(rv), Rotation.from_rotvec(rv).as_matrix(), atol=1e-12)
+    back = matrix_to_rotvec(rotvec_to_matrix(rv))
+    angle = np.linalg.norm(rv, axis=1)
+    ok = angle < np.pi - 1e-5  # at π the axis sign is ambiguous: compare rotations instead
+    np.testing.assert_allclose(back[ok], rv[ok], atol=1e-9)
+    np.testing.assert_allclose(rotvec_to_matrix(back), rotvec_to_matrix(rv), atol=1e-9)
+    q = rotvec_to_quat(rv)
+    np.testing.assert_allclose(np.abs(np.sum(q * xyzw_to_wxyz(Rotation.from_rotvec(rv).as_quat()), 1)), 1, atol=1e-12)
+
+
+def test_quat_multiply_and_angle_match_scipy(rng):
+    a, b = random_quat(N, rng), random_quat(N, rng)
+    ref = Rotation.from_quat(np.roll(a, -1, 1)) * Rotation.from_quat(np.roll(b, -1, 1))
+    np.testing.assert_allclose(quat_wxyz_to_matrix(quat_multiply(a, b)), ref.as_matrix(), atol=1e-12)
+    ang = (Rotation.from_quat(np.roll(a, -1, 1)).inv() * Rotation.from_quat(np.roll(b, -1, 1))).magnitude()
+    np.testing.assert_allclose(quat_angle_between(a, b), ang, atol=1e-9)
+    np.testing.assert_allclose(quat_angle_between(a, -a), 0.0, atol=1e-12)  # sign does not matter
+
+
+def test_slerp_matches_scipy(rng):
+    from scipy.spatial.transform import Slerp
+
+    for _ in range(50):
+        q0, q1 = random_quat(None, rng), random_quat(None, rng)
+        alpha = rng.uniform()
+        ref = Slerp([0, 1], Rotation.from_quat(np.roll(np.stack([q0, q1]), -1, 1)))([alpha]).as_matrix()[0]
+        np.testing.assert_allclose(quat_wxyz_to_matrix(quat_slerp(q0, q1, alpha)), ref, atol=1e-10)
+
+
+def test_se3_exp_log_match_gtsam(rng):
+    edge = edge_case_rotvecs(rng)[::10]
+    xis = np.concatenate([rng.normal(size=(300, 6)), np.hstack([edge, rng.normal(size=edge.shape)])])
+    for xi in xis:
+        R, t = se3_exp(xi)
+        ref = gtsam.Pose3.Expmap(xi)
+        np.testing.assert_allclose(R, ref.rotation().matrix(), atol=1e-9)
+        np.testing.assert_allclose(t, ref.translation(), atol=1e-9)
+        if np.linalg.norm(xi[:3]) < np.pi - 1e-3:
+            np.testing.assert_allclose(se3_log(R, t), gtsam.Pose3.Logmap(ref), atol=1e-8)
+
+
+def test_pose_algebra(rng):
+    for _ in range(200):
+        a = Pose.from_quat_t(random_quat(None, rng), rng.normal(size=3))
+        b = Pose.from_quat_t(random_quat(None, rng), rng.normal(size=3))
+        np.testing.assert_allclose((a @ b).matrix, a.matrix @ b.matrix, atol=1e-12)
+        np.testing.assert_allclose((a @ a.inverse()).matrix, np.eye(4), atol=1e-12)
+        p = rng.normal(size=(5, 3))
+        np.testing.assert_allclose(a @ p, (a.matrix[:3, :3] @ p.T).T + a.t, atol=1e-12)
+        xi = a.local(b)
+        assert a.retract(xi).allclose(b, atol=1e-9)
+        assert Pose.exp(a.log()).allclose(a, atol=1e-9)
+        assert a.interpolate(b, 0.0).allclose(a, atol=1e-12) and a.interpolate(b, 1.0).allclose(b, atol=1e-9)
+
+
+def test_pose_is_immutable():
+    p = Pose.identity()
+    with pytest.raises(ValueError):
+        p.t[0] = 1.0
+    with pytest.raises(Exception):
+        p.R = np.eye(3)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 1e-3),
+       st.lists(st.floats(-5, 5, allow_nan=False), min_size=3, max_size=3))
+def test_quat_pose_round_trip(qv, t):
+    q = np.asarray(qv) / np.linalg.norm(qv)
+    p = Pose.from_quat_t(q, t)
+    q2 = p.quat_wxyz
+    assert abs(abs(np.dot(q, q2)) - 1) < 1e-9 and q2[0] >= 0
+    assert Pose.from_quat_t(q2, p.t).allclose(p, atol=1e-12)
+    assert Pose.exp(p.log()).allclose(p, atol=1e-8)
+
+
+@pytest.mark.parametrize("dist", [(), (0.1, -0.05, 0.001, -0.002, 0.01)])
+def test_camera_project_matches_cv2(rng, dist):
+    cam = Camera(640, 480, 610.0, 590.0, 322.3, 237.9, dist)
+    for _ in range(100):
+        pose = Pose.from_quat_t(random_quat(None, rng), [rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.4, 1.2)])
+        pts = rng.uniform(-0.2, 0.2, size=(20, 3))
+        ref, _ = cv2.projectPoints(pts, cv2.Rodrigues(pose.R)[0], pose.t, cam.K, np.array(dist) if dist else None)
+        np.testing.assert_allclose(cam.project(pts, pose), ref.reshape(-1, 2), atol=1e-6)
+
+
+def test_camera_scaled_keeps_fov_and_pixel_centres():
+    cam = Camera.default()
+    assert abs(cam.hfov_deg - 56.14) < 0.01
+    s = cam.scaled(224)
+    assert (s.width, s.height) == (224, 224)
+    assert abs(s.hfov_deg - cam.hfov_deg) < 1e-9 and abs(s.vfov_deg - cam.vfov_deg) < 1e-9
+    assert (s.cx, s.cy) == (111.5, 111.5)
+    # a point projects to the same relative image position at both resolutions
+    pose = Pose.from_rotvec_t([0.1, 0.2, 0.3], [0.05, -0.02, 0.7])
+    uv, uv_s = cam.project([[0.1, 0.0, 0.0]], pose), s.project([[0.1, 0.0, 0.0]], pose)
+    np.testing.assert_allclose((uv_s + 0.5) / [224, 224], (uv + 0.5) / [640, 480], atol=1e-12)
+    assert cam.scaled("1280x960").fx == 1200
+    assert Camera.from_fov(640, 480, cam.hfov_deg).fx == pytest.approx(600.0)
+    assert Camera.from_K(cam.K.ravel().tolist(), 640, 480) == cam
+    assert Camera.from_dict(cam.to_dict()) == cam
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: Pose(np.diag([1.0, 1.0, -1.0]), np.zeros(3)), "reflection"),
+    (lambda: Pose(np.ones((3, 3)), np.zeros(3)), "not a rotation"),
+    (lambda: Pose(np.eye(3), [0, 0]), r"t: expected shape \(3,\)"),
+    (lambda: Pose(np.eye(3), [0, np.nan, 1]), "NaN"),
+    (lambda: Pose.from_quat_t([1, 0.1, 0, 0], [0, 0, 1]), "not a unit quaternion"),
+    (lambda: Camera(640, 480, 0.0, 600, 319.5, 239.5), "fx: expected a positive focal length"),
+    (lambda: Camera(640, 0, 600, 600, 319.5, 239.5), "height"),
+    (lambda: Camera.default().project([[0, 0, 0.1]], Pose.from_rotvec_t([0, 0, 0], [0, 0, -1])), "behind the camera"),
+    (lambda: Camera.default().project(np.zeros(3), Pose.identity()), r"points_obj: expected shape \(N, 3\)"),
+    (lambda: Camera.default().scaled("abc"), "size"),
+])
+def test_bad_input_names_the_argument(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()

@@ -1,0 +1,74 @@
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from hybridpose import registry
+from hybridpose.objects import ObjectModel, load_object
+
+
+def test_truss_dimensions_and_mesh(truss):
+    np.testing.assert_allclose(truss.extents, [0.38, 0.20, 0.05], atol=1e-9)
+    assert truss.mesh.is_watertight
+    assert 0.42 < truss.diameter < 0.44
+    np.testing.assert_allclose(truss.center, 0, atol=1e-12)
+    assert truss.keypoints.shape == (12, 3)
+    assert len(truss.sharp_edges) > 100 and truss.sharp_edges.shape[1:] == (2, 3)
+    assert not truss.symmetric
+
+
+def test_truss_is_asymmetric(truss):
+    """No proper rotation about the centre maps the truss onto itself: every candidate symmetry of a
+    box-like shape (the 24 axis permutations) and random rotations leave ≥ 5 mm Chamfer distance."""
+    pts = truss.sample_surface(4000, rng=0) - truss.center
+    tree = cKDTree(pts)
+    candidates = [r for r in Rotation.create_group("O").as_matrix() if not np.allclose(r, np.eye(3))]
+    candidates += list(Rotation.random(200, random_state=0).as_matrix())
+    for R in candidates:
+        moved = pts @ R.T
+        d = 0.5 * (tree.query(moved)[0].mean() + cKDTree(moved).query(pts)[0].mean())
+        assert d > 0.005, f"near-symmetry under rotation {Rotation.from_matrix(R).as_rotvec()}"
+
+
+def test_registry_lists_truss():
+    assert "truss" in registry.available("object")
+    with pytest.raises(ValueError, match="unknown object 'nope'; available: truss"):
+        registry.create("object", "nope")
+
+
+@pytest.mark.parametrize("ext", ["obj", "ply", "stl"])
+def test_load_object_from_file(tmp_path, truss, ext):
+    path = tmp_path / f"part.{ext}"
+    truss.mesh.export(path)
+    m = load_object(path)
+    assert m.name == "part"
+    assert abs(m.diameter - truss.diameter) < 1e-6
+
+
+def test_load_object_in_mm_warns_and_scale_fixes(tmp_path, truss):
+    mesh = truss.mesh.copy()
+    mesh.apply_scale(1000.0)
+    path = tmp_path / "mm.stl"
+    mesh.export(path)
+    with pytest.warns(UserWarning, match="scale=0.001"):
+        load_object(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m = load_object(path, scale=0.001)
+    assert abs(m.diameter - truss.diameter) < 1e-6
+
+
+def test_load_object_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="neither a built-in object"):
+        load_object(tmp_path / "missing.obj")
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat garbage\n\x00\x01")
+    with pytest.raises(ValueError, match="bad.ply"):
+        load_object(bad)
+    with pytest.raises(ValueError, match="scale"):
+        load_object("truss", scale=0)
+    with pytest.raises(ValueError, match="mesh"):
+        ObjectModel("empty", trimesh.Trimesh())

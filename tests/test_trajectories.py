@@ -1,0 +1,64 @@
+import numpy as np
+import pytest
+
+from hybridpose import registry
+from hybridpose.geometry import Camera
+from hybridpose.metrics import rotation_error_deg
+from hybridpose.render import random_poses
+from hybridpose.render.sequences import SequenceSpec, make_sequence, occlusion_schedule, sun_schedule
+
+
+def test_random_poses_in_reach_and_in_view():
+    cam = Camera.default()
+    poses = random_poses(2000, cam, (0.3, 1.2), rng=0)
+    z = np.array([p.t[2] for p in poses])
+    assert z.min() >= 0.3 and z.max() <= 1.2 and z.std() > 0.2
+    uv = np.array([cam.project_cam(p.t[None])[0] for p in poses])
+    assert np.all((uv > -0.5) & (uv < [cam.width - 0.5, cam.height - 0.5]))
+    again = random_poses(2000, cam, (0.3, 1.2), rng=0)
+    assert all(a.allclose(b) for a, b in zip(again, poses))
+
+
+@pytest.mark.parametrize("name", ["tumble", "approach", "fly-around", "distance-sweep"])
+def test_trajectories_smooth_and_seeded(name):
+    fps, dur = 30.0, 6.0
+    traj = registry.create("trajectory", name, duration_s=dur, rng=3)
+    ts = np.arange(0, dur, 1 / fps)
+    poses = traj.poses(ts)
+    steps_deg = [rotation_error_deg(a, b) for a, b in zip(poses, poses[1:])]
+    steps_m = [np.linalg.norm(a.t - b.t) for a, b in zip(poses, poses[1:])]
+    assert max(steps_deg) < 1.0 and max(steps_m) < 0.5 / fps  # < 30 °/s, < 0.5 m/s
+    z = np.array([p.t[2] for p in poses])
+    assert z.min() >= 0.3 and z.max() <= 1.2
+    again = registry.create("trajectory", name, duration_s=dur, rng=3).poses(ts)
+    assert all(a.allclose(b) for a, b in zip(poses, again))
+
+
+def test_tumble_has_constant_angular_velocity():
+    traj = registry.create("trajectory", "tumble", duration_s=4.0, rng=1, rate_deg_s=30.0)
+    poses = traj.poses(np.arange(0, 4.0, 0.1))
+    rel = [np.degrees(a.local(b)[:3]) for a, b in zip(poses, poses[1:])]  # body-frame increments
+    np.testing.assert_allclose(rel, np.repeat(rel[:1], len(rel), 0), atol=1e-9)
+    assert abs(np.linalg.norm(rel[0]) - 3.0) < 1e-9
+
+
+def test_sequence_occlusion_schedule(truss):
+    spec = SequenceSpec("tumble", frames=90, fps=30, occlusion="arm", seed=0)
+    frames = make_sequence(spec, truss, Camera.default())
+    kinds = [f.occlusion for f in frames]
+    assert kinds[0] == "none" and "partial" in kinds and "full" in kinds
+    assert all((f.arm is None) == (f.occlusion == "none") for f in frames)
+    assert [f.timestamp for f in frames[:3]] == [0.0, 1 / 30, 2 / 30]
+    assert len(occlusion_schedule("arm-long", 10.0)) == 1
+    assert sun_schedule("eclipse", 5.0, 10.0) == pytest.approx(0.1) and sun_schedule("eclipse", 0.0, 10.0) == 1.0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(trajectory="spiral", frames=10), "unknown trajectory 'spiral'"),
+    (dict(trajectory="tumble", frames=0), "frames"),
+    (dict(trajectory="tumble", frames=10, occlusion="cloud"), "occlusion"),
+    (dict(trajectory="tumble", frames=10, fps=0), "fps"),
+])
+def test_bad_sequence_spec(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        SequenceSpec(**kwargs)

@@ -1,0 +1,150 @@
+"""BOP round trip (mm in files, metres in memory), labels.csv, resume, errors, torch Dataset."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from hybridpose.datasets import BopScene, find_scenes, read_labels, render_random_dataset, render_sequence_dataset
+from hybridpose.datasets.torch_dataset import PoseDataset, split_indices
+from hybridpose.geometry import Camera
+from hybridpose.render import Renderer, random_poses
+from hybridpose.render.sequences import SequenceSpec
+
+CAM = Camera.default().scaled("96x72")
+
+
+@pytest.fixture(scope="module")
+def random_ds(truss, tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds") / "rand"
+    render_random_dataset(out, truss, CAM, count=10, seed=4)
+    return out
+
+
+def test_bop_files_are_in_mm_and_read_back_in_metres(random_ds, truss):
+    scene_dir = find_scenes(random_ds)[0]
+    assert scene_dir == random_ds / "train" / "000000"
+    raw = json.loads((scene_dir / "scene_gt.json").read_text())
+    poses = random_poses(10, CAM, rng=4)
+    np.testing.assert_allclose(raw["3"][0]["cam_t_m2c"], poses[3].t * 1000, atol=1e-9)
+    np.testing.assert_allclose(raw["3"][0]["cam_R_m2c"], poses[3].R.ravel(), atol=1e-12)
+    scene = BopScene(scene_dir)
+    assert scene.image_ids == list(range(10))
+    gt = scene.image(3)
+    assert gt.pose.allclose(poses[3], atol=1e-9)
+    assert gt.camera == CAM
+    assert scene.rgb(3).shape == (72, 96, 3)
+    assert scene.mask(3).dtype == bool
+    with Renderer(truss, CAM) as r:
+        direct = r.render(poses[3])
+    np.testing.assert_allclose(scene.depth_m(3), direct.depth, atol=0.5e-4)  # 0.1 mm units in the PNG
+    assert np.array_equal(scene.mask(3), direct.mask_visib)
+    info = json.loads((scene_dir / "scene_gt_info.json").read_text())["3"][0]
+    assert 0 <= info["visib_fract"] <= 1 and len(info["bbox_obj"]) == 4
+    models_info = json.loads((random_ds / "models" / "models_info.json").read_text())
+    assert 420 < models_info["1"]["diameter"] < 440  # mm
+
+
+def test_labels_csv(random_ds):
+    labels = read_labels(random_ds / "labels.csv")
+    scene = BopScene(find_scenes(random_ds)[0])
+    assert len(labels) == 10
+    assert labels[2].image == "train/000000/rgb/000002.png" and (random_ds / labels[2].image).is_file()
+    assert labels[2].pose.allclose(scene.image(2).pose, atol=1e-8)
+
+
+def test_interrupted_render_resumes_to_identical_files(truss, tmp_path):
+    full = tmp_path / "full"
+    render_random_dataset(full, truss, CAM, count=6, seed=9)
+
+    part = tmp_path / "part"
+
+    class Stop(Exception):
+        pass
+
+    def interrupt(done, total):
+        if done == 3:
+            raise Stop
+
+    with pytest.raises(Stop):
+        render_random_dataset(part, truss, CAM, count=6, seed=9, progress=interrupt)
+    calls = []
+    render_random_dataset(part, truss, CAM, count=6, seed=9, progress=lambda d, t: calls.append(d))
+    for sub in ("rgb", "mask_visib", "depth"):
+        for f in sorted((full / "train" / "000000" / sub).iterdir()):
+            assert f.read_bytes() == (part / "train" / "000000" / sub / f.name).read_bytes(), f
+    for name in ("scene_gt.json", "scene_gt_info.json", "scene_camera.json"):
+        assert (full / "train/000000" / name).read_text() == (part / "train/000000" / name).read_text()
+    assert not list(part.rglob("*.tmp"))
+    # a finished job re-run renders nothing
+    calls.clear()
+    render_random_dataset(part, truss, CAM, count=6, seed=9, progress=lambda d, t: calls.append(d))
+    assert calls == []
+    with pytest.raises(ValueError, match="differs in: seed"):
+        render_random_dataset(part, truss, CAM, count=6, seed=10)
+
+
+def test_sequence_dataset_has_timestamps_and_occlusion(truss, tmp_path):
+    spec = SequenceSpec("tumble", frames=12, fps=10, occlusion="arm-full", seed=2)
+    scene_dir = render_sequence_dataset(tmp_path / "seq", truss, CAM, spec)
+    meta = json.loads((scene_dir / "scene_meta.json").read_text())
+    assert meta["fps"] == 10 and meta["frames"]["5"]["timestamp_s"] == pytest.approx(0.5)
+    info = json.loads((scene_dir / "scene_gt_info.json").read_text())
+    assert info["6"][0]["visib_fract"] < 0.05 and info["0"][0]["visib_fract"] > 0.99
+
+
+def test_corrupt_files_are_named(random_ds, tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(random_ds, bad)
+    scene_dir = bad / "train" / "000000"
+    (scene_dir / "rgb" / "000001.png").write_bytes((scene_dir / "rgb" / "000001.png").read_bytes()[:50])
+    with pytest.raises(ValueError, match="000001.png: corrupt"):
+        BopScene(scene_dir).rgb(1)
+    (scene_dir / "scene_gt.json").write_text('{"0": [{"cam_R_m2c": [1, 0')
+    with pytest.raises(ValueError, match="scene_gt.json: corrupt or truncated"):
+        BopScene(scene_dir)
+    with pytest.raises(FileNotFoundError, match="no BOP scene"):
+        find_scenes(tmp_path / "bad" / "models")
+    lab = tmp_path / "labels.csv"
+    lab.write_text("image,tx,ty,tz,qw,qx,qy,qz\na.png,0,0,1,1,0.2,0,0\n")
+    with pytest.raises(ValueError, match="line 2: quaternion .* norm 1.0198"):
+        read_labels(lab)
+    lab.write_text("image,tx,ty,tz,qw,qx,qy,qz\n")
+    with pytest.raises(ValueError, match="empty dataset"):
+        read_labels(lab)
+
+
+def test_torch_dataset_full_and_crop(random_ds):
+    ds = PoseDataset(random_ds, size=64)
+    item = ds[0]
+    assert item["image"].shape == (3, 64, 64) and item["image"].dtype == torch.float32
+    assert 0 <= item["image"].min() and item["image"].max() <= 1
+    assert torch.allclose(torch.linalg.norm(item["q"]), torch.tensor(1.0))
+    crops = PoseDataset(random_ds, size=48, crop=True)
+    scene = BopScene(find_scenes(random_ds)[0])
+    for k in range(len(crops)):
+        it = crops[k]
+        pose = scene.image(k).pose
+        # the object's projected centre (via the crop's K) lies inside the crop
+        p = it["K"].double().numpy() @ pose.t
+        u, v = p[:2] / p[2]
+        assert -1 <= u <= 48 and -1 <= v <= 48
+        # the crop's K is the full K mapped by the crop: check with a model vertex
+        gt_K = scene.image(k).camera.K
+        vert = pose @ np.array([0.19, 0.1, 0.025])
+        uv_full = (gt_K @ vert)[:2] / vert[2]
+        cx, cy, side = it["crop"].double().numpy()
+        expect = (uv_full - [cx, cy]) * 48 / side + 23.5
+        got = (it["K"].double().numpy() @ vert)[:2] / vert[2]
+        np.testing.assert_allclose(got, expect, atol=1e-3)
+
+
+def test_split_is_seeded_80_20():
+    tr, va = split_indices(100, 0.2, seed=1)
+    assert len(tr) == 80 and len(va) == 20 and not set(tr) & set(va)
+    tr2, va2 = split_indices(100, 0.2, seed=1)
+    assert np.array_equal(va, va2)
+    assert not np.array_equal(va, split_indices(100, 0.2, seed=2)[1])
+    with pytest.raises(ValueError, match="n: need at least 2"):
+        split_indices(1)

@@ -1,0 +1,59 @@
+"""Metrics against independent computations (scipy Rotation, brute force, numerical integration)."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from hybridpose.geometry import Pose, random_quat
+from hybridpose.metrics import add, add_recall, adds, auc, rotation_error_deg, speed_score, translation_error_m
+
+
+def random_pose(rng):
+    return Pose.from_quat_t(random_quat(None, rng), rng.uniform(-0.3, 0.3, 3) + [0, 0, 0.8])
+
+
+def test_rotation_error_matches_scipy(rng):
+    for _ in range(500):
+        a, b = random_pose(rng), random_pose(rng)
+        ref = np.degrees((Rotation.from_matrix(a.R).inv() * Rotation.from_matrix(b.R)).magnitude())
+        assert rotation_error_deg(a, b) == pytest.approx(ref, abs=1e-8)
+    p = random_pose(rng)
+    assert rotation_error_deg(p, p) == 0.0
+    small = p.retract([1e-7, 0, 0, 0, 0, 0])
+    assert rotation_error_deg(p, small) == pytest.approx(np.degrees(1e-7), rel=1e-6)
+
+
+def test_translation_and_speed(rng):
+    a = Pose.from_rotvec_t([0, 0, 0], [0.0, 0.0, 1.0])
+    b = Pose.from_rotvec_t([0, 0, np.radians(10)], [0.03, 0.04, 1.0])
+    assert translation_error_m(b, a) == pytest.approx(0.05)
+    assert speed_score(b, a) == pytest.approx(np.radians(10) + 0.05 / 1.0)
+
+
+def test_add_and_adds_against_brute_force(rng, truss):
+    pts = truss.sample_surface(300, rng=1)
+    for _ in range(20):
+        est, gt = random_pose(rng), random_pose(rng)
+        pe = [est.R @ p + est.t for p in pts]
+        pg = [gt.R @ p + gt.t for p in pts]
+        assert add(est, gt, pts) == pytest.approx(np.mean([np.linalg.norm(a - b) for a, b in zip(pe, pg)]))
+        brute = np.mean([min(np.linalg.norm(g - e) for e in pe) for g in pg])
+        assert adds(est, gt, pts) == pytest.approx(brute)
+        assert adds(est, gt, pts) <= add(est, gt, pts) + 1e-12
+
+
+def test_auc_matches_numerical_integration(rng):
+    e = rng.exponential(0.03, 200)
+    thr = np.linspace(0, 0.1, 200001)
+    acc = (e[None, :] <= thr[:, None]).mean(1)
+    assert auc(e, 0.1) == pytest.approx(np.trapezoid(acc, thr) / 0.1, abs=1e-4)
+    assert auc([0.0, 0.0], 0.1) == 1.0 and auc([0.2], 0.1) == 0.0
+    assert add_recall([0.01, 0.05, 0.03], diameter_m=0.4) == pytest.approx(2 / 3)
+
+
+def test_metric_bad_input():
+    with pytest.raises(ValueError, match="est: expected a Pose or a"):
+        rotation_error_deg(np.eye(4), np.eye(3))
+    with pytest.raises(ValueError, match="errors: empty"):
+        auc([], 0.1)
+    with pytest.raises(ValueError, match="points_obj"):
+        add(Pose.identity(), Pose.identity(), np.zeros(3))

@@ -1,0 +1,52 @@
+import numpy as np
+import pytest
+
+from hybridpose import Estimate, Frame, Measurement, registry
+from hybridpose.geometry import Camera, Pose
+
+
+def test_available_and_create():
+    assert set(registry.available("trajectory")) >= {"tumble", "approach", "fly-around", "distance-sweep"}
+    with pytest.raises(ValueError, match="role: expected one of"):
+        registry.available("planner")
+
+
+def test_entry_point_plugins_are_loaded(monkeypatch):
+    class EP:
+        name, value = "my-object", "somewhere:factory"
+
+        def load(self):
+            return lambda: "plugin!"
+
+    monkeypatch.setattr(registry, "entry_points", lambda group: [EP()] if group == "hybridpose.fusion" else [])
+    monkeypatch.setattr(registry, "_loaded", set(registry._loaded) - {"fusion"})
+    monkeypatch.setitem(registry._factories, "fusion", {})
+    assert registry.create("fusion", "my-object") == "plugin!"
+
+
+def test_register_refuses_a_different_factory_under_a_taken_name():
+    @registry.register("fusion", "test-dup")
+    def a():
+        return 1
+
+    with pytest.raises(ValueError, match="already registered"):
+        registry.register("fusion", "test-dup")(lambda: 2)
+    registry._factories["fusion"].pop("test-dup")
+
+
+def test_frame_and_measurement_validate():
+    cam = Camera.default().scaled(32)
+    Frame(np.zeros((32, 32, 3), np.uint8), cam, 0.0)
+    with pytest.raises(ValueError, match="image: expected \\(H, W, 3\\) uint8"):
+        Frame(np.zeros((32, 32, 3), np.float32), cam, 0.0)
+    with pytest.raises(ValueError, match="does not match the camera"):
+        Frame(np.zeros((16, 32, 3), np.uint8), cam, 0.0)
+    Measurement(Pose.identity(), np.eye(6) * 1e-4, 0.9, "tracker:test", 0.0)
+    with pytest.raises(ValueError, match="quality"):
+        Measurement(None, np.eye(6), 1.5, "x", 0.0)
+    with pytest.raises(ValueError, match="covariance: expected shape \\(6, 6\\)"):
+        Measurement(None, np.eye(3), 0.5, "x", 0.0)
+    with pytest.raises(ValueError, match="positive semi-definite"):
+        Measurement(None, -np.eye(6), 0.5, "x", 0.0)
+    with pytest.raises(ValueError, match="status"):
+        Estimate(None, np.eye(6), 0.0, status="happy")

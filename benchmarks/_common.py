@@ -1,0 +1,41 @@
+"""Shared helpers of the benchmark scripts: environment record and RESULTS.md sections."""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+from pathlib import Path
+
+BENCH_DIR = Path(__file__).resolve().parent
+RESULTS_MD = BENCH_DIR / "RESULTS.md"
+
+
+def environment() -> dict:
+    try:
+        git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=BENCH_DIR).stdout.strip()
+    except OSError:
+        git = ""
+    return {"git": git, "python": platform.python_version(), "machine": platform.machine(),
+            "cpus": os.cpu_count(), "processor": platform.processor()}
+
+
+def write_json(name: str, payload: dict) -> Path:
+    path = BENCH_DIR / "results" / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(payload, indent=2))
+    return path
+
+
+def update_results_md(section: str, markdown: str) -> None:
+    """Replace the block between ``<!-- BEGIN section -->`` and ``<!-- END section -->`` (append if absent)."""
+    begin, end = f"<!-- BEGIN {section} -->", f"<!-- END {section} -->"
+    text = RESULTS_MD.read_text() if RESULTS_MD.exists() else "# Benchmark results\n\nEach section is rewritten by the script named in it.\n"
+    block = f"{begin}\n{markdown.strip()}\n{end}"
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        _, tail = rest.split(end, 1)
+        text = head + block + tail
+    else:
+        text = text.rstrip() + "\n\n" + block + "\n"
+    RESULTS_MD.write_text(text)

@@ -74,7 +74,7 @@ def verify_dataset(root, out, frames: int = 12, columns: int = 4, object_name: s
     from .datasets.bop import BopScene
     from .io import read_json, write_image
     from .objects import load_object
-    from .viz import contact_sheet, draw_mask_contour, draw_wireframe, put_label, silhouette
+    from .viz import contact_sheet, draw_mask_contour, draw_wireframe, silhouette
 
     root = Path(root)
     scene = BopScene(find_scenes(root)[0])
@@ -86,7 +86,7 @@ def verify_dataset(root, out, frames: int = 12, columns: int = 4, object_name: s
         raise ValueError(f"{root}: no hybridpose.json; pass the object (name or mesh path) explicitly")
     obj = load_object(name)
     ids = [scene.image_ids[int(round(k))] for k in np.linspace(0, len(scene.image_ids) - 1, min(frames, len(scene)))]
-    tiles, ious = [], []
+    tiles, labels, ious = [], [], []
     for im_id in ids:
         gt = scene.image(im_id)
         img = scene.rgb(im_id)
@@ -97,8 +97,9 @@ def verify_dataset(root, out, frames: int = 12, columns: int = 4, object_name: s
             ious.append(float((sil & mask_full).sum() / union))
         tile = draw_mask_contour(img, scene.mask(im_id, visible=True))
         tile = draw_wireframe(tile, obj, gt.pose, gt.camera, color=(0, 255, 0))
-        tiles.append(put_label(tile, f"#{im_id} z={gt.pose.t[2]:.2f}m vis={gt.visib_fract:.2f}"))
-    write_image(out, contact_sheet(tiles, columns=columns))
+        tiles.append(tile)
+        labels.append(f"#{im_id} z={gt.pose.t[2]:.2f}m vis={gt.visib_fract:.2f}")
+    write_image(out, contact_sheet(tiles, columns=columns, labels=labels))
     stats = {"frames": len(ids), "iou_mean": float(np.mean(ious)) if ious else None,
              "iou_min": float(np.min(ious)) if ious else None}
     return stats

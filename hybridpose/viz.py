@@ -65,14 +65,18 @@ def put_label(image: np.ndarray, text: str) -> np.ndarray:
     return img
 
 
-def contact_sheet(images: list[np.ndarray], columns: int = 4, tile_width: int = 320) -> np.ndarray:
-    """Tile RGB images (resized to ``tile_width``, keeping aspect) into one (H, W, 3) uint8 sheet."""
+def contact_sheet(images: list[np.ndarray], columns: int = 4, tile_width: int = 320,
+                  labels: list[str] | None = None) -> np.ndarray:
+    """Tile RGB images (resized to ``tile_width``, keeping aspect) into one (H, W, 3) uint8 sheet;
+    ``labels`` are written on the tiles after resizing, so they stay legible."""
     if not images:
         raise ValueError("images: need at least one image")
     columns = max(1, min(columns, len(images)))
     h0, w0 = images[0].shape[:2]
     tile_h = int(round(h0 * tile_width / w0))
     tiles = [cv2.resize(im, (tile_width, tile_h), interpolation=cv2.INTER_AREA) for im in images]
+    if labels is not None:
+        tiles = [put_label(t, text) for t, text in zip(tiles, labels)]
     rows = -(-len(tiles) // columns)
     sheet = np.full((rows * tile_h + (rows - 1) * 2, columns * tile_width + (columns - 1) * 2, 3), 40, np.uint8)
     for k, tile in enumerate(tiles):

@@ -1,0 +1,172 @@
+"""The paper's models in plain torch (no torchvision): VGG-16/19 baselines, Branched and Parallel VGG-19.
+
+Layer names follow torchvision's VGG (``features.N``, ``classifier.0/3/6``) so that a local
+torchvision-format ImageNet state dict loads with :func:`load_imagenet_weights`.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from .losses import normalize_quat
+
+log = logging.getLogger(__name__)
+
+CFG = {
+    "vgg16": [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M"],
+    "vgg19": [64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512, 512, 512, "M", 512, 512, 512, 512, "M"],
+}
+FEATURE_DIM = 512 * 7 * 7
+BRANCH_DIM = 1024
+
+
+def make_features(cfg: list) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    c = 3
+    for v in cfg:
+        if v == "M":
+            layers.append(nn.MaxPool2d(2, 2))
+        else:
+            layers += [nn.Conv2d(c, v, 3, padding=1), nn.ReLU(inplace=True)]
+            c = v
+    return nn.Sequential(*layers)
+
+
+def _classifier(in_dim: int, out_dim: int, dropout: float) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Linear(in_dim, 4096), nn.ReLU(True), nn.Dropout(dropout),
+        nn.Linear(4096, 4096), nn.ReLU(True), nn.Dropout(dropout),
+        nn.Linear(4096, out_dim),
+    )
+
+
+def _check_image(x: torch.Tensor, name: str = "image") -> None:
+    if x.ndim != 4 or x.shape[1] != 3:
+        raise ValueError(f"{name}: expected (B, 3, H, W) float images, got {tuple(x.shape)}")
+    if x.shape[2] < 32 or x.shape[3] < 32:
+        raise ValueError(f"{name}: VGG needs at least 32×32 pixels (five 2× poolings), got {x.shape[2]}×{x.shape[3]}")
+
+
+class VGGPose(nn.Module):
+    """VGG baseline: features → 7×7 average pool → FC-4096 → FC-4096 → ``out_dim``.
+
+    ``out_dim`` = 7 gives (t (B, 3) metres, q (B, 4) unit); 3 or 4 give one of them (used by the
+    parallel model). ``freeze_features`` trains the head only, as the paper's baselines did.
+    """
+
+    def __init__(self, arch: str = "vgg19", out_dim: int = 7, dropout: float = 0.5, freeze_features: bool = False) -> None:
+        super().__init__()
+        if arch not in CFG:
+            raise ValueError(f"arch: expected one of {sorted(CFG)}, got {arch!r}")
+        self.arch, self.out_dim = arch, out_dim
+        self.features = make_features(CFG[arch])
+        self.avgpool = nn.AdaptiveAvgPool2d((7, 7))
+        self.classifier = _classifier(FEATURE_DIM, out_dim, dropout)
+        if freeze_features:
+            self.features.requires_grad_(False)
+
+    def embed(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.flatten(self.avgpool(self.features(x)), 1)
+
+    def forward(self, x: torch.Tensor):
+        _check_image(x)
+        return split_output(self.classifier(self.embed(x)), self.out_dim)
+
+
+class BranchedVGG19(VGGPose):
+    """The paper's Branched VGG-19: after the 2nd max-pool a branch → 2×2 max-pool → FC-1024,
+    concatenated with the main stream's features before the first FC.
+
+    ``image_size`` fixes the branch's FC input (128 · (S/8)² for an S×S image; 224 → 100 352).
+    """
+
+    def __init__(self, out_dim: int = 7, image_size: int = 224, dropout: float = 0.5, freeze_features: bool = False) -> None:
+        super().__init__("vgg19", out_dim, dropout, freeze_features)
+        self.image_size = int(image_size)
+        if self.image_size % 32:
+            raise ValueError(f"image_size: expected a multiple of 32 pixels, got {image_size}")
+        self._split = 10  # index just after the 2nd max-pool in features
+        side = self.image_size // 8
+        self.branch = nn.Sequential(nn.MaxPool2d(2, 2), nn.Flatten(), nn.Linear(128 * side * side, BRANCH_DIM), nn.ReLU(True))
+        self.classifier = _classifier(FEATURE_DIM + BRANCH_DIM, out_dim, dropout)
+
+    def forward(self, x: torch.Tensor):
+        _check_image(x)
+        if x.shape[2] != self.image_size or x.shape[3] != self.image_size:
+            raise ValueError(f"image: expected {self.image_size}×{self.image_size} (the branch's FC size), got {x.shape[2]}×{x.shape[3]}")
+        early = self.features[: self._split](x)
+        main = torch.flatten(self.avgpool(self.features[self._split:](early)), 1)
+        return split_output(self.classifier(torch.cat([main, self.branch(early)], 1)), self.out_dim)
+
+
+class ParallelVGG19(nn.Module):
+    """The paper's best model: stream 1 (VGG-19, full image) → translation; stream 2 (Branched
+    VGG-19, object-centred crop, the "bounded image") → quaternion.
+
+    ``forward(image, crop)`` → (t (B, 3) metres, q (B, 4) unit).
+    """
+
+    def __init__(self, image_size: int = 224, dropout: float = 0.5, freeze_features: bool = False) -> None:
+        super().__init__()
+        self.translation = VGGPose("vgg19", 3, dropout, freeze_features)
+        self.rotation = BranchedVGG19(4, image_size, dropout, freeze_features)
+
+    def forward(self, image: torch.Tensor, crop: torch.Tensor | None = None):
+        if crop is None:
+            raise ValueError("crop: the parallel model needs the object-centred crop (the 'bounded image') as second input")
+        return self.translation(image), self.rotation(crop)
+
+
+def split_output(y: torch.Tensor, out_dim: int):
+    """Raw head output → (t, q) for 7, t for 3, q (normalised) for 4."""
+    if out_dim == 7:
+        return y[:, :3], normalize_quat(y[:, 3:])
+    if out_dim == 4:
+        return normalize_quat(y)
+    return y
+
+
+def load_imagenet_weights(model: nn.Module, path) -> list[str]:
+    """Load a local torchvision-format VGG state dict (``features.N.*``, ``classifier.{0,3}.*``).
+
+    Convolutions and the two hidden FC layers are copied; the last FC (1000 classes) is skipped;
+    for a branched model, the first FC gets the ImageNet weights in its main-stream columns.
+    Applied to every VGG stream of a parallel model. Returns the loaded parameter names.
+
+    Raises:
+        FileNotFoundError / ValueError naming ``path`` (missing, unreadable, or not a VGG of the
+        model's depth).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: ImageNet weights file not found")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"{path}: cannot read a torch state dict ({exc})") from exc
+    if isinstance(state, dict) and "state_dict" in state:
+        state = state["state_dict"]
+    streams = [m for m in model.modules() if isinstance(m, VGGPose)]
+    if not streams:
+        raise ValueError("model: no VGG stream to load ImageNet weights into")
+    loaded: list[str] = []
+    with torch.no_grad():
+        for prefix, stream in ((n + "." if n else "", m) for n, m in model.named_modules() if isinstance(m, VGGPose)):
+            own = stream.state_dict()
+            for key, value in state.items():
+                if not (key.startswith("features.") or key.startswith("classifier.0.") or key.startswith("classifier.3.")):
+                    continue
+                if key not in own:
+                    raise ValueError(f"{path}: key {key!r} does not exist in {stream.arch} — is it a VGG of another depth?")
+                target = own[key]
+                if key == "classifier.0.weight" and target.shape[1] > value.shape[1]:
+                    target[:, : value.shape[1]].copy_(value)  # branched: main-stream columns
+                elif target.shape != value.shape:
+                    raise ValueError(f"{path}: {key} has shape {tuple(value.shape)}, the model expects {tuple(target.shape)}")
+                else:
+                    target.copy_(value)
+                loaded.append(prefix + key)
+    return loaded

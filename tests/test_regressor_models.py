@@ -1,0 +1,118 @@
+"""The paper's loss against hand-computed values; the VGG family's shapes and ImageNet key mapping."""
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from hybridpose.regressors import (
+    BranchedVGG19, ParallelVGG19, VGGPose, available_models, build_model, load_imagenet_weights, pose_loss,
+    quat_geodesic_angle,
+)
+
+torch.manual_seed(0)
+
+
+def test_loss_hand_computed():
+    t_true = torch.tensor([[0.0, 0.0, 1.1]])
+    t_pred = torch.tensor([[0.0, 0.0, 1.0]])
+    q_true = torch.tensor([[math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]])  # 90° about z
+    q_pred = torch.tensor([[2.0, 0.0, 0.0, 0.0]])  # identity, not normalised
+    assert pose_loss(t_pred, q_pred, t_true, q_true).item() == pytest.approx(0.1 + 10 * math.pi / 2, rel=1e-6)
+    assert pose_loss(t_pred, q_pred, t_true, -q_true, beta=1.0).item() == pytest.approx(0.1 + math.pi / 2, rel=1e-6)
+    # 350° one way is 10° the other: the shorter way round
+    q350 = torch.tensor([[math.cos(math.radians(175)), math.sin(math.radians(175)), 0.0, 0.0]])
+    assert quat_geodesic_angle(q350, torch.tensor([[1.0, 0, 0, 0]])).item() == pytest.approx(math.radians(10), abs=1e-5)
+
+
+def test_geodesic_angle_matches_scipy_and_has_finite_gradient():
+    rng = np.random.default_rng(0)
+    a, b = Rotation.random(64, random_state=1), Rotation.random(64, random_state=2)
+    qa = torch.tensor(np.roll(a.as_quat(), 1, 1)) * torch.tensor(rng.choice([-1.0, 1.0], (64, 1)))
+    qb = torch.tensor(np.roll(b.as_quat(), 1, 1))
+    np.testing.assert_allclose(quat_geodesic_angle(qa, qb).numpy(), (a.inv() * b).magnitude(), atol=1e-6)
+    q = torch.tensor([[1.0, 0.0, 0.0, 0.0]], requires_grad=True)
+    pose_loss(torch.zeros(1, 3), q, torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]])).backward()
+    assert torch.isfinite(q.grad).all()
+
+
+def test_loss_bad_shapes():
+    with pytest.raises(ValueError, match="q: expected \\(B, 4\\)"):
+        pose_loss(torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(2, 4))
+    with pytest.raises(ValueError, match="t_pred: expected \\(B, 3\\)"):
+        pose_loss(torch.zeros(2, 4), torch.ones(2, 4), torch.zeros(2, 3), torch.ones(2, 4))
+
+
+def test_model_registry():
+    assert available_models() == ["branched-vgg19", "parallel-vgg19", "vgg16", "vgg19"]
+    with pytest.raises(ValueError, match="unknown 'resnet'"):
+        build_model("resnet")
+
+
+@torch.no_grad()
+def test_vgg_shapes_and_unit_quaternions():
+    x = torch.rand(2, 3, 64, 64)
+    for arch, n_conv in (("vgg16", 13), ("vgg19", 16)):
+        m = VGGPose(arch).eval()
+        assert sum(isinstance(l, torch.nn.Conv2d) for l in m.features) == n_conv
+        t, q = m(x)
+        assert t.shape == (2, 3) and q.shape == (2, 4)
+        torch.testing.assert_close(q.norm(dim=1), torch.ones(2))
+    b = BranchedVGG19(image_size=64).eval()
+    assert b.branch[2].in_features == 128 * 8 * 8  # 2nd max-pool at S/4, then 2×2 max-pool
+    t, q = b(x)
+    assert t.shape == (2, 3) and q.shape == (2, 4)
+    with pytest.raises(ValueError, match="expected 64×64"):
+        b(torch.rand(1, 3, 96, 96))
+    p = ParallelVGG19(image_size=64).eval()
+    t, q = p(x, x)
+    assert t.shape == (2, 3) and q.shape == (2, 4)
+    with pytest.raises(ValueError, match="crop"):
+        p(x)
+    with pytest.raises(ValueError, match="image: expected \\(B, 3, H, W\\)"):
+        VGGPose("vgg16")(torch.rand(3, 64, 64))
+
+
+def test_paper_branch_size_at_224():
+    b = BranchedVGG19(image_size=224)
+    assert b.branch[2].in_features == 100352 and b.classifier[0].in_features == 25088 + 1024
+
+
+def test_freeze_features_trains_head_only():
+    m = VGGPose("vgg16", freeze_features=True)
+    assert not any(p.requires_grad for p in m.features.parameters())
+    assert all(p.requires_grad for p in m.classifier.parameters())
+
+
+def test_imagenet_key_mapping(tmp_path):
+    src = VGGPose("vgg16", out_dim=7)
+    state = {k: v.clone() for k, v in src.state_dict().items() if not k.startswith("classifier.0.")}
+    state["classifier.6.weight"] = torch.zeros(1000, 4096)  # ImageNet head: skipped
+    state["classifier.6.bias"] = torch.zeros(1000)
+    path = tmp_path / "vgg16_imagenet.pth"
+    torch.save(state, path)
+    dst = VGGPose("vgg16")
+    loaded = load_imagenet_weights(dst, path)
+    assert "features.0.weight" in loaded and "classifier.3.weight" in loaded and not any("classifier.6" in k for k in loaded)
+    torch.testing.assert_close(dst.features[28].weight, src.features[28].weight)
+    assert not torch.equal(dst.classifier[6].weight[:7], torch.zeros(7, 4096))
+    vgg19 = {k: v for k, v in VGGPose("vgg19").state_dict().items() if k.startswith("features.")}
+    torch.save(vgg19, tmp_path / "vgg19.pth")
+    with pytest.raises(ValueError, match="another depth"):
+        load_imagenet_weights(VGGPose("vgg16"), tmp_path / "vgg19.pth")
+    with pytest.raises(FileNotFoundError, match="missing.pth"):
+        load_imagenet_weights(dst, tmp_path / "missing.pth")
+    (tmp_path / "bad.pth").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="bad.pth: cannot read"):
+        load_imagenet_weights(dst, tmp_path / "bad.pth")
+
+
+@pytest.mark.slow
+def test_imagenet_first_fc_goes_to_main_stream_columns_of_branched(tmp_path):
+    src = VGGPose("vgg19")
+    torch.save({k: v for k, v in src.state_dict().items() if k.startswith(("features.", "classifier.0."))}, tmp_path / "w.pth")
+    p = ParallelVGG19(image_size=64)
+    load_imagenet_weights(p, tmp_path / "w.pth")
+    torch.testing.assert_close(p.rotation.classifier[0].weight[:, :25088], src.classifier[0].weight)
+    torch.testing.assert_close(p.translation.classifier[0].weight, src.classifier[0].weight)

@@ -130,6 +130,16 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_train(args) -> int:
+    import json
+
+    from .regressors.train import config_from_args, train
+
+    best = train(config_from_args(args), resume=args.resume)
+    print(json.dumps(best, indent=2))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import registry
     from .render.lighting import BACKGROUNDS
@@ -170,6 +180,12 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--frames", type=int, default=12)
     v.add_argument("--object", default=None, help="object name or mesh (default: from hybridpose.json)")
     v.set_defaults(func=cmd_verify)
+
+    from .regressors.train import add_train_arguments
+
+    t = sub.add_parser("train", help="train a CNN pose regressor on a rendered dataset (checkpoints, --resume)")
+    add_train_arguments(t)
+    t.set_defaults(func=cmd_train)
 
     d = sub.add_parser("demo", help="render a short arm-occlusion sequence and its verification sheet")
     d.add_argument("--out", default="hybridpose_demo")

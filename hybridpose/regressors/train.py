@@ -1,0 +1,292 @@
+"""Training of the CNN pose regressors: seeded 80/20 split, space-imagery augmentations, atomic
+checkpoints every epoch, ``--resume``, early stop on validation, metrics to CSV/JSON.
+
+``python -m hybridpose.regressors.train --model vgg19 --data data/truss_random --out runs/vgg19``
+(the ``hybridpose train`` command calls :func:`train`).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from ..datasets.torch_dataset import PoseDataset, split_indices
+from ..io import atomic_write_bytes, atomic_write_json, atomic_write_text
+from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
+from .models import available_models, build_model
+from .vgg import load_imagenet_weights
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training run (stored in every checkpoint).
+
+    Attributes:
+        model: name from :func:`available_models`. data: dataset root (BOP, from ``hybridpose render``).
+        out: run directory (``last.pt``, ``best.pt``, ``metrics.csv``, ``history.json``).
+        epochs, batch: epochs and batch size. lr: Adam learning rate. beta: rotation weight of the loss.
+        image_size: network input side, pixels. val_fraction, seed: the seeded split.
+        patience: epochs without validation improvement before stopping (0 = never).
+        augment: photometric augmentations (brightness, contrast, gamma, noise, blur).
+        freeze_features: train the FC head only (the paper's baselines).
+        imagenet_weights: optional local torchvision-format VGG state dict.
+        workers: DataLoader worker processes. device: "auto", "cpu" or "cuda".
+    """
+
+    model: str
+    data: str
+    out: str
+    epochs: int = 100
+    batch: int = 32
+    lr: float = 1e-4
+    beta: float = DEFAULT_BETA
+    image_size: int = 224
+    val_fraction: float = 0.2
+    seed: int = 0
+    patience: int = 10
+    augment: bool = True
+    freeze_features: bool = False
+    imagenet_weights: str | None = None
+    workers: int = 0
+    device: str = "auto"
+    max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
+
+    def __post_init__(self) -> None:
+        if self.model not in available_models():
+            raise ValueError(f"model: unknown {self.model!r}; available: {', '.join(available_models())}")
+        for name in ("epochs", "batch", "image_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected ≥ 1, got {getattr(self, name)}")
+        if self.lr <= 0 or not math.isfinite(self.lr):
+            raise ValueError(f"lr: expected a positive learning rate, got {self.lr}")
+
+
+class _Paired(Dataset):
+    """Full image and object-centred crop of the same sample (the parallel model's two inputs)."""
+
+    def __init__(self, full: PoseDataset, crop: PoseDataset) -> None:
+        self.full, self.crop = full, crop
+
+    def __len__(self) -> int:
+        return len(self.full)
+
+    def __getitem__(self, k: int) -> dict:
+        item = self.full[k]
+        item["crop_image"] = self.crop[k]["image"]
+        return item
+
+
+def make_datasets(cfg: TrainConfig) -> tuple[Dataset, Dataset]:
+    probe = PoseDataset(cfg.data, size=cfg.image_size)
+    train_idx, val_idx = split_indices(len(probe.samples), cfg.val_fraction, cfg.seed)
+
+    def build(idx):
+        full = PoseDataset(cfg.data, size=cfg.image_size, indices=idx)
+        if cfg.model == "parallel-vgg19":
+            return _Paired(full, PoseDataset(cfg.data, size=cfg.image_size, crop=True, indices=idx))
+        return full
+
+    return build(train_idx), build(val_idx)
+
+
+def make_augment():
+    """Photometric augmentations that matter in space imagery (kornia, on (B, 3, H, W) in [0, 1]).
+
+    Geometric ones are left out: a shift or rotation of the image changes the pose label.
+    """
+    import kornia.augmentation as K
+
+    return torch.nn.Sequential(
+        K.ColorJitter(brightness=0.3, contrast=0.3, p=0.8),
+        K.RandomGamma(gamma=(0.6, 1.6), p=0.5),
+        K.RandomGaussianBlur((5, 5), (0.1, 1.5), p=0.3),
+        K.RandomGaussianNoise(mean=0.0, std=0.03, p=0.5),
+    )
+
+
+def _forward(model, batch, device):
+    x = batch["image"].to(device, non_blocking=True)
+    if "crop_image" in batch:
+        return model(x, batch["crop_image"].to(device, non_blocking=True))
+    return model(x)
+
+
+def evaluate(model, loader, device, beta: float) -> dict:
+    """Mean loss, mean/median rotation error (°) and mean translation error (m) over ``loader``."""
+    model.eval()
+    losses, rot, trans = [], [], []
+    with torch.no_grad():
+        for batch in loader:
+            t, q = _forward(model, batch, device)
+            t_true, q_true = batch["t"].to(device), batch["q"].to(device)
+            losses.append(pose_loss(t, q, t_true, q_true, beta).item() * len(t))
+            rot.append(torch.rad2deg(quat_geodesic_angle(q, q_true)).cpu())
+            trans.append((t - t_true).norm(dim=1).cpu())
+    rot_all, trans_all = torch.cat(rot).numpy(), torch.cat(trans).numpy()
+    return {"val_loss": float(np.sum(losses) / len(rot_all)), "rot_mean_deg": float(rot_all.mean()),
+            "rot_median_deg": float(np.median(rot_all)), "trans_mean_m": float(trans_all.mean())}
+
+
+def save_checkpoint(path: Path, payload: dict) -> None:
+    """Atomic ``torch.save`` (temp file + rename): an interrupted write never corrupts a checkpoint."""
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_checkpoint(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"{path}: corrupt or truncated checkpoint ({exc})") from exc
+
+
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
+    """Train ``cfg.model`` on ``cfg.data``; returns the best validation metrics."""
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else
+                          ("cpu" if cfg.device == "auto" else cfg.device))
+    torch.manual_seed(cfg.seed)
+    train_ds, val_ds = make_datasets(cfg)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    train_loader = DataLoader(train_ds, batch_size=cfg.batch, shuffle=True, generator=gen, num_workers=cfg.workers,
+                              drop_last=len(train_ds) > cfg.batch, pin_memory=device.type == "cuda")
+    val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers)
+
+    kw = {"freeze_features": cfg.freeze_features}
+    if cfg.model in ("branched-vgg19", "parallel-vgg19"):
+        kw["image_size"] = cfg.image_size
+    model = build_model(cfg.model, **kw)
+    if cfg.imagenet_weights:
+        load_imagenet_weights(model, cfg.imagenet_weights)
+    else:
+        log.warning("no --imagenet-weights given: training %s from scratch (nothing is downloaded)", cfg.model)
+    model.to(device)
+    optim = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
+    augment = make_augment().to(device) if cfg.augment else None
+
+    start_epoch, best, history, stale = 0, math.inf, [], 0
+    last_path = out / "last.pt"
+    if resume and last_path.exists():
+        ck = load_checkpoint(last_path)
+        if ck["config"]["model"] != cfg.model:
+            raise ValueError(f"{last_path}: checkpoint is for model {ck['config']['model']!r}, not {cfg.model!r}")
+        model.load_state_dict(ck["model"])
+        optim.load_state_dict(ck["optimizer"])
+        torch.set_rng_state(ck["torch_rng"])
+        gen.set_state(ck["loader_rng"])
+        start_epoch, best, history, stale = ck["epoch"] + 1, ck["best"], ck["history"], ck["stale"]
+        log.info("resumed %s at epoch %d", last_path, start_epoch)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
+    for epoch in range(start_epoch, cfg.epochs):
+        model.train()
+        t0, total, n = time.perf_counter(), 0.0, 0
+        for b, batch in enumerate(train_loader):
+            if cfg.max_batches is not None and b >= cfg.max_batches:
+                break
+            if augment is not None:
+                batch["image"] = augment(batch["image"].to(device))
+                if "crop_image" in batch:
+                    batch["crop_image"] = augment(batch["crop_image"].to(device))
+            t, q = _forward(model, batch, device)
+            loss = pose_loss(t, q, batch["t"].to(device), batch["q"].to(device), cfg.beta)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"epoch {epoch} batch {b}: loss is {loss.item()}; lower --lr")
+            optim.zero_grad(set_to_none=True)
+            loss.backward()
+            optim.step()
+            total, n = total + loss.item() * len(t), n + len(t)
+        row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta),
+               "epoch_s": time.perf_counter() - t0}
+        history.append(row)
+        improved = row["val_loss"] < best
+        best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)
+        payload = {"config": asdict(cfg), "model": model.state_dict(), "optimizer": optim.state_dict(),
+                   "epoch": epoch, "best": best, "history": history, "stale": stale,
+                   "torch_rng": torch.get_rng_state(), "loader_rng": gen.get_state()}
+        if improved:
+            save_checkpoint(out / "best.pt", payload)
+        save_checkpoint(last_path, payload)
+        _write_metrics(out, history)
+        if bar:
+            bar.update(1)
+            bar.set_postfix(val_loss=f"{row['val_loss']:.3f}", rot=f"{row['rot_mean_deg']:.1f}°", t=f"{row['trans_mean_m']:.3f}m")
+        if cfg.patience and stale >= cfg.patience:
+            log.info("early stop at epoch %d: no validation improvement for %d epochs", epoch, stale)
+            break
+    if bar:
+        bar.close()
+    best_row = min(history, key=lambda r: r["val_loss"]) if history else {}
+    return best_row
+
+
+def _write_metrics(out: Path, history: list[dict]) -> None:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(history[0]), lineterminator="\n")
+    w.writeheader()
+    w.writerows(history)
+    atomic_write_text(out / "metrics.csv", buf.getvalue())
+    atomic_write_json(out / "history.json", history)
+
+
+def add_train_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, choices=available_models())
+    p.add_argument("--data", required=True, help="dataset root from `hybridpose render --kind random`")
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--epochs", type=int, default=100)
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--beta", type=float, default=DEFAULT_BETA)
+    p.add_argument("--image-size", type=int, default=224)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--patience", type=int, default=10)
+    p.add_argument("--no-augment", action="store_true")
+    p.add_argument("--freeze-features", action="store_true")
+    p.add_argument("--imagenet-weights", default=None, help="local torchvision-format VGG state dict")
+    p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    p.add_argument("--max-batches", type=int, default=None, help="cap batches per epoch (smoke runs)")
+    p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
+
+
+def config_from_args(args) -> TrainConfig:
+    return TrainConfig(model=args.model, data=args.data, out=args.out, epochs=args.epochs, batch=args.batch,
+                       lr=args.lr, beta=args.beta, image_size=args.image_size, seed=args.seed,
+                       patience=args.patience, augment=not args.no_augment, freeze_features=args.freeze_features,
+                       imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
+                       max_batches=args.max_batches)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m hybridpose.regressors.train")
+    add_train_arguments(p)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    best = train(config_from_args(args), resume=args.resume)
+    print(json.dumps(best, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -76,8 +76,7 @@ class ObjectModel:
     @property
     def bbox_corners(self) -> np.ndarray:
         """(8, 3) corners of the axis-aligned bounding box, metres."""
-        lo, hi = self.bbox_min, self.bbox_max
-        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        return box_corners(self.bbox_min, self.bbox_max)
 
     @cached_property
     def center(self) -> np.ndarray:
@@ -89,6 +88,11 @@ class ObjectModel:
         seed = int(np.random.default_rng(rng).integers(2**31))
         pts, _ = trimesh.sample.sample_surface(self.mesh, count, seed=seed)
         return np.asarray(pts, dtype=np.float64)
+
+
+def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(8, 3) corners of the axis-aligned box [lo, hi]."""
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], dtype=np.float64)
 
 
 def sharp_edges(mesh: trimesh.Trimesh, angle_deg: float = SHARP_EDGE_ANGLE_DEG) -> np.ndarray:
@@ -105,8 +109,7 @@ def default_keypoints(mesh: trimesh.Trimesh, count: int = 12) -> np.ndarray:
     """(count, 3) well-spread extremal points: hull vertices nearest the 8 bounding-box corners,
     then farthest-point sampling over the remaining hull vertices."""
     hull = np.asarray(mesh.convex_hull.vertices, dtype=np.float64)
-    lo, hi = mesh.bounds
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    corners = box_corners(*mesh.bounds)
     chosen: list[int] = []
     for c in corners:
         i = int(np.argmin(np.linalg.norm(hull - c, axis=1)))

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .trajectories import smoothstep
+
 COVERAGES = ("partial", "full")
 # tool-disc radius as a multiple of the object's apparent radius at the tool's depth
 _TOOL_RADIUS_FACTOR = {"partial": 0.55, "full": 1.35}
@@ -72,17 +74,12 @@ class OcclusionEvent:
         return None
 
 
-def _smoothstep(x: float) -> float:
-    x = min(max(x, 0.0), 1.0)
-    return x * x * (3 - 2 * x)
-
-
 def insertion(progress: float) -> float:
     """0 (parked beside the view) → 1 (holding in front of the object) → 0, smooth."""
     if progress < _IN_FRACTION:
-        return _smoothstep(progress / _IN_FRACTION)
+        return smoothstep(progress / _IN_FRACTION)
     if progress > 1 - _IN_FRACTION:
-        return _smoothstep((1 - progress) / _IN_FRACTION)
+        return smoothstep((1 - progress) / _IN_FRACTION)
     return 1.0
 
 

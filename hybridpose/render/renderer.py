@@ -23,6 +23,13 @@ from .lighting import SensorModel, SpaceLighting, earth_background  # noqa: E402
 from .occluder import ArmState  # noqa: E402
 
 _ARM_GROUP = 1
+# arm links and tool: (geom/body name, MuJoCo type, initial size, material); sizes are set per frame
+_ARM_PARTS = (
+    ("arm_upper", "capsule", "0.04 0.1", "arm_paint"),
+    ("arm_fore", "capsule", "0.035 0.1", "arm_paint"),
+    ("arm_tool", "cylinder", "0.1 0.015", "tool_metal"),
+)
+_ARM_NAMES = tuple(p[0] for p in _ARM_PARTS)
 _NEAR_M = 0.01
 _FAR_M = 50.0
 
@@ -75,6 +82,12 @@ def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_
     f = np.arange(len(v)).reshape(-1, 3)
     # a directional light in MuJoCo projects its shadow map around its position; we move the
     # light with the object each frame (see Renderer.render), the clip box spans the arm too.
+    arm_bodies = "\n".join(
+        f'    <body name="{name}" mocap="true" pos="0 0 -10">\n'
+        f'      <geom name="{name}" type="{kind}" size="{size}" material="{material}" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>\n'
+        "    </body>"
+        for name, kind, size, material in _ARM_PARTS
+    )
     return f"""
 <mujoco model="hybridpose">
   <compiler angle="radian"/>
@@ -101,15 +114,7 @@ def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_
     <body name="object" mocap="true" pos="0 0 1">
       <geom name="object" type="mesh" mesh="object" material="object_metal" contype="0" conaffinity="0" group="0"/>
     </body>
-    <body name="arm_upper" mocap="true" pos="0 0 -10">
-      <geom name="arm_upper" type="capsule" size="0.04 0.1" material="arm_paint" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>
-    </body>
-    <body name="arm_fore" mocap="true" pos="0 0 -10">
-      <geom name="arm_fore" type="capsule" size="0.035 0.1" material="arm_paint" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>
-    </body>
-    <body name="arm_tool" mocap="true" pos="0 0 -10">
-      <geom name="arm_tool" type="cylinder" size="0.1 0.015" material="tool_metal" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>
-    </body>
+{arm_bodies}
   </worldbody>
 </mujoco>"""
 
@@ -210,8 +215,8 @@ class Renderer:
         m = self._model
         self._object_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
         self._mocap = {n: int(m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)])
-                       for n in ("object", "arm_upper", "arm_fore", "arm_tool")}
-        self._geom = {n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in ("arm_upper", "arm_fore", "arm_tool")}
+                       for n in ("object", *_ARM_NAMES)}
+        self._geom = {n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in _ARM_NAMES}
         self._light = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, "sun")
         self._opt_all = mujoco.MjvOption()
         self._opt_no_arm = mujoco.MjvOption()
@@ -236,7 +241,7 @@ class Renderer:
 
     def _set_arm(self, arm: ArmState | None) -> None:
         if arm is None:
-            for name in ("arm_upper", "arm_fore", "arm_tool"):
+            for name in _ARM_NAMES:
                 self._set_mocap(name, [0.0, 0.0, -10.0], [1.0, 0.0, 0.0, 0.0])  # behind the camera
             return
         for name, cap in zip(("arm_upper", "arm_fore"), arm.links):

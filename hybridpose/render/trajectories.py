@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import Camera, Pose, random_quat, rotvec_to_matrix
+from ..geometry import Camera, Pose, quat_wxyz_to_matrix, random_quat, rotvec_to_matrix
 from ..registry import register
 
 ARM_REACH_M = (0.3, 1.2)
@@ -41,7 +41,8 @@ def random_poses(
     return [Pose.from_quat_t(q[i], [x[i], y[i], z[i]]) for i in range(count)]
 
 
-def _smoothstep(x: np.ndarray | float) -> np.ndarray | float:
+def smoothstep(x: np.ndarray | float) -> np.ndarray | float:
+    """0 → 1 ease-in/out on [0, 1] (zero slope at both ends), clamped outside."""
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3 - 2 * x)
 
@@ -82,7 +83,7 @@ class Trajectory:
             # equal time per leg, eased in and out so the centre stops at each waypoint
             x = t / self.duration_s * (len(wp) - 1)
             i = min(int(x), len(wp) - 2)
-            centre = wp[i] + _smoothstep(x - i) * (wp[i + 1] - wp[i])
+            centre = wp[i] + smoothstep(x - i) * (wp[i + 1] - wp[i])
         return Pose(R, centre)
 
     def poses(self, timestamps) -> list[Pose]:
@@ -99,7 +100,7 @@ def _check_duration(duration_s: float) -> float:
 def tumble(duration_s: float, rng=None, distance_m: float = 0.6, rate_deg_s: float = 20.0) -> Trajectory:
     """Object held at ``distance_m`` spinning at a constant ``rate_deg_s`` about a random body axis."""
     rng = np.random.default_rng(rng)
-    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    R0 = quat_wxyz_to_matrix(random_quat(None, rng))
     centre = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), distance_m])
     return Trajectory(R0, _random_axis(rng) * np.radians(rate_deg_s), centre[None], _check_duration(duration_s))
 
@@ -108,7 +109,7 @@ def tumble(duration_s: float, rng=None, distance_m: float = 0.6, rate_deg_s: flo
 def approach(duration_s: float, rng=None, start_m: float = 1.15, end_m: float = 0.4, rate_deg_s: float = 5.0) -> Trajectory:
     """Closing in from ``start_m`` to ``end_m`` along the optical axis, slowly rotating (a grasp approach)."""
     rng = np.random.default_rng(rng)
-    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    R0 = quat_wxyz_to_matrix(random_quat(None, rng))
     off = rng.uniform(-0.05, 0.05, 2)
     wp = np.array([[off[0], off[1], start_m], [0.3 * off[0], 0.3 * off[1], end_m]])
     return Trajectory(R0, _random_axis(rng) * np.radians(rate_deg_s), wp, _check_duration(duration_s))
@@ -118,7 +119,7 @@ def approach(duration_s: float, rng=None, start_m: float = 1.15, end_m: float = 
 def fly_around(duration_s: float, rng=None, distance_m: float = 0.65, rate_deg_s: float = 15.0) -> Trajectory:
     """The camera circles the object at ``distance_m``: the object turns about the camera's y axis."""
     rng = np.random.default_rng(rng)
-    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    R0 = quat_wxyz_to_matrix(random_quat(None, rng))
     centre = np.array([0.0, rng.uniform(-0.03, 0.03), distance_m])
     return Trajectory(R0, np.zeros(3), centre[None], _check_duration(duration_s), orbit_rate=np.radians(rate_deg_s))
 
@@ -127,6 +128,6 @@ def fly_around(duration_s: float, rng=None, distance_m: float = 0.65, rate_deg_s
 def distance_sweep(duration_s: float, rng=None, near_m: float = 0.35, far_m: float = 1.15, rate_deg_s: float = 8.0) -> Trajectory:
     """Out from ``near_m`` to ``far_m`` and back, slowly rotating: error versus distance."""
     rng = np.random.default_rng(rng)
-    R0 = rotvec_to_matrix(_random_axis(rng) * rng.uniform(0, np.pi))
+    R0 = quat_wxyz_to_matrix(random_quat(None, rng))
     wp = np.array([[0.0, 0.0, near_m], [0.0, 0.0, far_m], [0.0, 0.0, near_m]])
     return Trajectory(R0, _random_axis(rng) * np.radians(rate_deg_s), wp, _check_duration(duration_s))

@@ -72,7 +72,7 @@ def verify_dataset(root, out, frames: int = 12, columns: int = 4, object_name: s
     rendered full mask against the projected mesh silhouette)."""
     from .datasets import find_scenes
     from .datasets.bop import BopScene
-    from .io import read_json, write_image
+    from .io import write_image
     from .objects import load_object
     from .viz import contact_sheet, draw_mask_contour, draw_wireframe, silhouette
 
@@ -80,11 +80,13 @@ def verify_dataset(root, out, frames: int = 12, columns: int = 4, object_name: s
     scene = BopScene(find_scenes(root)[0])
     if not scene.image_ids:
         raise ValueError(f"{root}: the dataset holds no images")
-    config_path = root / "hybridpose.json"
-    name = object_name or (read_json(config_path)["object"] if config_path.exists() else None)
-    if name is None:
-        raise ValueError(f"{root}: no hybridpose.json; pass the object (name or mesh path) explicitly")
-    obj = load_object(name)
+    model_path = root / "models" / "obj_000001.ply"
+    if object_name is not None:
+        obj = load_object(object_name)
+    elif model_path.is_file():
+        obj = load_object(model_path, scale=0.001, name="obj_000001")  # BOP models are in mm
+    else:
+        raise ValueError(f"{root}: no models/obj_000001.ply; pass the object (name or mesh path) explicitly")
     ids = [scene.image_ids[int(round(k))] for k in np.linspace(0, len(scene.image_ids) - 1, min(frames, len(scene)))]
     tiles, labels, ious = [], [], []
     for im_id in ids:
@@ -178,7 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("data", help="dataset root written by `hybridpose render`")
     v.add_argument("--out", default="verify.png")
     v.add_argument("--frames", type=int, default=12)
-    v.add_argument("--object", default=None, help="object name or mesh (default: from hybridpose.json)")
+    v.add_argument("--object", default=None, help="object name or mesh in metres (default: the dataset's models/obj_000001.ply)")
     v.set_defaults(func=cmd_verify)
 
     from .regressors.train import add_train_arguments

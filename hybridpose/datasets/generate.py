@@ -32,7 +32,7 @@ def _check_config(out: Path, config: dict) -> None:
     path = out / CONFIG_FILE
     if path.exists():
         old = read_json(path)
-        diff = sorted(k for k in set(old) | set(config) if old.get(k) != config.get(k) and k != "frames_meta")
+        diff = sorted(k for k in set(old) | set(config) if old.get(k) != config.get(k))
         if diff:
             raise ValueError(
                 f"out: {out} already holds a different dataset (differs in: {', '.join(diff)}); "

@@ -133,13 +133,9 @@ def cmd_demo(args) -> int:
 
 
 def cmd_train(args) -> int:
-    import json
+    from .regressors.train import run
 
-    from .regressors.train import config_from_args, train
-
-    best = train(config_from_args(args), resume=args.resume)
-    print(json.dumps(best, indent=2))
-    return 0
+    return run(args)
 
 
 def build_parser() -> argparse.ArgumentParser:

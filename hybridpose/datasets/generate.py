@@ -28,7 +28,14 @@ CONFIG_FILE = "hybridpose.json"
 CHECKPOINT_EVERY = 25
 
 
-def _check_config(out: Path, config: dict) -> None:
+def _open_job(out: Path, kind: str, obj: ObjectModel, camera: Camera, lighting: SpaceLighting,
+              sensor: SensorModel, **params) -> None:
+    """Record the job's configuration in ``out/hybridpose.json``, or refuse when ``out`` already
+    holds a job with another configuration (a resume must be the same job)."""
+    config = {"kind": kind, "object": obj.name, "camera": camera.to_dict(), **params,
+              "lighting": {**asdict(lighting), "sun_direction_cam": list(lighting.sun_direction_cam)},
+              "sensor": asdict(sensor)}
+    out.mkdir(parents=True, exist_ok=True)
     path = out / CONFIG_FILE
     if path.exists():
         old = read_json(path)
@@ -95,11 +102,8 @@ def render_random_dataset(
         raise ValueError(f"count: expected ≥ 1 images, got {count}")
     out = Path(out)
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
-    config = {"kind": "random", "object": obj.name, "camera": camera.to_dict(), "count": count, "seed": seed,
-              "distance_range_m": list(distance_range_m), "lighting": asdict(lighting), "sensor": asdict(sensor)}
-    config["lighting"]["sun_direction_cam"] = list(lighting.sun_direction_cam)
-    out.mkdir(parents=True, exist_ok=True)
-    _check_config(out, config)
+    _open_job(out, "random", obj, camera, lighting, sensor, count=count, seed=seed,
+              distance_range_m=list(distance_range_m))
     poses = random_poses(count, camera, distance_range_m, rng=seed)
     items = [(p, None, 1.0) for p in poses]
     return _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress)
@@ -120,11 +124,7 @@ def render_sequence_dataset(
     """
     out = Path(out)
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
-    config = {"kind": "sequence", "object": obj.name, "camera": camera.to_dict(), "spec": asdict(spec),
-              "lighting": asdict(lighting), "sensor": asdict(sensor)}
-    config["lighting"]["sun_direction_cam"] = list(lighting.sun_direction_cam)
-    out.mkdir(parents=True, exist_ok=True)
-    _check_config(out, config)
+    _open_job(out, "sequence", obj, camera, lighting, sensor, spec=asdict(spec))
     frames = make_sequence(spec, obj, camera)
     items = [(f.pose, f.arm, f.sun_scale) for f in frames]
     scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Subset
 
 from ..datasets.torch_dataset import PoseDataset, split_indices
 from ..io import atomic_write_bytes, atomic_write_json, atomic_write_text
@@ -89,16 +89,12 @@ class _Paired(Dataset):
 
 
 def make_datasets(cfg: TrainConfig) -> tuple[Dataset, Dataset]:
-    probe = PoseDataset(cfg.data, size=cfg.image_size)
-    train_idx, val_idx = split_indices(len(probe.samples), cfg.val_fraction, cfg.seed)
-
-    def build(idx):
-        full = PoseDataset(cfg.data, size=cfg.image_size, indices=idx)
-        if cfg.model == "parallel-vgg19":
-            return _Paired(full, PoseDataset(cfg.data, size=cfg.image_size, crop=True, indices=idx))
-        return full
-
-    return build(train_idx), build(val_idx)
+    """Seeded (train, val) subsets; for the parallel model each item also carries the crop."""
+    data: Dataset = PoseDataset(cfg.data, size=cfg.image_size)
+    if cfg.model == "parallel-vgg19":
+        data = _Paired(data, PoseDataset(cfg.data, size=cfg.image_size, crop=True))
+    train_idx, val_idx = split_indices(len(data), cfg.val_fraction, cfg.seed)
+    return Subset(data, train_idx.tolist()), Subset(data, val_idx.tolist())
 
 
 def make_augment():
@@ -278,14 +274,19 @@ def config_from_args(args) -> TrainConfig:
                        max_batches=args.max_batches)
 
 
+def run(args: argparse.Namespace) -> int:
+    """Train from parsed :func:`add_train_arguments` options and print the best validation metrics."""
+    best = train(config_from_args(args), resume=args.resume)
+    print(json.dumps(best, indent=2))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m hybridpose.regressors.train")
     add_train_arguments(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    best = train(config_from_args(args), resume=args.resume)
-    print(json.dumps(best, indent=2))
-    return 0
+    return run(args)
 
 
 if __name__ == "__main__":

@@ -244,7 +244,7 @@ class Renderer:
             for name in _ARM_NAMES:
                 self._set_mocap(name, [0.0, 0.0, -10.0], [1.0, 0.0, 0.0, 0.0])  # behind the camera
             return
-        for name, cap in zip(("arm_upper", "arm_fore"), arm.links):
+        for name, cap in zip(_ARM_NAMES[:2], arm.links):
             d = cap.p1 - cap.p0
             half = 0.5 * float(np.linalg.norm(d))
             self._model.geom_size[self._geom[name]][:2] = (cap.radius_m, max(half, 1e-4))

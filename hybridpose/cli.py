@@ -32,6 +32,14 @@ def _base_camera(args) -> Camera:
     return cam.scaled(args.size) if args.size else cam
 
 
+def _float_pair(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LOW,HIGH (two numbers), got {text!r}") from None
+    return lo, hi
+
+
 def _sun_dir(text: str) -> tuple[float, float, float]:
     try:
         vals = tuple(float(x) for x in text.split(","))
@@ -56,7 +64,8 @@ def cmd_render(args) -> int:
     if args.kind == "random":
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
-                                      progress=_progress("render"))
+                                      progress=_progress("render"), sun_cone_deg=args.sun_cone,
+                                      sun_scale_range=args.sun_range)
     else:
         spec = SequenceSpec(trajectory=args.trajectory, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                             lighting=args.lighting, seed=args.seed)
@@ -71,22 +80,15 @@ def verify_dataset(root, out, frames: int = 12, columns: int = 4, object_name: s
     pose (green) and the visible-mask outline (magenta); returns alignment statistics (IoU of the
     rendered full mask against the projected mesh silhouette)."""
     from .datasets import find_scenes
-    from .datasets.bop import BopScene
+    from .datasets.bop import BopScene, dataset_object
     from .io import write_image
-    from .objects import load_object
     from .viz import contact_sheet, draw_mask_contour, draw_wireframe, silhouette
 
     root = Path(root)
     scene = BopScene(find_scenes(root)[0])
     if not scene.image_ids:
         raise ValueError(f"{root}: the dataset holds no images")
-    model_path = root / "models" / "obj_000001.ply"
-    if object_name is not None:
-        obj = load_object(object_name)
-    elif model_path.is_file():
-        obj = load_object(model_path, scale=0.001, name="obj_000001")  # BOP models are in mm
-    else:
-        raise ValueError(f"{root}: no models/obj_000001.ply; pass the object (name or mesh path) explicitly")
+    obj = dataset_object(root, object_name)
     ids = [scene.image_ids[int(round(k))] for k in np.linspace(0, len(scene.image_ids) - 1, min(frames, len(scene)))]
     tiles, labels, ious = [], [], []
     for im_id in ids:
@@ -165,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--background", choices=BACKGROUNDS, default="black")
     r.add_argument("--sun-dir", type=_sun_dir, default=(0.6, 0.4, 0.7), help="sunlight direction x,y,z in the camera frame")
     r.add_argument("--sun", type=float, default=1.0, help="sun intensity")
+    r.add_argument("--sun-cone", type=float, default=0.0,
+                   help="random: per-image sun direction uniform within this cone (degrees) around --sun-dir")
+    r.add_argument("--sun-range", type=_float_pair, default=(1.0, 1.0),
+                   help="random: per-image sun intensity factor drawn from LOW,HIGH")
     r.add_argument("--exposure", type=float, default=1.0)
     r.add_argument("--noise", type=float, default=0.0, help="Gaussian read noise, fraction of full scale")
     r.add_argument("--blur", type=float, default=0.0, help="Gaussian blur sigma, px")

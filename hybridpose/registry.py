@@ -19,8 +19,8 @@ ROLES = ("object", "trajectory", "tracker", "regressor", "fusion")
 _BUILTIN_MODULES: dict[str, tuple[str, ...]] = {
     "object": ("hybridpose.objects.truss",),
     "trajectory": ("hybridpose.render.trajectories",),
-    "tracker": (),
-    "regressor": (),
+    "tracker": ("hybridpose.trackers.edges", "hybridpose.trackers.klt", "hybridpose.trackers.rapid"),
+    "regressor": ("hybridpose.regressors.predictor",),
     "fusion": (),
 }
 

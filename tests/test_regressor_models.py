@@ -45,7 +45,7 @@ def test_loss_bad_shapes():
 
 
 def test_model_registry():
-    assert available_models() == ["branched-vgg19", "parallel-vgg19", "vgg16", "vgg19"]
+    assert available_models() == ["branched-vgg19", "default", "keypoints", "parallel-vgg19", "vgg16", "vgg19"]
     with pytest.raises(ValueError, match="unknown 'resnet'"):
         build_model("resnet")
 

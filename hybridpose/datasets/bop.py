@@ -14,6 +14,7 @@ Layout written by hybridpose (https://github.com/thodan/bop_toolkit/blob/master/
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -248,3 +249,27 @@ def find_scenes(root) -> list[Path]:
     if not scenes:
         raise FileNotFoundError(f"{root}: no BOP scene (no scene_gt.json under it)")
     return scenes
+
+
+def dataset_object(root, object_name: str | None = None):
+    """The object a dataset was rendered with: ``object_name`` (built-in name or mesh path) when
+    given, else the dataset's own BOP model ``models/obj_000001.ply`` (millimetres → metres).
+
+    A dataset rendered from a registered built-in object (its name in ``hybridpose.json``) gets that
+    object back, with its own keypoints, rather than the re-read mesh.
+    """
+    from ..objects import load_object
+    from ..registry import available
+
+    root = Path(root)
+    if object_name is not None:
+        return load_object(object_name)
+    config = root / "hybridpose.json"
+    if config.is_file():
+        name = json.loads(config.read_text()).get("object")
+        if name in available("object"):
+            return load_object(name)
+    model_path = root / "models" / "obj_000001.ply"
+    if model_path.is_file():
+        return load_object(model_path, scale=0.001, name="obj_000001")  # BOP models are in mm
+    raise ValueError(f"{root}: no models/obj_000001.ply; pass the object (name or mesh path) explicitly")

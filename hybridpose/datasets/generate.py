@@ -54,7 +54,7 @@ def _run_job(
     split: str,
     obj: ObjectModel,
     camera: Camera,
-    items: list[tuple[Pose, ArmState | None, float]],
+    items: list[tuple[Pose, ArmState | None, float, np.ndarray | None]],
     seed: int,
     lighting: SpaceLighting,
     sensor: SensorModel,
@@ -70,8 +70,9 @@ def _run_job(
     if todo:
         with Renderer(obj, camera, lighting, sensor) as renderer:
             for n, i in enumerate(todo, 1):
-                pose, arm, sun = items[i]
-                res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]))
+                pose, arm, sun, sun_dir = items[i]
+                res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
+                                      sun_direction_cam=sun_dir)
                 writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
                 if n % CHECKPOINT_EVERY == 0:
                     writer.flush()
@@ -81,6 +82,20 @@ def _run_job(
     labels = [Label(f"{split}/000000/rgb/{i:06d}.png", items[i][0]) for i in range(len(items))]
     write_labels(out / "labels.csv", labels)
     return scene_dir
+
+
+def sun_directions_in_cone(axis, cone_deg: float, count: int, rng: np.random.Generator) -> np.ndarray:
+    """(count, 3) unit directions uniform on the spherical cap of half-angle ``cone_deg`` around ``axis``."""
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    cos_t = rng.uniform(np.cos(np.deg2rad(cone_deg)), 1.0, count)
+    phi = rng.uniform(0, 2 * np.pi, count)
+    sin_t = np.sqrt(1 - cos_t**2)
+    helper = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    return (cos_t[:, None] * axis + (sin_t * np.cos(phi))[:, None] * e1 + (sin_t * np.sin(phi))[:, None] * e2)
 
 
 def render_random_dataset(
@@ -93,19 +108,34 @@ def render_random_dataset(
     lighting: SpaceLighting | None = None,
     sensor: SensorModel | None = None,
     progress: Callable[[int, int], None] | None = None,
+    sun_cone_deg: float = 0.0,
+    sun_scale_range: tuple[float, float] = (1.0, 1.0),
 ) -> Path:
     """``count`` random views within arm's reach (split ``train``) + ``labels.csv``; resumable.
 
-    Returns the scene directory.
+    ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
+    ``lighting.sun_direction_cam`` and ``sun_scale_range`` its intensity factor, so a network
+    trained on the data does not learn one shading. Returns the scene directory.
     """
     if count < 1:
         raise ValueError(f"count: expected ≥ 1 images, got {count}")
+    if not 0 <= sun_cone_deg <= 90:
+        raise ValueError(f"sun_cone_deg: expected 0..90 degrees, got {sun_cone_deg}")
+    lo, hi = sun_scale_range
+    if not 0 <= lo <= hi:
+        raise ValueError(f"sun_scale_range: expected 0 ≤ low ≤ high, got {sun_scale_range}")
     out = Path(out)
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
     _open_job(out, "random", obj, camera, lighting, sensor, count=count, seed=seed,
-              distance_range_m=list(distance_range_m))
+              distance_range_m=list(distance_range_m), sun_cone_deg=float(sun_cone_deg),
+              sun_scale_range=[float(lo), float(hi)])
     poses = random_poses(count, camera, distance_range_m, rng=seed)
-    items = [(p, None, 1.0) for p in poses]
+    # lighting draws use their own stream so that the poses of a seed never change
+    sun_rng = np.random.default_rng([seed, 7])
+    dirs = (sun_directions_in_cone(lighting.sun_direction_cam, sun_cone_deg, count, sun_rng)
+            if sun_cone_deg > 0 else [None] * count)
+    scales = sun_rng.uniform(lo, hi, count) if hi > lo else np.full(count, lo)
+    items = [(p, None, float(k), d) for p, k, d in zip(poses, scales, dirs)]
     return _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress)
 
 
@@ -126,7 +156,7 @@ def render_sequence_dataset(
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
     _open_job(out, "sequence", obj, camera, lighting, sensor, spec=asdict(spec))
     frames = make_sequence(spec, obj, camera)
-    items = [(f.pose, f.arm, f.sun_scale) for f in frames]
+    items = [(f.pose, f.arm, f.sun_scale, None) for f in frames]
     scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress)
     meta = {str(f.index): {"timestamp_s": f.timestamp, "occlusion": f.occlusion, "sun_scale": f.sun_scale} for f in frames}
     atomic_write_json(scene_dir / "scene_meta.json", {"fps": spec.fps, "frames": meta})

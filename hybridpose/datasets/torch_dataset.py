@@ -16,6 +16,9 @@ from ..geometry import parse_size
 from .bop import BopScene, find_scenes
 
 MIN_CROP_PX = 16
+JITTER_MARGIN = (1.1, 1.8)
+JITTER_SHIFT = 0.12
+FULL_VIEW_PROB = 0.0
 
 
 def split_indices(n: int, val_fraction: float = 0.2, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -53,6 +56,12 @@ class PoseDataset(Dataset):
             paper); True → object-centred square crop from ``bbox_obj``.
         indices: subset of sample indices (e.g. from :func:`split_indices`); None = all.
         crop_margin: crop side / max(bbox w, h).
+        jitter: crop mode only — random, label-consistent crops for training: margin drawn from
+            ``JITTER_MARGIN``, centre shifted by up to ``JITTER_SHIFT`` × side, and with probability
+            ``FULL_VIEW_PROB`` the whole frame (a square around the image centre) instead, so the
+            network also learns the coarse first pass. Draws use torch's RNG (seeded runs repeat).
+        keypoints_m: (N, 3) model keypoints in metres; adds ``kp2d`` (N, 2), their projections in
+            the returned image's pixels.
 
     Each item is a dict of tensors: ``image`` (3, H, W) float32 in [0, 1]; ``t`` (3,) metres;
     ``q`` (4,) (w, x, y, z), w ≥ 0; ``K`` (3, 3) intrinsics *of the returned image*;
@@ -60,13 +69,21 @@ class PoseDataset(Dataset):
     ``index`` the sample index.
     """
 
-    def __init__(self, root, size=224, crop: bool = False, indices=None, crop_margin: float = 1.2) -> None:
+    def __init__(self, root, size=224, crop: bool = False, indices=None, crop_margin: float = 1.2,
+                 jitter: bool = False, keypoints_m=None) -> None:
         self.scenes = [BopScene(p) for p in find_scenes(root)]
         self.samples = [(s, i) for s, sc in enumerate(self.scenes) for i in sc.image_ids]
         if not self.samples:
             raise ValueError(f"root: {Path(root)} holds no images (empty dataset)")
         self.size = parse_size(size)
-        self.crop, self.crop_margin = bool(crop), float(crop_margin)
+        self.crop, self.crop_margin, self.jitter = bool(crop), float(crop_margin), bool(jitter)
+        if self.jitter and not self.crop:
+            raise ValueError("jitter: random crops need crop=True")
+        self.keypoints_m = None
+        if keypoints_m is not None:
+            self.keypoints_m = np.asarray(keypoints_m, dtype=np.float64)
+            if self.keypoints_m.ndim != 2 or self.keypoints_m.shape[1] != 3:
+                raise ValueError(f"keypoints_m: expected (N, 3) metres, got {self.keypoints_m.shape}")
         self.indices = np.arange(len(self.samples)) if indices is None else np.asarray(indices, dtype=np.int64)
         if len(self.indices) and (self.indices.min() < 0 or self.indices.max() >= len(self.samples)):
             raise ValueError(f"indices: expected values in [0, {len(self.samples)}), got {self.indices.min()}..{self.indices.max()}")
@@ -85,6 +102,8 @@ class PoseDataset(Dataset):
             if gt.bbox_obj[2] <= 0:
                 raise ValueError(f"{scene.dir} image {im_id}: no bbox_obj in scene_gt_info.json; cannot crop")
             cx, cy, side = crop_box(gt.bbox_obj, self.crop_margin)
+            if self.jitter:
+                cx, cy, side = self._jittered(cx, cy, side / self.crop_margin, img.shape[1], img.shape[0])
             A = crop_affine(cx, cy, side, w, h)
             out = cv2.warpAffine(img, A, (w, h), flags=cv2.INTER_AREA if side > w else cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_CONSTANT, borderValue=0)
@@ -95,7 +114,7 @@ class PoseDataset(Dataset):
             out = img if (w, h) == (img.shape[1], img.shape[0]) else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
             K = cam.K
             crop = ((img.shape[1] - 1) / 2, (img.shape[0] - 1) / 2, float(max(img.shape[:2])))
-        return {
+        item = {
             "image": torch.from_numpy(np.ascontiguousarray(out)).permute(2, 0, 1).float() / 255.0,
             "t": torch.tensor(gt.pose.t, dtype=torch.float32),
             "q": torch.tensor(gt.pose.quat_wxyz, dtype=torch.float32),
@@ -103,3 +122,15 @@ class PoseDataset(Dataset):
             "crop": torch.tensor(crop, dtype=torch.float32),
             "index": idx,
         }
+        if self.keypoints_m is not None:
+            p = (gt.pose @ self.keypoints_m) @ K.T
+            item["kp2d"] = torch.tensor(p[:, :2] / p[:, 2:], dtype=torch.float32)
+        return item
+
+    def _jittered(self, cx: float, cy: float, extent: float, width: int, height: int) -> tuple[float, float, float]:
+        r = torch.rand(4).tolist()
+        if r[0] < FULL_VIEW_PROB:
+            return (width - 1) / 2, (height - 1) / 2, float(max(width, height))
+        lo, hi = JITTER_MARGIN
+        side = max(MIN_CROP_PX, (lo + (hi - lo) * r[1]) * extent)
+        return cx + (2 * r[2] - 1) * JITTER_SHIFT * side, cy + (2 * r[3] - 1) * JITTER_SHIFT * side, side

@@ -5,6 +5,7 @@ from typing import Callable
 
 from torch import nn
 
+from .keypoint_net import KeypointNet
 from .vgg import BranchedVGG19, ParallelVGG19, VGGPose
 
 MODELS: dict[str, Callable[..., nn.Module]] = {
@@ -12,7 +13,26 @@ MODELS: dict[str, Callable[..., nn.Module]] = {
     "vgg19": lambda **kw: VGGPose("vgg19", 7, **kw),
     "branched-vgg19": lambda image_size=224, **kw: BranchedVGG19(7, image_size, **kw),
     "parallel-vgg19": lambda image_size=224, **kw: ParallelVGG19(image_size, **kw),
+    # CPU models: keypoint heatmaps on the object-centred crop, pose by PnP (see keypoint_net.py).
+    # "default" is the one we ship trained (chosen by accuracy per ms, benchmarks/RESULTS.md);
+    # "keypoints" the wider variant for when a few more ms buy accuracy.
+    "default": lambda keypoints_m, image_size=128, **kw: KeypointNet(keypoints_m, 32, image_size),
+    "keypoints": lambda keypoints_m, image_size=160, **kw: KeypointNet(keypoints_m, 48, image_size),
 }
+
+KEYPOINT_MODELS = ("default", "keypoints")
+
+# training settings that differ from TrainConfig's (paper) defaults: the keypoint nets train from
+# scratch with batch norm, where the paper's lr = 1e-4 for ImageNet-initialised VGGs is too slow
+MODEL_DEFAULTS: dict[str, dict] = {
+    "default": {"image_size": 128, "lr": 1e-3, "schedule": "cosine"},
+    "keypoints": {"image_size": 160, "lr": 1e-3, "schedule": "cosine"},
+}
+
+
+def model_kind(name: str) -> str:
+    """``"keypoints"`` (heatmaps + PnP) or ``"direct"`` (regresses t and q)."""
+    return "keypoints" if name in KEYPOINT_MODELS else "direct"
 
 
 def available_models() -> list[str]:

@@ -20,13 +20,21 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 
+from ..datasets.bop import dataset_object
 from ..datasets.torch_dataset import PoseDataset, split_indices
+from ..geometry import Pose
 from ..io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
-from .models import available_models, build_model
+from .calibration import calibrate
+from .keypoint_net import keypoint_loss
+from .keypoint_pnp import solve_pnp
+from .models import MODEL_DEFAULTS, available_models, build_model, model_kind
 from .vgg import load_imagenet_weights
 
 log = logging.getLogger(__name__)
+
+
+SCHEDULES = ("constant", "cosine")
 
 
 @dataclass(frozen=True)
@@ -43,6 +51,7 @@ class TrainConfig:
         freeze_features: train the FC head only (the paper's baselines).
         imagenet_weights: optional local torchvision-format VGG state dict.
         workers: DataLoader worker processes. device: "auto", "cpu" or "cuda".
+        schedule: learning rate over epochs, "constant" (the paper) or "cosine" (to 1 % of lr).
     """
 
     model: str
@@ -61,6 +70,7 @@ class TrainConfig:
     imagenet_weights: str | None = None
     workers: int = 0
     device: str = "auto"
+    schedule: str = "constant"
     max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
 
     def __post_init__(self) -> None:
@@ -69,6 +79,8 @@ class TrainConfig:
         for name in ("epochs", "batch", "image_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected ≥ 1, got {getattr(self, name)}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"schedule: expected one of {SCHEDULES}, got {self.schedule!r}")
         if self.lr <= 0 or not math.isfinite(self.lr):
             raise ValueError(f"lr: expected a positive learning rate, got {self.lr}")
 
@@ -88,8 +100,19 @@ class _Paired(Dataset):
         return item
 
 
-def make_datasets(cfg: TrainConfig) -> tuple[Dataset, Dataset]:
-    """Seeded (train, val) subsets; for the parallel model each item also carries the crop."""
+def make_datasets(cfg: TrainConfig, keypoints_m=None) -> tuple[Dataset, Dataset]:
+    """Seeded (train, val) subsets; for the parallel model each item also carries the crop.
+
+    Keypoint models (``keypoints_m`` given) train on random label-consistent crops (the in-plane
+    shift and scale augmentation; see :class:`PoseDataset` ``jitter``) and validate on the
+    deterministic object-centred crop.
+    """
+    if keypoints_m is not None:
+        n = len(PoseDataset(cfg.data, size=cfg.image_size, crop=True))
+        train_idx, val_idx = split_indices(n, cfg.val_fraction, cfg.seed)
+        make = lambda idx, jitter: PoseDataset(cfg.data, size=cfg.image_size, crop=True, indices=idx,  # noqa: E731
+                                               jitter=jitter, keypoints_m=keypoints_m)
+        return make(train_idx, cfg.augment), make(val_idx, False)
     data: Dataset = PoseDataset(cfg.data, size=cfg.image_size)
     if cfg.model == "parallel-vgg19":
         data = _Paired(data, PoseDataset(cfg.data, size=cfg.image_size, crop=True))
@@ -112,6 +135,10 @@ def make_augment():
     )
 
 
+def is_keypoint_model(model) -> bool:
+    return getattr(model, "kind", "direct") == "keypoints"
+
+
 def _forward(model, batch, device):
     x = batch["image"].to(device, non_blocking=True)
     if "crop_image" in batch:
@@ -119,13 +146,42 @@ def _forward(model, batch, device):
     return model(x)
 
 
+def _batch_loss(model, batch, device, beta: float) -> torch.Tensor:
+    if is_keypoint_model(model):
+        pred, spread = model(batch["image"].to(device, non_blocking=True))
+        return keypoint_loss(pred, spread, batch["kp2d"].to(device), model.image_size)
+    t, q = _forward(model, batch, device)
+    return pose_loss(t, q, batch["t"].to(device), batch["q"].to(device), beta)
+
+
+def predict_batch(model, batch, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """(t (B, 3) m, q (B, 4)) for a batch; keypoint models go through PnP with the batch's ``K``.
+
+    A keypoint prediction PnP cannot explain gets the pose at the crop centre, 1 m away, identity
+    rotation — a counted failure, not a skipped sample.
+    """
+    if not is_keypoint_model(model):
+        return _forward(model, batch, device)
+    pred, _ = model(batch["image"].to(device))
+    pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
+    ts, qs = [], []
+    for uv, K in zip(pred.cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64)):
+        res = solve_pnp(uv, pts3, K, threshold_px=0.03 * model.image_size)
+        pose = res.pose if res is not None else Pose.from_quat_t([1, 0, 0, 0], np.linalg.solve(K, [model.image_size / 2, model.image_size / 2, 1.0]))
+        ts.append(pose.t)
+        qs.append(pose.quat_wxyz)
+    return (torch.tensor(np.array(ts), dtype=torch.float32, device=device),
+            torch.tensor(np.array(qs), dtype=torch.float32, device=device))
+
+
 def evaluate(model, loader, device, beta: float) -> dict:
-    """Mean loss, mean/median rotation error (°) and mean translation error (m) over ``loader``."""
+    """Paper loss of the predicted poses, mean/median rotation error (°) and mean translation error
+    (m) over ``loader`` (the same numbers for direct and keypoint models)."""
     model.eval()
     losses, rot, trans = [], [], []
     with torch.no_grad():
         for batch in loader:
-            t, q = _forward(model, batch, device)
+            t, q = predict_batch(model, batch, device)
             t_true, q_true = batch["t"].to(device), batch["q"].to(device)
             losses.append(pose_loss(t, q, t_true, q_true, beta).item() * len(t))
             rot.append(torch.rad2deg(quat_geodesic_angle(q, q_true)).cpu())
@@ -133,6 +189,23 @@ def evaluate(model, loader, device, beta: float) -> dict:
     rot_all, trans_all = torch.cat(rot).numpy(), torch.cat(trans).numpy()
     return {"val_loss": float(np.sum(losses) / len(rot_all)), "rot_mean_deg": float(rot_all.mean()),
             "rot_median_deg": float(np.median(rot_all)), "trans_mean_m": float(trans_all.mean())}
+
+
+def kw_for_checkpoint(kw: dict) -> dict:
+    """The :func:`build_model` arguments, as plain lists (a checkpoint rebuilds its own network)."""
+    return {k: (np.asarray(v).tolist() if k == "keypoints_m" else v) for k, v in kw.items()}
+
+
+def dataset_info(root, obj=None) -> dict:
+    """What the training data was: object name/diameter and camera (checked again at inference)."""
+    from ..io import read_json
+
+    config = Path(root) / "hybridpose.json"
+    info = read_json(config) if config.is_file() else {}
+    out = {"object": info.get("object"), "camera": info.get("camera")}
+    if obj is not None:
+        out["diameter_m"] = float(obj.diameter)
+    return out
 
 
 def save_checkpoint(path: Path, payload: dict) -> None:
@@ -159,23 +232,29 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else
                           ("cpu" if cfg.device == "auto" else cfg.device))
     torch.manual_seed(cfg.seed)
-    train_ds, val_ds = make_datasets(cfg)
+    kw = {"freeze_features": cfg.freeze_features}
+    if cfg.model in ("branched-vgg19", "parallel-vgg19"):
+        kw["image_size"] = cfg.image_size
+    obj = None
+    if model_kind(cfg.model) == "keypoints":
+        obj = dataset_object(cfg.data)
+        kw = {"keypoints_m": obj.keypoints, "image_size": cfg.image_size}
+    model = build_model(cfg.model, **kw)
+    train_ds, val_ds = make_datasets(cfg, keypoints_m=obj.keypoints if obj is not None else None)
     gen = torch.Generator().manual_seed(cfg.seed)
     train_loader = DataLoader(train_ds, batch_size=cfg.batch, shuffle=True, generator=gen, num_workers=cfg.workers,
                               drop_last=len(train_ds) > cfg.batch, pin_memory=device.type == "cuda")
     val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers)
 
-    kw = {"freeze_features": cfg.freeze_features}
-    if cfg.model in ("branched-vgg19", "parallel-vgg19"):
-        kw["image_size"] = cfg.image_size
-    model = build_model(cfg.model, **kw)
     if cfg.imagenet_weights:
         load_imagenet_weights(model, cfg.imagenet_weights)
-    else:
+    elif obj is None:
         log.warning("no --imagenet-weights given: training %s from scratch (nothing is downloaded)", cfg.model)
     model.to(device)
     optim = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
     augment = make_augment().to(device) if cfg.augment else None
+    sched = (torch.optim.lr_scheduler.CosineAnnealingLR(optim, cfg.epochs, eta_min=0.01 * cfg.lr)
+             if cfg.schedule == "cosine" else None)
 
     start_epoch, best, history, stale = 0, math.inf, [], 0
     last_path = out / "last.pt"
@@ -185,6 +264,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             raise ValueError(f"{last_path}: checkpoint is for model {ck['config']['model']!r}, not {cfg.model!r}")
         model.load_state_dict(ck["model"])
         optim.load_state_dict(ck["optimizer"])
+        if sched is not None and ck.get("scheduler"):
+            sched.load_state_dict(ck["scheduler"])
         torch.set_rng_state(ck["torch_rng"])
         gen.set_state(ck["loader_rng"])
         start_epoch, best, history, stale = ck["epoch"] + 1, ck["best"], ck["history"], ck["stale"]
@@ -197,7 +278,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
     for epoch in range(start_epoch, cfg.epochs):
         model.train()
-        t0, total, n = time.perf_counter(), 0.0, 0
+        t0, total, n, lr_used = time.perf_counter(), 0.0, 0, optim.param_groups[0]["lr"]
         for b, batch in enumerate(train_loader):
             if cfg.max_batches is not None and b >= cfg.max_batches:
                 break
@@ -205,20 +286,23 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                 batch["image"] = augment(batch["image"].to(device))
                 if "crop_image" in batch:
                     batch["crop_image"] = augment(batch["crop_image"].to(device))
-            t, q = _forward(model, batch, device)
-            loss = pose_loss(t, q, batch["t"].to(device), batch["q"].to(device), cfg.beta)
+            loss = _batch_loss(model, batch, device, cfg.beta)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"epoch {epoch} batch {b}: loss is {loss.item()}; lower --lr")
             optim.zero_grad(set_to_none=True)
             loss.backward()
             optim.step()
-            total, n = total + loss.item() * len(t), n + len(t)
+            total, n = total + loss.item() * len(batch["index"]), n + len(batch["index"])
+        if sched is not None:
+            sched.step()
         row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta),
-               "epoch_s": time.perf_counter() - t0}
+               "lr": lr_used, "epoch_s": time.perf_counter() - t0}
         history.append(row)
         improved = row["val_loss"] < best
         best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)
-        payload = {"config": asdict(cfg), "model": model.state_dict(), "optimizer": optim.state_dict(),
+        payload = {"config": asdict(cfg), "model": model.state_dict(), "build": kw_for_checkpoint(kw),
+                   "dataset": dataset_info(cfg.data, obj), "optimizer": optim.state_dict(),
+                   "scheduler": sched.state_dict() if sched is not None else None,
                    "epoch": epoch, "best": best, "history": history, "stale": stale,
                    "torch_rng": torch.get_rng_state(), "loader_rng": gen.get_state()}
         if improved:
@@ -233,8 +317,26 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             break
     if bar:
         bar.close()
+    best_path = out / "best.pt"
+    if best_path.exists():
+        _calibrate_checkpoint(best_path, model, val_loader, device)
     best_row = min(history, key=lambda r: r["val_loss"]) if history else {}
     return best_row
+
+
+def _calibrate_checkpoint(path: Path, model, val_loader, device) -> None:
+    """Store the held-out covariance calibration (see calibration.py) in the best checkpoint."""
+    ck = load_checkpoint(path)
+    model.load_state_dict(ck["model"])
+    try:
+        ck["calibration"] = calibrate(model.cpu(), val_loader, lambda m, b: _forward(m, b, torch.device("cpu")))
+    except ValueError as exc:
+        log.warning("%s: not calibrated (%s); its covariances will be conservative defaults", path, exc)
+        return
+    finally:
+        model.to(device)
+    save_checkpoint(path, ck)
+    log.info("calibrated %s: %s", path, {k: v for k, v in ck["calibration"].items() if k != "covariance"})
 
 
 def _write_metrics(out: Path, history: list[dict]) -> None:
@@ -252,26 +354,31 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--epochs", type=int, default=100)
     p.add_argument("--batch", type=int, default=32)
-    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: 1e-4; 1e-3 for default/keypoints)")
     p.add_argument("--beta", type=float, default=DEFAULT_BETA)
-    p.add_argument("--image-size", type=int, default=224)
+    p.add_argument("--image-size", type=int, default=None, help="network input side, px (default: 224; 128 default, 160 keypoints)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--patience", type=int, default=10)
     p.add_argument("--no-augment", action="store_true")
     p.add_argument("--freeze-features", action="store_true")
     p.add_argument("--imagenet-weights", default=None, help="local torchvision-format VGG state dict")
     p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--schedule", choices=SCHEDULES, default=None, help="lr schedule (default: constant; cosine for default/keypoints)")
     p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     p.add_argument("--max-batches", type=int, default=None, help="cap batches per epoch (smoke runs)")
     p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
 
 
 def config_from_args(args) -> TrainConfig:
+    defaults = {"image_size": 224, "lr": 1e-4, **MODEL_DEFAULTS.get(args.model, {})}
+    lr = defaults["lr"] if args.lr is None else args.lr
+    image_size = defaults["image_size"] if args.image_size is None else args.image_size
+    schedule = defaults.get("schedule", "constant") if args.schedule is None else args.schedule
     return TrainConfig(model=args.model, data=args.data, out=args.out, epochs=args.epochs, batch=args.batch,
-                       lr=args.lr, beta=args.beta, image_size=args.image_size, seed=args.seed,
+                       lr=lr, beta=args.beta, image_size=image_size, seed=args.seed,
                        patience=args.patience, augment=not args.no_augment, freeze_features=args.freeze_features,
                        imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
-                       max_batches=args.max_batches)
+                       max_batches=args.max_batches, schedule=schedule)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -255,8 +255,8 @@ class Renderer:
         self._model.geom_rbound[g] = float(np.hypot(arm.tool_radius_m, arm.tool_half_thickness_m))
         self._set_mocap("arm_tool", arm.tool_centre, _quat_z_to(arm.tool_axis))
 
-    def _set_sun(self, T_cam_obj: Pose, sun_scale: float) -> None:
-        d = np.asarray(self.lighting.sun_direction_cam)
+    def _set_sun(self, T_cam_obj: Pose, sun_scale: float, sun_direction_cam=None) -> None:
+        d = np.asarray(self.lighting.sun_direction_cam if sun_direction_cam is None else sun_direction_cam, dtype=np.float64)
         self._model.light_pos[self._light] = T_cam_obj.t - 1.5 * d
         self._model.light_dir[self._light] = d
         k = self.lighting.sun_intensity * sun_scale
@@ -280,6 +280,7 @@ class Renderer:
         arm: ArmState | None = None,
         sun_scale: float = 1.0,
         rng: np.random.Generator | int | None = None,
+        sun_direction_cam=None,
     ) -> RenderResult:
         """Render the object at ``T_cam_obj`` (object → camera, metres).
 
@@ -288,6 +289,8 @@ class Renderer:
             arm: arm geometry for this frame (None = no arm in view).
             sun_scale: multiplies the sun's intensity (0 = eclipse).
             rng: seed for the background and sensor noise of this frame.
+            sun_direction_cam: (3,) direction the sunlight travels in the camera frame for this
+                frame only (None = the lighting's); normalised here.
         """
         if not isinstance(T_cam_obj, Pose):
             raise TypeError(f"T_cam_obj: expected a hybridpose Pose, got {type(T_cam_obj).__name__}")
@@ -295,10 +298,15 @@ class Renderer:
             raise ValueError(f"T_cam_obj: the object is behind the camera (t_z = {T_cam_obj.t[2]:.3f} m; expected > {_NEAR_M} m)")
         if not np.isfinite(sun_scale) or sun_scale < 0:
             raise ValueError(f"sun_scale: expected a non-negative factor, got {sun_scale}")
+        if sun_direction_cam is not None:
+            d = np.asarray(sun_direction_cam, dtype=np.float64)
+            if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
+                raise ValueError(f"sun_direction_cam: expected a non-zero (3,) direction, got {sun_direction_cam!r}")
+            sun_direction_cam = d / np.linalg.norm(d)
         rng = np.random.default_rng(rng)
         self._set_mocap("object", T_cam_obj.t, matrix_to_quat_wxyz(T_cam_obj.R))
         self._set_arm(arm)
-        self._set_sun(T_cam_obj, sun_scale)
+        self._set_sun(T_cam_obj, sun_scale, sun_direction_cam)
         mujoco.mj_forward(self._model, self._data)
 
         gl = self._gl

@@ -1,0 +1,46 @@
+"""The regressor contract: one image in, a pose ``Measurement`` out, no prior needed."""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from ..core import Frame, Measurement
+
+
+class PoseRegressor(ABC):
+    """A single-image pose estimator (role ``"regressor"`` in :mod:`hybridpose.registry`).
+
+    ``predict(frame, roi)`` returns a :class:`~hybridpose.core.Measurement` whose pose is
+    ``T_cam_obj`` (metres, OpenCV camera frame), whose covariance is 6×6 over the right
+    perturbation ``[ω (rad), v (m)]`` and whose quality is in 0..1; ``pose`` is None (and ``lost``
+    True) when the object is not found.
+    """
+
+    name: str = "regressor"
+
+    @abstractmethod
+    def predict(self, frame: Frame, roi: tuple[int, int, int, int] | None = None) -> Measurement:
+        """Pose of the object in ``frame``.
+
+        Args:
+            frame: the image (H, W, 3) uint8 RGB and its camera.
+            roi: optional box ``(x, y, w, h)`` in pixels around the object (e.g. the tracker's
+                predicted projection); without it the regressor finds the object itself.
+        """
+
+
+def check_roi(roi, frame: Frame) -> tuple[float, float, float, float] | None:
+    """Validate ``roi`` = (x, y, w, h) pixels: finite, positive size, overlapping the image."""
+    if roi is None:
+        return None
+    r = np.asarray(roi, dtype=np.float64)
+    if r.shape != (4,) or not np.all(np.isfinite(r)):
+        raise ValueError(f"roi: expected (x, y, w, h) pixels, got {roi!r}")
+    x, y, w, h = r
+    W, H = frame.camera.width, frame.camera.height
+    if w <= 0 or h <= 0:
+        raise ValueError(f"roi: expected positive width and height in pixels, got {roi!r}")
+    if x >= W or y >= H or x + w <= 0 or y + h <= 0:
+        raise ValueError(f"roi: {roi!r} lies outside the {W}×{H} image")
+    return float(x), float(y), float(w), float(h)

@@ -1,0 +1,86 @@
+"""Covariance calibration from held-out errors, so the fusion layer gets honest uncertainties.
+
+The fusion layer gates and weighs every measurement by its covariance; an over-confident regressor
+would make it reject good tracker poses or jump to bad CNN ones. After training, the errors on the
+validation split fix one scale per checkpoint:
+
+* keypoint models: ``Σ = s · σ² · (JᵀJ)⁻¹`` from PnP (J: reprojection Jacobian w.r.t. the right
+  perturbation ``[ω, v]``, σ: the inliers' RMS reprojection error, floored);
+* direct models: ``Σ = s · E[ξ ξᵀ]``, the second moment of the validation errors ``ξ``.
+
+``s`` is chosen so that ``COVERAGE`` of the validation errors fall inside the χ²₆ ellipsoid of
+the same probability (not the mean NEES: a few gross failures would inflate every covariance).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.stats import chi2
+
+from ..geometry import Pose
+from .keypoint_pnp import solve_pnp
+
+COVERAGE = 0.9
+SIGMA_FLOOR_PX = 0.5
+PNP_THRESHOLD = 0.03  # RANSAC inlier threshold, fraction of the crop side
+
+
+def pnp_covariance(information: np.ndarray, rms_px: float, scale: float = 1.0,
+                   sigma_floor_px: float = SIGMA_FLOOR_PX) -> np.ndarray:
+    """(6, 6) ``s · σ² · inv(JᵀJ)`` with ``σ = max(rms_px, sigma_floor_px)`` (pseudo-inverse if singular)."""
+    sigma2 = max(float(rms_px), sigma_floor_px) ** 2
+    cov = scale * sigma2 * np.linalg.pinv(information)
+    return 0.5 * (cov + cov.T)
+
+
+def nees(xi: np.ndarray, cov: np.ndarray) -> float:
+    """Normalised estimation error squared ``ξᵀ Σ⁻¹ ξ``."""
+    return float(xi @ np.linalg.pinv(cov) @ xi)
+
+
+def _keypoint_errors(model, loader) -> tuple[list[float], int, int]:
+    """Unscaled NEES of every validation sample (PnP in crop pixels), and the failure count."""
+    pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
+    raw, failures, n = [], 0, 0
+    for batch in loader:
+        pred, _ = model(batch["image"])
+        for uv, K, t, q in zip(pred.numpy().astype(np.float64), batch["K"].numpy().astype(np.float64),
+                               batch["t"].numpy(), batch["q"].numpy()):
+            n += 1
+            res = solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size)
+            if res is None:
+                failures += 1
+                continue
+            xi = res.pose.local(Pose.from_quat_t(q, t))
+            raw.append(nees(xi, pnp_covariance(res.information, res.rms_px)))
+    return raw, failures, n
+
+
+def calibrate(model, loader, predict_batch) -> dict:
+    """Calibration record stored in the checkpoint (``checkpoint["calibration"]``).
+
+    Args:
+        model: the trained network (eval mode is set here).
+        loader: validation batches (held out from training).
+        predict_batch: ``(model, batch) → (t, q)`` for direct models.
+    """
+    model.eval()
+    target = float(chi2.ppf(COVERAGE, 6))
+    with torch.no_grad():
+        if getattr(model, "kind", "direct") == "keypoints":
+            raw, failures, n = _keypoint_errors(model, loader)
+            if not raw:
+                raise ValueError("calibration: PnP failed on every validation sample; train longer")
+            scale = float(np.quantile(raw, COVERAGE)) / target
+            return {"kind": "pnp", "scale": max(scale, 1e-6), "sigma_floor_px": SIGMA_FLOOR_PX,
+                    "coverage": COVERAGE, "samples": n, "failures": failures}
+        xis = []
+        for batch in loader:
+            t, q = predict_batch(model, batch)
+            for tp, qp, tt, qt in zip(t.numpy(), q.numpy(), batch["t"].numpy(), batch["q"].numpy()):
+                xis.append(Pose.from_quat_t(qp, tp).local(Pose.from_quat_t(qt, tt)))
+    xis = np.array(xis)
+    cov = xis.T @ xis / len(xis) + 1e-12 * np.eye(6)
+    raw = [nees(x, cov) for x in xis]
+    scale = max(float(np.quantile(raw, COVERAGE)) / target, 1.0)
+    return {"kind": "fixed", "covariance": (scale * cov).tolist(), "coverage": COVERAGE, "samples": len(xis), "failures": 0}

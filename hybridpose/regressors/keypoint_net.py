@@ -1,0 +1,126 @@
+"""Keypoint heatmap network: an object-centred crop in, the 2D image positions of the object's 3D
+keypoints out (integral regression: a soft-argmax over one heatmap per keypoint). The pose then
+comes from PnP (:mod:`hybridpose.regressors.keypoint_pnp`), as the winners of the spacecraft pose
+challenges did, instead of regressing the rotation directly.
+
+A small residual encoder (stride 32, so every heatmap sees the whole crop and can tell the
+near-symmetric ends of the truss apart) and an FPN-style decoder back to stride 4.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+HEATMAP_STRIDE = 4
+
+
+class _Block(nn.Module):
+    """ResNet basic block (two 3×3 convolutions + shortcut)."""
+
+    def __init__(self, c_in: int, c_out: int, stride: int) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(c_out)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(c_out)
+        self.short = (nn.Identity() if stride == 1 and c_in == c_out else
+                      nn.Sequential(nn.Conv2d(c_in, c_out, 1, stride, bias=False), nn.BatchNorm2d(c_out)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = F.relu(self.bn1(self.conv1(x)), inplace=True)
+        return F.relu(self.bn2(self.conv2(y)) + self.short(x), inplace=True)
+
+
+def _conv_bn(c_in: int, c_out: int, k: int = 3, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(c_in, c_out, k, stride, k // 2, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(True))
+
+
+class KeypointNet(nn.Module):
+    """Crop (B, 3, S, S) float in [0, 1] → keypoints (B, N, 2) in crop pixels + spread (B, N) pixels.
+
+    Args:
+        keypoints_m: (N, 3) model keypoints, metres, object frame; stored as a buffer so the
+            checkpoint carries the exact points the heatmaps were trained for.
+        width: channels of the first stage (stages use width × 1, 2, 4, 8).
+        image_size: crop side S in pixels (a multiple of 32).
+
+    Pixel convention: integer coordinates are pixel centres (OpenCV); ``spread`` is the standard
+    deviation of each heatmap's distribution, a per-keypoint confidence (small = sharp peak).
+    """
+
+    kind = "keypoints"
+
+    def __init__(self, keypoints_m, width: int = 32, image_size: int = 128) -> None:
+        super().__init__()
+        kp = torch.tensor(np.array(keypoints_m, dtype=np.float32))
+        if kp.ndim != 2 or kp.shape[1] != 3 or len(kp) < 4:
+            raise ValueError(f"keypoints_m: expected (N ≥ 4, 3) metres, got {tuple(kp.shape)}")
+        if image_size % 32:
+            raise ValueError(f"image_size: expected a multiple of 32 pixels, got {image_size}")
+        self.register_buffer("keypoints_m", kp)
+        self.image_size, self.width = int(image_size), int(width)
+        w = self.width
+        self.stem = _conv_bn(3, w, 3, 2)                                  # /2
+        self.layer1 = _Block(w, w, 2)                                     # /4
+        self.layer2 = _Block(w, 2 * w, 2)                                 # /8
+        self.layer3 = _Block(2 * w, 4 * w, 2)                             # /16
+        self.layer4 = nn.Sequential(_Block(4 * w, 8 * w, 2), _Block(8 * w, 8 * w, 1))  # /32
+        d = 2 * w
+        self.lat4, self.lat3 = nn.Conv2d(8 * w, d, 1), nn.Conv2d(4 * w, d, 1)
+        self.lat2, self.lat1 = nn.Conv2d(2 * w, d, 1), nn.Conv2d(w, d, 1)
+        self.smooth3, self.smooth2, self.smooth1 = _conv_bn(d, d), _conv_bn(d, d), _conv_bn(d, d)
+        self.head = nn.Conv2d(d, len(kp), 1)
+
+    @property
+    def num_keypoints(self) -> int:
+        return int(self.keypoints_m.shape[0])
+
+    def heatmaps(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, 3, S, S) → (B, N, S/4, S/4) logits."""
+        if x.ndim != 4 or x.shape[1] != 3:
+            raise ValueError(f"image: expected (B, 3, H, W) float crops, got {tuple(x.shape)}")
+        if x.shape[2] != self.image_size or x.shape[3] != self.image_size:
+            raise ValueError(f"image: expected {self.image_size}×{self.image_size} crops, got {x.shape[2]}×{x.shape[3]}")
+        c1 = self.layer1(self.stem(x))
+        c2 = self.layer2(c1)
+        c3 = self.layer3(c2)
+        c4 = self.layer4(c3)
+        p = self.lat4(c4)
+        p = self.smooth3(self.lat3(c3) + F.interpolate(p, scale_factor=2.0, mode="nearest"))
+        p = self.smooth2(self.lat2(c2) + F.interpolate(p, scale_factor=2.0, mode="nearest"))
+        p = self.smooth1(self.lat1(c1) + F.interpolate(p, scale_factor=2.0, mode="nearest"))
+        return self.head(p)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return soft_argmax(self.heatmaps(x), HEATMAP_STRIDE)
+
+
+def soft_argmax(logits: torch.Tensor, stride: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Expected position under each heatmap's softmax: (B, N, h, w) → (B, N, 2) input pixels, (B, N) spread.
+
+    Heatmap cell (i, j) covers input pixels ``stride·j … stride·j + stride − 1``; its centre is
+    input pixel ``stride·j + (stride − 1)/2``.
+    """
+    b, n, h, w = logits.shape
+    prob = torch.softmax(logits.reshape(b, n, h * w).float(), dim=-1).reshape(b, n, h, w)
+    xs = torch.arange(w, dtype=prob.dtype, device=prob.device) * stride + (stride - 1) / 2
+    ys = torch.arange(h, dtype=prob.dtype, device=prob.device) * stride + (stride - 1) / 2
+    px, py = prob.sum(2), prob.sum(3)  # marginals (B, N, w), (B, N, h)
+    x = (px * xs).sum(-1)
+    y = (py * ys).sum(-1)
+    var = (px * xs**2).sum(-1) - x**2 + (py * ys**2).sum(-1) - y**2
+    return torch.stack([x, y], -1), var.clamp_min(1e-6).sqrt()
+
+
+def keypoint_loss(pred_px: torch.Tensor, spread_px: torch.Tensor, true_px: torch.Tensor, image_size: int,
+                  spread_weight: float = 0.05) -> torch.Tensor:
+    """Mean L1 keypoint error as a fraction of the crop side, plus a small term for sharp heatmaps.
+
+    Keypoints whose label lies outside the crop are not counted (a soft-argmax cannot reach them).
+    """
+    inside = ((true_px >= 0) & (true_px <= image_size - 1)).all(-1).float()
+    err = (pred_px - true_px).abs().sum(-1) / image_size
+    denom = inside.sum().clamp_min(1.0)
+    return (err * inside).sum() / denom + spread_weight * (spread_px / image_size * inside).sum() / denom

@@ -1,0 +1,254 @@
+"""Trained checkpoints as :class:`PoseRegressor` backends (role ``"regressor"``).
+
+``create("regressor", "default")`` loads the checkpoint shipped in the package
+(``hybridpose/regressors/weights/default.pt``, how it was made: ``weights/README.md``); every other
+name needs ``checkpoint=PATH`` from ``hybridpose train --model NAME``.
+
+Keypoint models run in two passes: the first on a crop around the ``roi`` or, without one, around
+the sunlit pixels (:func:`detect_bright_object`); the second on the crop centred on the first
+pass's pose. Keypoints → PnP → pose; the calibrated PnP covariance is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
+the crop around its own translation estimate, or around ``roi``).
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from ..core import Frame, Measurement
+from ..datasets.torch_dataset import crop_affine, crop_box
+from ..geometry import Camera, Pose
+from ..registry import register
+from .base import PoseRegressor, check_roi
+from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance
+from .keypoint_pnp import solve_pnp
+from .models import available_models, build_model, model_kind
+
+log = logging.getLogger(__name__)
+
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+CROP_MARGIN = 1.2
+UNCALIBRATED_SCALE = 100.0  # covariance inflation for a checkpoint without calibration
+LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)
+QUALITY_RMS = 0.02  # RMS reprojection error (fraction of the crop side) at which quality falls to 1/e
+FOV_TOLERANCE = 0.02
+DETECT_THRESHOLD = 12
+
+
+def shipped_checkpoint(name: str = "default") -> Path:
+    path = WEIGHTS_DIR / f"{name}.pt"
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"checkpoint: no trained {name!r} checkpoint ships with hybridpose ({path}); pass checkpoint=PATH "
+            f"(train one with `hybridpose train --model {name} ...`)"
+        )
+    return path
+
+
+def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, min_area_px: int = 30):
+    """Box ``(x, y, w, h)`` around the sunlit object on a dark background, or None.
+
+    Space imagery is a lit object on black: pixels brighter than ``threshold`` (grey levels),
+    specks smaller than ``min_area_px`` removed (noise, stars). Not for an Earth background — pass
+    the ``roi`` there (the hybrid passes the tracker's predicted box).
+    """
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    bright = (gray > threshold).astype(np.uint8)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=8)
+    keep = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area_px]
+    if not keep:
+        return None
+    x0 = min(stats[i, cv2.CC_STAT_LEFT] for i in keep)
+    y0 = min(stats[i, cv2.CC_STAT_TOP] for i in keep)
+    x1 = max(stats[i, cv2.CC_STAT_LEFT] + stats[i, cv2.CC_STAT_WIDTH] for i in keep)
+    y1 = max(stats[i, cv2.CC_STAT_TOP] + stats[i, cv2.CC_STAT_HEIGHT] for i in keep)
+    return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
+
+
+def _to_tensor(img: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float().div_(255.0)[None]
+
+
+class CheckpointRegressor(PoseRegressor):
+    """A trained network from :func:`hybridpose.regressors.train.train` as a regressor backend.
+
+    Args:
+        checkpoint: ``best.pt`` of a training run.
+        object: the :class:`ObjectModel` the caller tracks; refused when it is not the object the
+            checkpoint was trained on (diameter differs by more than 1 %).
+        threads: torch intra-op threads for inference (None = leave torch's setting).
+        expect_model: refuse a checkpoint of another architecture (used by the named backends).
+    """
+
+    def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None) -> None:
+        from .train import load_checkpoint
+
+        self.path = Path(checkpoint)
+        ck = load_checkpoint(self.path)
+        for key in ("config", "model", "build"):
+            if key not in ck:
+                raise ValueError(f"{self.path}: not a hybridpose regressor checkpoint (no {key!r})")
+        self.model_name = ck["config"]["model"]
+        if self.model_name not in available_models():
+            raise ValueError(f"{self.path}: checkpoint is for unknown model {self.model_name!r}")
+        if expect_model is not None and expect_model != self.model_name:
+            raise ValueError(f"{self.path}: checkpoint holds a {self.model_name!r} model, not {expect_model!r}")
+        self.name = self.model_name
+        self.kind = model_kind(self.model_name)
+        self.net = build_model(self.model_name, **ck["build"])
+        try:
+            self.net.load_state_dict(ck["model"])
+        except RuntimeError as exc:
+            raise ValueError(f"{self.path}: weights do not fit the {self.model_name!r} network ({exc})") from exc
+        self.net.eval()
+        self.image_size = int(ck["config"]["image_size"])
+        self.dataset = ck.get("dataset", {})
+        self.calibration = ck.get("calibration")
+        if self.calibration is None:
+            log.warning("%s: no covariance calibration stored; covariances are inflated ×%g", self.path, UNCALIBRATED_SCALE)
+        if threads is not None:
+            torch.set_num_threads(int(threads))
+        if object is not None:
+            self._check_object(object)
+
+    # --- checks ----------------------------------------------------------------------------------
+    def _check_object(self, obj) -> None:
+        d = self.dataset.get("diameter_m")
+        if d is not None and abs(obj.diameter - d) > 0.01 * d:
+            raise ValueError(
+                f"object: {self.path} was trained on {self.dataset.get('object')!r} (diameter {d:.3f} m), "
+                f"not on {obj.name!r} (diameter {obj.diameter:.3f} m); train a checkpoint for your object"
+            )
+
+    def _check_camera(self, camera: Camera) -> None:
+        """Direct models learned one field of view; keypoint models normalise it away with the crop."""
+        cam = self.dataset.get("camera")
+        if self.kind == "keypoints" or not cam:
+            return
+        for f, n, key in ((camera.fx, camera.width, "fx"), (camera.fy, camera.height, "fy")):
+            trained = cam[key] / cam["width" if key == "fx" else "height"]
+            if abs(f / n - trained) > FOV_TOLERANCE * trained:
+                raise ValueError(
+                    f"frame.camera: {self.path} was trained for {key}/size = {trained:.4f}, the frame's camera has "
+                    f"{f / n:.4f}; a direct regressor only works at its training field of view (render data with --camera)"
+                )
+
+    # --- inference -------------------------------------------------------------------------------
+    def predict(self, frame: Frame, roi=None) -> Measurement:
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+        roi = check_roi(roi, frame)
+        self._check_camera(frame.camera)
+        with torch.no_grad():
+            if self.kind == "keypoints":
+                return self._predict_keypoints(frame, roi)
+            return self._predict_direct(frame, roi)
+
+    def _crop(self, image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float):
+        S = self.image_size
+        A = crop_affine(cx, cy, side, S, S)
+        crop = cv2.warpAffine(image, A, (S, S), flags=cv2.INTER_AREA if side > S else cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return crop, np.vstack([A, [0, 0, 1]]) @ K
+
+    def _keypoint_pass(self, image, K, box):
+        crop, K_crop = self._crop(image, K, *box)
+        uv, spread = self.net(_to_tensor(crop))
+        uv = uv[0].numpy().astype(np.float64)
+        res = solve_pnp(uv, self.net.keypoints_m.numpy().astype(np.float64), K_crop,
+                        threshold_px=PNP_THRESHOLD * self.image_size)
+        return res, uv, K_crop
+
+    def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
+        """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""
+        if pose is not None:
+            p = (pose @ self.net.keypoints_m.numpy().astype(np.float64)) @ K.T
+            pts = p[:, :2] / p[:, 2:3]
+        else:  # PnP failed: the raw coarse keypoints, mapped back to the frame
+            A = K @ np.linalg.inv(K_crop)
+            pts = uv @ A[:2, :2].T + A[:2, 2]
+        lo, hi = pts.min(0), pts.max(0)
+        if not np.all(np.isfinite(lo)) or np.any(hi - lo < 1):
+            return None
+        return crop_box((lo[0], lo[1], hi[0] - lo[0] + 1, hi[1] - lo[1] + 1), CROP_MARGIN)
+
+    def _predict_keypoints(self, frame: Frame, roi) -> Measurement:
+        image, cam = self._undistorted(frame)
+        K = cam.K
+        box = crop_box(roi, CROP_MARGIN) if roi is not None else None
+        if box is None:
+            found = detect_bright_object(image)
+            if found is None:
+                return self._lost(frame)
+            box = crop_box(found, CROP_MARGIN)
+        res, uv, K_crop = self._keypoint_pass(image, K, box)
+        # second pass on the crop centred on the first pose (the crop the network knows best)
+        again = self._box_around(res.pose if res is not None else None, uv, K_crop, K)
+        if again is not None:
+            res2, _, _ = self._keypoint_pass(image, K, again)
+            if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
+                res = res2
+        if res is None:
+            return self._lost(frame)
+        cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
+        cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
+        quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * self.image_size)))
+        return Measurement(pose=res.pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
+                           timestamp=frame.timestamp)
+
+    def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
+        cam = frame.camera
+        if not any(cam.dist):
+            return frame.image, cam
+        image = cv2.undistort(frame.image, cam.K, np.asarray(cam.dist))
+        return image, Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+
+    def _predict_direct(self, frame: Frame, roi) -> Measurement:
+        image, cam = self._undistorted(frame)
+        S = self.image_size
+        x = _to_tensor(cv2.resize(image, (S, S), interpolation=cv2.INTER_AREA))
+        if self.model_name == "parallel-vgg19":
+            t = self.net.translation(x)[0].numpy().astype(np.float64)
+            if roi is not None:
+                box = crop_box(roi, CROP_MARGIN)
+            else:  # the bounded image around the projected translation, sized by the object's diameter
+                d = float(self.dataset.get("diameter_m") or 0.5)
+                z = max(float(t[2]), 0.05)
+                uv = cam.K @ (t / z)
+                box = (uv[0], uv[1], CROP_MARGIN * max(cam.fx, cam.fy) * d / z)
+            crop, _ = self._crop(image, cam.K, *box)
+            q = self.net.rotation(_to_tensor(crop))[0].numpy().astype(np.float64)
+        else:
+            t_, q_ = self.net(x)
+            t, q = t_[0].numpy().astype(np.float64), q_[0].numpy().astype(np.float64)
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or t[2] <= 0:
+            return self._lost(frame)
+        pose = Pose.from_quat_t(q / np.linalg.norm(q), t)
+        cal = self.calibration
+        cov = np.asarray(cal["covariance"]) if cal and "covariance" in cal else UNCALIBRATED_SCALE * np.diag([0.01] * 3 + [0.01] * 3)
+        # a direct regressor has no per-image residual: quality only says whether the pose is plausible
+        uv = cam.K @ (t / t[2])
+        inside = 0 <= uv[0] < cam.width and 0 <= uv[1] < cam.height
+        return Measurement(pose=pose, covariance=cov, quality=1.0 if inside else 0.0, source=f"regressor:{self.name}",
+                           timestamp=frame.timestamp)
+
+    def _lost(self, frame: Frame) -> Measurement:
+        return Measurement(pose=None, covariance=LOST_COVARIANCE, quality=0.0, source=f"regressor:{self.name}",
+                           timestamp=frame.timestamp, lost=True)
+
+
+def _factory(name: str):
+    def make(checkpoint=None, object=None, threads: int | None = None) -> CheckpointRegressor:
+        path = checkpoint if checkpoint is not None else shipped_checkpoint(name)
+        return CheckpointRegressor(path, object=object, threads=threads, expect_model=name)
+
+    make.__name__ = f"make_{name.replace('-', '_')}"
+    make.__doc__ = f"Regressor backend {name!r}: ``checkpoint=PATH`` (default: the shipped one, if any)."
+    return make
+
+
+for _name in available_models():
+    register("regressor", _name)(_factory(_name))

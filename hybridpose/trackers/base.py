@@ -1,0 +1,114 @@
+"""The tracker contract: given the pose at the previous frame (or the caller's prior), follow the
+object into the next frame and say how sure it is — or that it has lost the object.
+
+Every backend derives from :class:`Tracker`, which checks inputs, keeps the state machine
+(``init`` → ``track``… → ``reset``) and guarantees that no NaN leaves a tracker: a backend whose
+solver produces non-finite numbers reports ``lost`` instead.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from ..core import Frame, Measurement
+from ..geometry import Pose
+from ..objects import ObjectModel
+
+MIN_DEPTH_M = 0.01
+LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)  # "knows nothing": ±180°, ±1 m
+
+
+class Tracker(ABC):
+    """Frame-to-frame model-based tracker (role ``"tracker"`` in :mod:`hybridpose.registry`).
+
+    Args:
+        object: the tracked object's CAD model (metres).
+        lost_quality: ``track`` reports ``lost`` when its quality falls below this (per-backend
+            default, documented by each backend; measured in ``benchmarks/tracker_accuracy.py``).
+
+    Subclasses implement :meth:`_init` and :meth:`_track`.
+    """
+
+    name = "tracker"
+    default_lost_quality = 0.3
+
+    def __init__(self, object: ObjectModel, lost_quality: float | None = None) -> None:
+        if not isinstance(object, ObjectModel):
+            raise TypeError(f"object: expected a hybridpose ObjectModel (load_object(...)), got {type(object).__name__}")
+        self.object = object
+        self.lost_quality = self.default_lost_quality if lost_quality is None else float(lost_quality)
+        if not 0.0 <= self.lost_quality <= 1.0:
+            raise ValueError(f"lost_quality: expected a value in [0, 1], got {lost_quality}")
+        self.pose: Pose | None = None
+        self.frame: Frame | None = None
+
+    # --- public API --------------------------------------------------------------------------------
+    def init(self, frame: Frame, pose: Pose) -> None:
+        """Start tracking at ``pose`` (``T_cam_obj``, metres) in ``frame``."""
+        self._check_frame(frame)
+        self._check_pose(pose, "pose")
+        self._init(frame, pose)
+        self.pose, self.frame = pose, frame
+
+    def track(self, frame: Frame, prior: Pose | None = None) -> Measurement:
+        """Pose in ``frame``, searched around ``prior`` (default: the last pose).
+
+        Returns a :class:`Measurement` with quality in 0..1 and ``lost`` True when quality falls
+        below ``lost_quality`` (the pose is then the tracker's best guess, not to be trusted).
+        """
+        if self.pose is None or self.frame is None:
+            raise RuntimeError(f"{self.name}: track() called before init(frame, pose)")
+        self._check_frame(frame)
+        if frame.camera != self.frame.camera:
+            raise ValueError(f"frame.camera: {frame.camera} differs from the camera given to init ({self.frame.camera})")
+        start = self.pose if prior is None else prior
+        if prior is not None:
+            self._check_pose(prior, "prior")
+        try:
+            pose, cov, quality = self._track(frame, start)
+        except np.linalg.LinAlgError:
+            pose, cov, quality = None, None, 0.0
+        finite = pose is not None and np.all(np.isfinite(pose.matrix)) and cov is not None and np.all(np.isfinite(cov))
+        if not finite or pose.t[2] <= MIN_DEPTH_M:
+            m = Measurement(pose=start, covariance=LOST_COVARIANCE, quality=0.0, source=f"tracker:{self.name}",
+                            timestamp=frame.timestamp, lost=True)
+        else:
+            quality = float(np.clip(quality, 0.0, 1.0))
+            m = Measurement(pose=pose, covariance=cov, quality=quality, source=f"tracker:{self.name}",
+                            timestamp=frame.timestamp, lost=quality < self.lost_quality)
+        self._accept(frame, m)
+        return m
+
+    def reset(self) -> None:
+        """Forget the object (``track`` needs a new ``init``)."""
+        self.pose, self.frame = None, None
+
+    # --- for subclasses -------------------------------------------------------------------------
+    @abstractmethod
+    def _init(self, frame: Frame, pose: Pose) -> None:
+        """Prepare for tracking from ``pose`` in ``frame`` (inputs already checked)."""
+
+    @abstractmethod
+    def _track(self, frame: Frame, start: Pose) -> tuple[Pose | None, np.ndarray | None, float]:
+        """(pose, (6, 6) covariance over ``[ω, v]``, quality) in ``frame`` starting from ``start``."""
+
+    def _accept(self, frame: Frame, m: Measurement) -> None:
+        """Remember the result: the next search starts from it, lost or not (a caller with a better
+        idea — the fusion layer — passes ``prior``); a failed solve keeps the previous pose."""
+        if m.pose is not None and m.quality > 0:
+            self.pose = m.pose
+        self.frame = frame
+
+    # --- checks ------------------------------------------------------------------------------------
+    @staticmethod
+    def _check_frame(frame: Frame) -> None:
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+
+    @staticmethod
+    def _check_pose(pose: Pose, name: str) -> None:
+        if not isinstance(pose, Pose):
+            raise TypeError(f"{name}: expected a hybridpose Pose (T_cam_obj), got {type(pose).__name__}")
+        if pose.t[2] <= MIN_DEPTH_M:
+            raise ValueError(f"{name}: the object is behind the camera (t_z = {pose.t[2]:.3f} m; expected > {MIN_DEPTH_M} m)")

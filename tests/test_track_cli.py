@@ -1,0 +1,101 @@
+"""``hybridpose track`` on a user's image folder / video with a camera file and an initial pose file."""
+import csv
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from hybridpose.cli import main
+from hybridpose.datasets.bop import pose_to_bop
+from hybridpose.geometry import Camera, Pose
+from hybridpose.metrics import rotation_error_deg
+from hybridpose.render import Renderer
+from hybridpose.render.sequences import SequenceSpec, make_sequence
+from hybridpose.trackers.run import load_pose
+
+
+@pytest.fixture(scope="module")
+def clip(truss, tmp_path_factory):
+    """12 frames of a slow tumble as a PNG folder and an .mp4, with camera.json and the true poses."""
+    root = tmp_path_factory.mktemp("clip")
+    camera = Camera.default()
+    frames = make_sequence(SequenceSpec("tumble", frames=12, fps=30, seed=2), truss, camera)
+    (root / "png").mkdir()
+    video = cv2.VideoWriter(str(root / "clip.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (camera.width, camera.height))
+    with Renderer(truss, camera) as r:
+        for f in frames:
+            bgr = cv2.cvtColor(r.render(f.pose, rng=f.index).rgb, cv2.COLOR_RGB2BGR)
+            cv2.imwrite(str(root / "png" / f"{f.index:06d}.png"), bgr)
+            video.write(bgr)
+    video.release()
+    (root / "camera.json").write_text(json.dumps(camera.to_dict()))
+    p0 = frames[0].pose
+    (root / "pose.json").write_text(json.dumps({"quat_wxyz": p0.quat_wxyz.tolist(), "t_m": p0.t.tolist()}))
+    return root, [f.pose for f in frames]
+
+
+def _read_poses(path):
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    return [Pose.from_quat_t([float(r[k]) for k in ("qw", "qx", "qy", "qz")], [float(r[k]) for k in ("tx_m", "ty_m", "tz_m")])
+            for r in rows], rows
+
+
+def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
+    root, truth = clip
+    rc = main(["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+               "--init-pose", str(root / "pose.json"), "--tracker", "edges", "--out", str(tmp_path / "run")])
+    assert rc == 0
+    out = tmp_path / "run"
+    poses, rows = _read_poses(out / "poses.csv")
+    assert len(poses) == len(truth) and rows[0]["frame"] == "0"
+    assert np.median([rotation_error_deg(p, t) for p, t in zip(poses, truth)]) < 1.0
+    gt = json.loads((out / "scene_gt.json").read_text())
+    assert np.allclose(gt["5"][0]["cam_t_m2c"], poses[5].t * 1000, atol=1e-3)  # BOP is in mm
+    cap = cv2.VideoCapture(str(out / "overlay.mp4"))
+    assert cap.isOpened() and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(truth)
+    assert "12 frames with edges" in capsys.readouterr().out
+
+
+def test_track_video_file(clip, tmp_path):
+    root, truth = clip
+    assert main(["track", str(root / "clip.mp4"), "--object", "truss", "--camera", str(root / "camera.json"),
+                 "--init-pose", str(root / "pose.json"), "--tracker", "klt-pnp", "--max-frames", "6",
+                 "--out", str(tmp_path / "v")]) == 0
+    poses, _ = _read_poses(tmp_path / "v" / "poses.csv")
+    assert len(poses) == 6
+    assert max(rotation_error_deg(p, t) for p, t in zip(poses, truth)) < 3.0  # mp4 compression costs a little
+
+
+def test_pose_file_formats_agree(tmp_path):
+    q = np.array([0.9, 0.1, -0.3, 0.2])
+    p = Pose.from_quat_t(q / np.linalg.norm(q), [0.05, -0.02, 0.7])
+    files = {
+        "quat.json": {"quat_wxyz": p.quat_wxyz.tolist(), "t_m": p.t.tolist()},
+        "R.json": {"R": p.R.tolist(), "t_m": p.t.tolist()},
+        "bop.json": pose_to_bop(p),
+    }
+    for name, data in files.items():
+        (tmp_path / name).write_text(json.dumps(data))
+        assert load_pose(tmp_path / name).allclose(p, atol=1e-9), name
+    (tmp_path / "bad.json").write_text(json.dumps({"quat_wxyz": [1, 0, 0, 0]}))
+    with pytest.raises(ValueError, match="bad.json: missing t_m"):
+        load_pose(tmp_path / "bad.json")
+
+
+def test_track_errors_name_the_problem(clip, tmp_path, capsys):
+    root, _ = clip
+    small = Camera.default().scaled(320)
+    (tmp_path / "small.json").write_text(json.dumps(small.to_dict()))
+    args = ["--object", "truss", "--init-pose", str(root / "pose.json"), "--out", str(tmp_path / "x")]
+    assert main(["track", str(root / "png"), "--camera", str(tmp_path / "small.json"), *args]) == 2
+    assert "640×480 but the camera file says 320×320" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    assert main(["track", str(tmp_path / "empty"), "--camera", str(root / "camera.json"), *args]) == 2
+    assert "no images" in capsys.readouterr().err
+    behind = tmp_path / "behind.json"
+    behind.write_text(json.dumps({"quat_wxyz": [1, 0, 0, 0], "t_m": [0, 0, -1]}))
+    assert main(["track", str(root / "png"), "--camera", str(root / "camera.json"), "--object", "truss",
+                 "--init-pose", str(behind), "--out", str(tmp_path / "y")]) == 2
+    assert "behind the camera" in capsys.readouterr().err

@@ -208,3 +208,27 @@ def load_camera(path) -> Camera:
 
 def save_camera(camera: Camera, path) -> None:
     Path(path).write_text(json.dumps(camera.to_dict(), indent=2))
+
+
+def projection_jacobian(pose: Pose, points_m: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Projections (S, 2) and their Jacobian (S, 2, 6) w.r.t. the right perturbation
+    ``ξ = [ω, v]`` in ``pose.retract(ξ)``: ``∂p/∂ξ = [−R [X]×, R]`` chained with the pinhole
+    (no distortion: undistort the measurements first). Shared by PnP and the edge trackers."""
+    R = pose.R
+    Xc = points_m @ R.T + pose.t
+    x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
+    fx, fy = K[0, 0], K[1, 1]
+    uv = np.stack([fx * x / z + K[0, 2], fy * y / z + K[1, 2]], 1)
+    dpi = np.zeros((len(Xc), 2, 3))
+    dpi[:, 0, 0] = fx / z
+    dpi[:, 0, 2] = -fx * x / z**2
+    dpi[:, 1, 1] = fy / z
+    dpi[:, 1, 2] = -fy * y / z**2
+    # d(R (X + ω×X + v))/dω = −R [X]×  ;  /dv = R
+    Xs = points_m
+    skew = np.zeros((len(Xs), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2] = -Xs[:, 2], Xs[:, 1]
+    skew[:, 1, 0], skew[:, 1, 2] = Xs[:, 2], -Xs[:, 0]
+    skew[:, 2, 0], skew[:, 2, 1] = -Xs[:, 1], Xs[:, 0]
+    dX = np.concatenate([-R @ skew, np.broadcast_to(R, (len(Xs), 3, 3))], axis=2)  # (S, 3, 6)
+    return uv, dpi @ dX

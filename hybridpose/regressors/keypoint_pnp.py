@@ -7,9 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..geometry import Pose
+from ..geometry import Pose, projection_jacobian
 
-_EPS_XI = 1e-6
 MIN_SPREAD_PX = 1.0
 
 
@@ -31,20 +30,6 @@ class PnPResult:
     @property
     def inlier_ratio(self) -> float:
         return float(self.inliers.mean())
-
-
-def reprojection_jacobian(pose: Pose, points_m: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(2N, 6) derivative of the pinhole projections w.r.t. ``ξ`` in ``pose.retract(ξ)``.
-
-    Analytic: for p = R·(x + ω×x... ) the chain rule is error-prone across conventions, so the
-    derivative is taken by central differences of our own ``retract`` (exact to ~1e-8 here).
-    """
-    cols = []
-    for k in range(6):
-        d = np.zeros(6)
-        d[k] = _EPS_XI
-        cols.append((_project(pose.retract(d), points_m, K) - _project(pose.retract(-d), points_m, K)).ravel() / (2 * _EPS_XI))
-    return np.stack(cols, 1)
 
 
 def _project(pose: Pose, points_m: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -89,5 +74,6 @@ def solve_pnp(points_2d: np.ndarray, points_m: np.ndarray, K: np.ndarray, thresh
     inl = res < threshold_px
     if inl.sum() < min_inliers:
         return None
-    J = reprojection_jacobian(pose, np.asarray(points_m, dtype=np.float64)[inl], K)
+    _, J = projection_jacobian(pose, np.asarray(points_m, dtype=np.float64)[inl], K)
+    J = J.reshape(-1, 6)
     return PnPResult(pose=pose, inliers=inl, rms_px=float(np.sqrt(np.mean(res[inl] ** 2))), information=J.T @ J)

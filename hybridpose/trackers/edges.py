@@ -26,7 +26,8 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .model_view import EdgeSamples, ModelView, projection_jacobian
+from ..geometry import projection_jacobian
+from .model_view import EdgeSamples, ModelView
 
 TUKEY_C = 4.685
 MIN_SUPPORT = 40  # inlier samples for full quality

@@ -29,7 +29,8 @@ from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 from .edges import fit_edges
-from .model_view import ModelView, projection_jacobian
+from ..geometry import projection_jacobian
+from .model_view import ModelView
 
 MIN_INLIERS_FULL = 20
 RMS_SCALE_PX = 2.0

@@ -1,0 +1,144 @@
+"""Keypoint model pieces (soft-argmax, PnP, Jacobian, covariance) and the checkpoint regressor backend."""
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from hybridpose.core import Frame
+from hybridpose.datasets import render_random_dataset
+from hybridpose.geometry import Camera, Pose, projection_jacobian, random_quat
+from hybridpose.regressors.calibration import nees, pnp_covariance
+from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax
+from hybridpose.regressors.keypoint_pnp import solve_pnp
+from hybridpose.regressors.predictor import CheckpointRegressor, detect_bright_object
+from hybridpose.regressors.train import TrainConfig, train
+from hybridpose.registry import available, create
+
+
+def _pose(rng, z=0.6):
+    return Pose.from_quat_t(random_quat(None, rng), [rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), z])
+
+
+def test_soft_argmax_finds_a_peak_at_the_cell_centre():
+    logits = torch.full((1, 2, 8, 8), -50.0)
+    logits[0, 0, 3, 5] = 50.0
+    logits[0, 1, 0, 0] = 50.0
+    uv, spread = soft_argmax(logits, stride=4)
+    assert torch.allclose(uv[0, 0], torch.tensor([4 * 5 + 1.5, 4 * 3 + 1.5]))
+    assert torch.allclose(uv[0, 1], torch.tensor([1.5, 1.5]))
+    assert spread.max() < 1e-2
+
+
+def test_keypoint_loss_ignores_keypoints_outside_the_crop():
+    pred = torch.zeros(1, 2, 2)
+    true = torch.tensor([[[10.0, 0.0], [500.0, 0.0]]])
+    loss = keypoint_loss(pred, torch.zeros(1, 2), true, image_size=100, spread_weight=0.0)
+    assert loss.item() == pytest.approx(0.1)
+
+
+def test_keypoint_net_shapes_and_size_check(truss):
+    net = KeypointNet(truss.keypoints, width=8, image_size=64).eval()
+    uv, spread = net(torch.rand(2, 3, 64, 64))
+    assert uv.shape == (2, len(truss.keypoints), 2) and spread.shape == (2, len(truss.keypoints))
+    with pytest.raises(ValueError, match="expected 64×64 crops"):
+        net(torch.rand(1, 3, 96, 96))
+    with pytest.raises(ValueError, match="multiple of 32"):
+        KeypointNet(truss.keypoints, image_size=100)
+
+
+def test_projection_jacobian_matches_central_differences(rng, camera):
+    pose = _pose(rng)
+    pts = rng.uniform(-0.2, 0.2, (10, 3))
+    uv, J = projection_jacobian(pose, pts, camera.K)
+    ref, _ = cv2.projectPoints(pts, cv2.Rodrigues(pose.R)[0], pose.t, camera.K, None)
+    assert np.allclose(uv, ref.reshape(-1, 2), atol=1e-9)
+    eps = 1e-6
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = eps
+        num = (projection_jacobian(pose.retract(d), pts, camera.K)[0] - projection_jacobian(pose.retract(-d), pts, camera.K)[0]) / (2 * eps)
+        assert np.allclose(J[:, :, k], num, atol=1e-4 * np.abs(num).max() + 1e-6)
+
+
+def test_solve_pnp_recovers_the_pose_and_rejects_outliers(truss, rng, camera):
+    pose = _pose(rng)
+    uv = camera.project(truss.keypoints, pose) + rng.normal(0, 0.3, (len(truss.keypoints), 2))
+    uv[[2, 7]] += [[40.0, -25.0], [-30.0, 35.0]]
+    res = solve_pnp(uv, truss.keypoints, camera.K, threshold_px=3.0)
+    assert res is not None
+    assert not res.inliers[2] and not res.inliers[7] and res.inliers.sum() == len(uv) - 2
+    assert np.linalg.norm(pose.local(res.pose)[:3]) < np.deg2rad(1.0)
+    assert np.linalg.norm(res.pose.t - pose.t) < 0.01
+    cov = pnp_covariance(res.information, res.rms_px)
+    assert np.all(np.linalg.eigvalsh(cov) > 0) and np.isfinite(nees(res.pose.local(pose), cov))
+
+
+def test_solve_pnp_gives_none_for_collapsed_points(truss, camera):
+    assert solve_pnp(np.full((len(truss.keypoints), 2), 100.0), truss.keypoints, camera.K) is None
+    with pytest.raises(ValueError, match="finite"):
+        solve_pnp(np.full((len(truss.keypoints), 2), np.nan), truss.keypoints, camera.K)
+
+
+def test_detect_bright_object_boxes_the_lit_pixels():
+    img = np.zeros((100, 120, 3), np.uint8)
+    img[20:40, 30:70] = 200
+    img[80, 5] = 255  # a star / hot pixel
+    assert detect_bright_object(img) == (30.0, 20.0, 40.0, 20.0)
+    assert detect_bright_object(np.zeros_like(img)) is None
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(truss, tmp_path_factory):
+    """A `default`-architecture model trained for a few batches (mechanics, not accuracy)."""
+    root = tmp_path_factory.mktemp("kp")
+    render_random_dataset(root / "ds", truss, Camera.default().scaled(160), count=24, seed=0)
+    cfg = TrainConfig(model="default", data=str(root / "ds"), out=str(root / "run"), epochs=1, batch=8,
+                      lr=1e-3, image_size=64, patience=0, schedule="cosine")
+    train(cfg, progress=False)
+    return root / "run" / "best.pt"
+
+
+def test_regressor_backends_are_registered():
+    assert {"default", "keypoints", "vgg16", "vgg19", "branched-vgg19", "parallel-vgg19"} <= set(available("regressor"))
+
+
+def test_checkpoint_regressor_returns_a_valid_measurement(tiny_checkpoint, truss, camera):
+    reg = create("regressor", "default", checkpoint=tiny_checkpoint, object=truss)
+    from hybridpose.render import Renderer
+
+    with Renderer(truss, camera) as r:
+        img = r.render(Pose.from_quat_t([1, 0, 0, 0], [0.0, 0.0, 0.6])).rgb
+    frame = Frame(img, camera, 1.5)
+    for roi in (None, (250, 180, 140, 120)):
+        m = reg.predict(frame, roi=roi)
+        assert m.source == "regressor:default" and m.timestamp == 1.5 and 0.0 <= m.quality <= 1.0
+        assert m.covariance.shape == (6, 6) and np.all(np.isfinite(m.covariance))
+        assert (m.pose is None) == m.lost
+    black = reg.predict(Frame(np.zeros_like(img), camera, 0.0))
+    assert black.lost and black.pose is None
+
+
+def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path):
+    import trimesh
+
+    from hybridpose.objects import ObjectModel
+
+    reg = CheckpointRegressor(tiny_checkpoint)
+    frame = Frame(np.zeros((camera.height, camera.width, 3), np.uint8), camera, 0.0)
+    with pytest.raises(ValueError, match="roi: expected positive width"):
+        reg.predict(frame, roi=(10, 10, 0, 5))
+    with pytest.raises(ValueError, match="outside the 640×480 image"):
+        reg.predict(frame, roi=(700, 10, 20, 20))
+    with pytest.raises(TypeError, match="Frame"):
+        reg.predict(frame.image)
+    big = ObjectModel("big", trimesh.creation.box((1.0, 0.5, 0.2)))
+    with pytest.raises(ValueError, match="trained on 'truss'"):
+        CheckpointRegressor(tiny_checkpoint, object=big)
+    with pytest.raises(ValueError, match="holds a 'default' model, not 'vgg16'"):
+        create("regressor", "vgg16", checkpoint=tiny_checkpoint)
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="corrupt or truncated"):
+        CheckpointRegressor(bad)
+    with pytest.raises(FileNotFoundError, match="no trained 'vgg19' checkpoint ships"):
+        create("regressor", "vgg19")

@@ -81,3 +81,20 @@ def test_vgg16_one_step_on_cpu(data, tmp_path):
                       freeze_features=True, max_batches=1)
     best = train(cfg, progress=False)
     assert best["val_loss"] > 0
+
+
+def test_ddp_two_cpu_processes_with_gloo(data, tmp_path):
+    """`torchrun --nproc_per_node 2 -m hybridpose.regressors.train`: both ranks train, rank 0 writes."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "ddp"
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29517",
+           "-m", "hybridpose.regressors.train", "--model", "default", "--data", str(data), "--out", str(out),
+           "--epochs", "2", "--batch", "4", "--image-size", "64", "--max-batches", "2", "--device", "cpu"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "DDP: rank 0 of 2" in res.stderr and "DDP: rank 1 of 2" in res.stderr
+    ck = load_checkpoint(out / "last.pt")
+    assert ck["epoch"] == 1 and not any(k.startswith("module.") for k in ck["model"])
+    assert [r["epoch"] for r in json.loads((out / "history.json").read_text())] == [0, 1]

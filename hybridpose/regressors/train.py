@@ -12,6 +12,7 @@ import io
 import json
 import logging
 import math
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -135,8 +136,13 @@ def make_augment():
     )
 
 
+def _unwrap(model):
+    """The network inside a DistributedDataParallel wrapper (or the network itself)."""
+    return getattr(model, "module", model)
+
+
 def is_keypoint_model(model) -> bool:
-    return getattr(model, "kind", "direct") == "keypoints"
+    return getattr(_unwrap(model), "kind", "direct") == "keypoints"
 
 
 def _forward(model, batch, device):
@@ -149,7 +155,7 @@ def _forward(model, batch, device):
 def _batch_loss(model, batch, device, beta: float) -> torch.Tensor:
     if is_keypoint_model(model):
         pred, spread = model(batch["image"].to(device, non_blocking=True))
-        return keypoint_loss(pred, spread, batch["kp2d"].to(device), model.image_size)
+        return keypoint_loss(pred, spread, batch["kp2d"].to(device), _unwrap(model).image_size)
     t, q = _forward(model, batch, device)
     return pose_loss(t, q, batch["t"].to(device), batch["q"].to(device), beta)
 
@@ -225,12 +231,35 @@ def load_checkpoint(path) -> dict:
         raise ValueError(f"{path}: corrupt or truncated checkpoint ({exc})") from exc
 
 
+def _distributed(device: torch.device) -> tuple[int, int, torch.device]:
+    """(rank, world size, device) — under ``torchrun`` (``WORLD_SIZE`` > 1) joins the process group:
+    NCCL with one GPU per process, gloo on CPU."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return 0, 1, device
+    import torch.distributed as dist
+
+    if device.type == "cuda":
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
+    if not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return dist.get_rank(), world, device
+
+
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
-    """Train ``cfg.model`` on ``cfg.data``; returns the best validation metrics."""
+    """Train ``cfg.model`` on ``cfg.data``; returns the best validation metrics.
+
+    Under ``torchrun --nproc_per_node N`` the run is data-parallel (DDP): each process trains on
+    its shard of every epoch with ``cfg.batch`` images per step (global batch N × batch); rank 0
+    validates, writes checkpoints and metrics, and decides early stopping for all.
+    """
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else
                           ("cpu" if cfg.device == "auto" else cfg.device))
+    rank, world, device = _distributed(device)
+    main_process = rank == 0
     torch.manual_seed(cfg.seed)
     kw = {"freeze_features": cfg.freeze_features}
     if cfg.model in ("branched-vgg19", "parallel-vgg19"):
@@ -242,8 +271,14 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     model = build_model(cfg.model, **kw)
     train_ds, val_ds = make_datasets(cfg, keypoints_m=obj.keypoints if obj is not None else None)
     gen = torch.Generator().manual_seed(cfg.seed)
-    train_loader = DataLoader(train_ds, batch_size=cfg.batch, shuffle=True, generator=gen, num_workers=cfg.workers,
-                              drop_last=len(train_ds) > cfg.batch, pin_memory=device.type == "cuda")
+    sampler = None
+    if world > 1:
+        from torch.utils.data.distributed import DistributedSampler
+
+        sampler = DistributedSampler(train_ds, num_replicas=world, rank=rank, shuffle=True, seed=cfg.seed)
+    train_loader = DataLoader(train_ds, batch_size=cfg.batch, shuffle=sampler is None, sampler=sampler,
+                              generator=gen if sampler is None else None, num_workers=cfg.workers,
+                              drop_last=len(train_ds) > cfg.batch * world, pin_memory=device.type == "cuda")
     val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers)
 
     if cfg.imagenet_weights:
@@ -251,6 +286,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     elif obj is None:
         log.warning("no --imagenet-weights given: training %s from scratch (nothing is downloaded)", cfg.model)
     model.to(device)
+    net = model
+    if world > 1:
+        from torch.nn.parallel import DistributedDataParallel
+
+        net = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+        log.info("DDP: rank %d of %d processes on %s", rank, world, device)
     optim = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
     augment = make_augment().to(device) if cfg.augment else None
     sched = (torch.optim.lr_scheduler.CosineAnnealingLR(optim, cfg.epochs, eta_min=0.01 * cfg.lr)
@@ -272,12 +313,14 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         log.info("resumed %s at epoch %d", last_path, start_epoch)
 
     bar = None
-    if progress:
+    if progress and main_process:
         from tqdm import tqdm
 
         bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
     for epoch in range(start_epoch, cfg.epochs):
-        model.train()
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        net.train()
         t0, total, n, lr_used = time.perf_counter(), 0.0, 0, optim.param_groups[0]["lr"]
         for b, batch in enumerate(train_loader):
             if cfg.max_batches is not None and b >= cfg.max_batches:
@@ -286,7 +329,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                 batch["image"] = augment(batch["image"].to(device))
                 if "crop_image" in batch:
                     batch["crop_image"] = augment(batch["crop_image"].to(device))
-            loss = _batch_loss(model, batch, device, cfg.beta)
+            loss = _batch_loss(net, batch, device, cfg.beta)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"epoch {epoch} batch {b}: loss is {loss.item()}; lower --lr")
             optim.zero_grad(set_to_none=True)
@@ -295,6 +338,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             total, n = total + loss.item() * len(batch["index"]), n + len(batch["index"])
         if sched is not None:
             sched.step()
+        if not main_process:
+            if _stop_signal(None):
+                break
+            continue
         row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta),
                "lr": lr_used, "epoch_s": time.perf_counter() - t0}
         history.append(row)
@@ -312,16 +359,33 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         if bar:
             bar.update(1)
             bar.set_postfix(val_loss=f"{row['val_loss']:.3f}", rot=f"{row['rot_mean_deg']:.1f}°", t=f"{row['trans_mean_m']:.3f}m")
-        if cfg.patience and stale >= cfg.patience:
+        stop = bool(cfg.patience and stale >= cfg.patience)
+        if world > 1:
+            _stop_signal(stop)
+        if stop:
             log.info("early stop at epoch %d: no validation improvement for %d epochs", epoch, stale)
             break
     if bar:
         bar.close()
     best_path = out / "best.pt"
-    if best_path.exists():
+    if main_process and best_path.exists():
         _calibrate_checkpoint(best_path, model, val_loader, device)
+    if world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()
+        dist.destroy_process_group()
     best_row = min(history, key=lambda r: r["val_loss"]) if history else {}
     return best_row
+
+
+def _stop_signal(stop: bool | None) -> bool:
+    """Rank 0 broadcasts its early-stop decision after validating; the other ranks receive it."""
+    import torch.distributed as dist
+
+    box = [stop]
+    dist.broadcast_object_list(box, src=0)
+    return bool(box[0])
 
 
 def _calibrate_checkpoint(path: Path, model, val_loader, device) -> None:
@@ -384,7 +448,8 @@ def config_from_args(args) -> TrainConfig:
 def run(args: argparse.Namespace) -> int:
     """Train from parsed :func:`add_train_arguments` options and print the best validation metrics."""
     best = train(config_from_args(args), resume=args.resume)
-    print(json.dumps(best, indent=2))
+    if int(os.environ.get("RANK", "0")) == 0:
+        print(json.dumps(best, indent=2))
     return 0
 
 

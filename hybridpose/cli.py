@@ -163,6 +163,18 @@ def cmd_track(args) -> int:
     return 0
 
 
+def cmd_eval(args) -> int:
+    from .regressors.evaluate import evaluate_checkpoint
+
+    s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"))
+    ms = s["ms_per_image"]
+    print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
+          f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
+          f"ADD-0.1d {s['add_0.1d_recall']:.2f}, {s['failures']} failures, {ms.get('1_thread', 0):.1f} ms/img (1 thread) "
+          f"→ {Path(args.out) / 'report.md'}")
+    return 0
+
+
 def cmd_train(args) -> int:
     from .regressors.train import run
 
@@ -219,6 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("train", help="train a CNN pose regressor on a rendered dataset (checkpoints, --resume)")
     add_train_arguments(t)
     t.set_defaults(func=cmd_train)
+
+    e = sub.add_parser("eval", help="evaluate a trained regressor: paper table, SPEED, ADD-0.1d, plots, Grad-CAM, ms/img")
+    e.add_argument("--checkpoint", required=True, help="best.pt of a training run")
+    e.add_argument("--data", required=True, help="held-out BOP dataset (e.g. hybridpose render --kind random --seed 100)")
+    e.add_argument("--out", required=True, help="report folder (report.json/.md, error_vs_distance.png, gradcam.png)")
+    e.add_argument("--limit", type=int, default=None, help="evaluate the first N images only")
+    e.set_defaults(func=cmd_eval)
 
     k = sub.add_parser("track", help="track your object through a video or image folder from an initial pose")
     k.add_argument("source", help="video file (.mp4/.avi/...) or folder of images")

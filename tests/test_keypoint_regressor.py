@@ -142,3 +142,22 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
         CheckpointRegressor(bad)
     with pytest.raises(FileNotFoundError, match="no trained 'vgg19' checkpoint ships"):
         create("regressor", "vgg19")
+
+
+def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, capsys):
+    import json
+
+    from hybridpose.cli import main
+
+    data = tiny_checkpoint.parent.parent / "ds"
+    assert main(["eval", "--checkpoint", str(tiny_checkpoint), "--data", str(data), "--out", str(tmp_path / "rep"),
+                 "--limit", "10"]) == 0
+    rep = json.loads((tmp_path / "rep" / "report.json").read_text())
+    s = rep["summary"]
+    assert s["images"] == 10 and len(rep["per_image"]) == 10
+    assert {"rot_mean_deg", "rot_median_deg", "trans_mean_m", "speed_score", "add_0.1d_recall", "failures"} <= set(s)
+    assert set(s["ms_per_image"]) == {"1_thread", "2_threads"}
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
+    assert (tmp_path / "rep" / "gradcam.png").stat().st_size > 1000
+    assert "eval default on 10 images" in capsys.readouterr().out

@@ -77,7 +77,7 @@ def cmd_render(args) -> int:
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
                                       progress=_progress("render"), sun_cone_deg=args.sun_cone,
-                                      sun_scale_range=args.sun_range)
+                                      sun_scale_range=args.sun_range, in_view=args.in_view)
     else:
         spec = SequenceSpec(trajectory=args.trajectory, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                             lighting=args.lighting, seed=args.seed)
@@ -210,6 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--sun", type=float, default=1.0, help="sun intensity")
     r.add_argument("--sun-cone", type=float, default=0.0,
                    help="random: per-image sun direction uniform within this cone (degrees) around --sun-dir")
+    r.add_argument("--in-view", action="store_true",
+                   help="random: keep the whole object in the image (default: only its centre)")
     r.add_argument("--sun-range", type=_float_pair, default=(1.0, 1.0),
                    help="random: per-image sun intensity factor drawn from LOW,HIGH")
     r.add_argument("--exposure", type=float, default=1.0)

@@ -19,6 +19,29 @@ def test_random_poses_in_reach_and_in_view():
     assert all(a.allclose(b) for a, b in zip(again, poses))
 
 
+def test_random_poses_with_the_whole_object_in_view(truss):
+    cam = Camera.default()
+    poses = random_poses(300, cam, (0.3, 1.2), rng=2, in_view_points=truss.bbox_corners)
+    for p in poses:
+        uv = cam.project(truss.bbox_corners, p)
+        assert np.all(uv >= -0.5) and np.all(uv <= [cam.width - 0.5, cam.height - 0.5])
+    z = np.array([p.t[2] for p in poses])
+    # depth stays spread over the distances where the truss fits (it cannot at 0.3 m with this lens)
+    assert z.max() > 1.1 and z.min() < 0.5 and np.histogram(z, bins=4, range=(0.45, 1.2))[0].min() > 40
+
+
+def test_sun_directions_stay_in_their_cone():
+    from hybridpose.datasets.generate import sun_directions_in_cone
+
+    axis = np.array([0.6, 0.4, 0.7]) / np.linalg.norm([0.6, 0.4, 0.7])
+    d = sun_directions_in_cone(axis, 40.0, 5000, np.random.default_rng(0))
+    ang = np.degrees(np.arccos(np.clip(d @ axis, -1, 1)))
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0) and ang.max() <= 40.0 + 1e-9 and ang.max() > 38.0
+    # uniform on the cap: the cap's outer half (in solid angle) holds half the directions
+    cos_mid = (1 + np.cos(np.radians(40.0))) / 2
+    assert abs(np.mean(d @ axis < cos_mid) - 0.5) < 0.03
+
+
 @pytest.mark.parametrize("name", ["tumble", "approach", "fly-around", "distance-sweep"])
 def test_trajectories_smooth_and_seeded(name):
     fps, dur = 30.0, 6.0

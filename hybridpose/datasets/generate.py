@@ -110,10 +110,12 @@ def render_random_dataset(
     progress: Callable[[int, int], None] | None = None,
     sun_cone_deg: float = 0.0,
     sun_scale_range: tuple[float, float] = (1.0, 1.0),
+    in_view: bool = False,
 ) -> Path:
     """``count`` random views within arm's reach (split ``train``) + ``labels.csv``; resumable.
 
-    ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
+    ``in_view`` keeps the whole object in the image (its bounding-box corners project inside);
+    otherwise only its centre is. ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
     ``lighting.sun_direction_cam`` and ``sun_scale_range`` its intensity factor, so a network
     trained on the data does not learn one shading. Returns the scene directory.
     """
@@ -128,8 +130,8 @@ def render_random_dataset(
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
     _open_job(out, "random", obj, camera, lighting, sensor, count=count, seed=seed,
               distance_range_m=list(distance_range_m), sun_cone_deg=float(sun_cone_deg),
-              sun_scale_range=[float(lo), float(hi)])
-    poses = random_poses(count, camera, distance_range_m, rng=seed)
+              sun_scale_range=[float(lo), float(hi)], in_view=bool(in_view))
+    poses = random_poses(count, camera, distance_range_m, rng=seed, in_view_points=obj.bbox_corners if in_view else None)
     # lighting draws use their own stream so that the poses of a seed never change
     sun_rng = np.random.default_rng([seed, 7])
     dirs = (sun_directions_in_cone(lighting.sun_direction_cam, sun_cone_deg, count, sun_rng)

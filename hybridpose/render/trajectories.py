@@ -20,11 +20,16 @@ def random_poses(
     camera: Camera,
     distance_range_m: tuple[float, float] = ARM_REACH_M,
     rng: np.random.Generator | int | None = None,
+    in_view_points: np.ndarray | None = None,
+    max_tries: int = 200,
 ) -> list[Pose]:
     """Poses within arm's reach with the object centre inside the image (so at least partly in view).
 
     Depth uniform in ``distance_range_m`` (metres along the optical axis), object centre uniform
-    over the image, orientation uniform on SO(3).
+    over the image, orientation uniform on SO(3). With ``in_view_points`` ((N, 3) metres, e.g. the
+    bounding-box corners) orientation and centre are redrawn (up to ``max_tries`` per depth) until
+    all of them project inside the image: the object is wholly in view, as when the CNN
+    initialises a tracker; depths where it cannot fit at all are skipped.
     """
     lo, hi = distance_range_m
     if not 0 < lo <= hi:
@@ -32,13 +37,32 @@ def random_poses(
     if count < 0:
         raise ValueError(f"count: expected ≥ 0, got {count}")
     rng = np.random.default_rng(rng)
-    z = rng.uniform(lo, hi, count)
-    u = rng.uniform(-0.5, camera.width - 0.5, count)
-    v = rng.uniform(-0.5, camera.height - 0.5, count)
-    q = random_quat(count, rng)
-    x = (u - camera.cx) / camera.fx * z
-    y = (v - camera.cy) / camera.fy * z
-    return [Pose.from_quat_t(q[i], [x[i], y[i], z[i]]) for i in range(count)]
+    if in_view_points is None:
+        z = rng.uniform(lo, hi, count)
+        u = rng.uniform(-0.5, camera.width - 0.5, count)
+        v = rng.uniform(-0.5, camera.height - 0.5, count)
+        q = random_quat(count, rng)
+        return [_pose_at_pixel(q[i], u[i], v[i], z[i], camera) for i in range(count)]
+    # depth first, then orientation and centre until the object fits: depth stays ~uniform over
+    # the distances where the object can fit at all
+    pts = np.asarray(in_view_points, dtype=np.float64)
+    poses: list[Pose] = []
+    while len(poses) < count:
+        z = rng.uniform(lo, hi)
+        for _ in range(max_tries):
+            pose = _pose_at_pixel(random_quat(None, rng), rng.uniform(-0.5, camera.width - 0.5),
+                                  rng.uniform(-0.5, camera.height - 0.5), z, camera)
+            p = (pose @ pts) @ camera.K.T
+            uv = p[:, :2] / p[:, 2:3]
+            if (np.all(p[:, 2] > 0) and np.all(uv >= -0.5) and np.all(uv[:, 0] <= camera.width - 0.5)
+                    and np.all(uv[:, 1] <= camera.height - 0.5)):
+                poses.append(pose)
+                break
+    return poses
+
+
+def _pose_at_pixel(q, u: float, v: float, z: float, camera: Camera) -> Pose:
+    return Pose.from_quat_t(q, [(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z])
 
 
 def smoothstep(x: np.ndarray | float) -> np.ndarray | float:

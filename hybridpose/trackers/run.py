@@ -119,8 +119,12 @@ def draw_tracking(frame: Frame, obj, m: Measurement, label: str) -> np.ndarray:
 
 
 def track_sequence(frames: Iterator[Frame], tracker: Tracker, init_pose: Pose, out, max_frames: int | None = None,
-                   progress: Callable[[int], None] | None = None) -> TrackResult:
-    """Track from ``init_pose`` at the first frame; write overlay.mp4, poses.csv, scene_gt.json to ``out``."""
+                   progress: Callable[[int], None] | None = None,
+                   on_frame: Callable[[Frame, Measurement, np.ndarray], None] | None = None) -> TrackResult:
+    """Track from ``init_pose`` at the first frame; write overlay.mp4, poses.csv, scene_gt.json to ``out``.
+
+    ``on_frame(frame, measurement, overlay_rgb)`` is called for every frame (e.g. to keep pictures).
+    """
     import time
 
     from ..datasets.bop import pose_to_bop
@@ -148,7 +152,10 @@ def track_sequence(frames: Iterator[Frame], tracker: Tracker, init_pose: Pose, o
             rows.append([frame.index, f"{frame.timestamp:.6f}", *(f"{v:.9f}" for v in q), *(f"{v:.6f}" for v in t),
                          f"{m.quality:.4f}", int(m.lost)])
             scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(m.pose)}]
-            writer.write(cv2.cvtColor(draw_tracking(frame, tracker.object, m, f"{tracker.name} #{frame.index}"), cv2.COLOR_RGB2BGR))
+            overlay = draw_tracking(frame, tracker.object, m, f"{tracker.name} #{frame.index}")
+            writer.write(cv2.cvtColor(overlay, cv2.COLOR_RGB2BGR))
+            if on_frame:
+                on_frame(frame, m, overlay)
             if progress:
                 progress(k + 1)
         if not rows:

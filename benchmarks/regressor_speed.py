@@ -1,4 +1,7 @@
-"""CPU inference cost of the paper's models: ms per image at 1 and 2 threads, parameter count.
+"""CPU inference cost of every regressor network: ms per image at 1 and 2 threads, parameter count.
+
+The paper's VGGs at ``--size`` (224); the keypoint models at their own crop size (network only —
+``hybridpose eval`` times the whole ``predict`` path: detection, two passes, PnP).
 
 Usage: python benchmarks/regressor_speed.py [--size 224] [--repeats 3]
 Writes benchmarks/results/regressor_speed.json and the "regressor-speed" section of RESULTS.md.
@@ -11,7 +14,9 @@ import time
 import torch
 
 from _common import environment, update_results_md, write_json
+from hybridpose.objects import load_object
 from hybridpose.regressors import available_models, build_model
+from hybridpose.regressors.models import MODEL_DEFAULTS, model_kind
 
 
 def ms_per_image(model, size: int, threads: int, repeats: int) -> float:
@@ -30,27 +35,33 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", type=int, default=224)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--models", default=None, help="comma-separated subset (default: all)")
     args = ap.parse_args()
     rows = []
-    for name in available_models():
+    keypoints = load_object("truss").keypoints
+    for name in (args.models.split(",") if args.models else available_models()):
+        size = args.size
         kw = {"image_size": args.size} if name in ("branched-vgg19", "parallel-vgg19") else {}
+        if model_kind(name) == "keypoints":
+            size = MODEL_DEFAULTS[name]["image_size"]
+            kw = {"keypoints_m": keypoints, "image_size": size}
         model = build_model(name, **kw).eval()
-        rows.append({"model": name, "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
-                     "ms_1_thread": ms_per_image(model, args.size, 1, args.repeats),
-                     "ms_2_threads": ms_per_image(model, args.size, 2, args.repeats)})
+        rows.append({"model": name, "input_px": size, "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
+                     "ms_1_thread": ms_per_image(model, size, 1, args.repeats),
+                     "ms_2_threads": ms_per_image(model, size, 2, args.repeats)})
         del model
     env = environment()
     write_json("regressor_speed", {"env": env, "size": args.size, "repeats": args.repeats, "results": rows})
     lines = [
         "## CNN inference cost on this CPU (`python benchmarks/regressor_speed.py`)",
         "",
-        f"{args.size}×{args.size} input, batch 1, float32, torch {torch.__version__}, mean of {args.repeats} runs after a warm-up, "
+        f"Square input of the given side, batch 1, float32, torch {torch.__version__}, mean of {args.repeats} runs after a warm-up, "
         f"git {env['git']}, {env['cpus']} CPU cores. Target for the shipped `default`: ≤ 20 ms on 1 thread.",
         "",
-        "| model | parameters (M) | ms/image, 1 thread | ms/image, 2 threads |",
-        "|---|---|---|---|",
+        "| model | input px | parameters (M) | ms/image, 1 thread | ms/image, 2 threads |",
+        "|---|---|---|---|---|",
     ]
-    lines += [f"| {r['model']} | {r['params_M']:.1f} | {r['ms_1_thread']:.0f} | {r['ms_2_threads']:.0f} |" for r in rows]
+    lines += [f"| {r['model']} | {r['input_px']} | {r['params_M']:.1f} | {r['ms_1_thread']:.1f} | {r['ms_2_threads']:.1f} |" for r in rows]
     update_results_md("regressor-speed", "\n".join(lines))
     print("\n".join(lines))
 

@@ -61,7 +61,8 @@ class PoseDataset(Dataset):
             ``FULL_VIEW_PROB`` the whole frame (a square around the image centre) instead, so the
             network also learns the coarse first pass. Draws use torch's RNG (seeded runs repeat).
         keypoints_m: (N, 3) model keypoints in metres; adds ``kp2d`` (N, 2), their projections in
-            the returned image's pixels.
+            the returned image's pixels. A (T, N, 3) stack (e.g. the keypoints under an object's
+            near-symmetries) gives ``kp2d`` (T, N, 2).
 
     Each item is a dict of tensors: ``image`` (3, H, W) float32 in [0, 1]; ``t`` (3,) metres;
     ``q`` (4,) (w, x, y, z), w ≥ 0; ``K`` (3, 3) intrinsics *of the returned image*;
@@ -82,8 +83,8 @@ class PoseDataset(Dataset):
         self.keypoints_m = None
         if keypoints_m is not None:
             self.keypoints_m = np.asarray(keypoints_m, dtype=np.float64)
-            if self.keypoints_m.ndim != 2 or self.keypoints_m.shape[1] != 3:
-                raise ValueError(f"keypoints_m: expected (N, 3) metres, got {self.keypoints_m.shape}")
+            if self.keypoints_m.ndim not in (2, 3) or self.keypoints_m.shape[-1] != 3:
+                raise ValueError(f"keypoints_m: expected (N, 3) or (T, N, 3) metres, got {self.keypoints_m.shape}")
         self.indices = np.arange(len(self.samples)) if indices is None else np.asarray(indices, dtype=np.int64)
         if len(self.indices) and (self.indices.min() < 0 or self.indices.max() >= len(self.samples)):
             raise ValueError(f"indices: expected values in [0, {len(self.samples)}), got {self.indices.min()}..{self.indices.max()}")
@@ -123,8 +124,10 @@ class PoseDataset(Dataset):
             "index": idx,
         }
         if self.keypoints_m is not None:
-            p = (gt.pose @ self.keypoints_m) @ K.T
-            item["kp2d"] = torch.tensor(p[:, :2] / p[:, 2:], dtype=torch.float32)
+            pts = self.keypoints_m.reshape(-1, 3)
+            p = (gt.pose @ pts) @ K.T
+            uv = (p[:, :2] / p[:, 2:]).reshape(*self.keypoints_m.shape[:-1], 2)
+            item["kp2d"] = torch.tensor(uv, dtype=torch.float32)
         return item
 
     def _jittered(self, cx: float, cy: float, extent: float, width: int, height: int) -> tuple[float, float, float]:

@@ -38,7 +38,7 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> float:
     return float(xi @ np.linalg.pinv(cov) @ xi)
 
 
-def _keypoint_errors(model, loader) -> tuple[list[float], int, int]:
+def _keypoint_errors(model, loader, twins=()) -> tuple[list[float], int, int]:
     """Unscaled NEES of every validation sample (PnP in crop pixels), and the failure count."""
     pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
     raw, failures, n = [], 0, 0
@@ -51,24 +51,27 @@ def _keypoint_errors(model, loader) -> tuple[list[float], int, int]:
             if res is None:
                 failures += 1
                 continue
-            xi = res.pose.local(Pose.from_quat_t(q, t))
-            raw.append(nees(xi, pnp_covariance(res.information, res.rms_px)))
+            gt = Pose.from_quat_t(q, t)
+            cov = pnp_covariance(res.information, res.rms_px)
+            # with twin-trained models the error is to the nearest twin (the twin check resolves it)
+            raw.append(min(nees(res.pose.local(gt @ S), cov) for S in (Pose.identity(), *twins)))
     return raw, failures, n
 
 
-def calibrate(model, loader, predict_batch) -> dict:
+def calibrate(model, loader, predict_batch, twins=()) -> dict:
     """Calibration record stored in the checkpoint (``checkpoint["calibration"]``).
 
     Args:
         model: the trained network (eval mode is set here).
         loader: validation batches (held out from training).
         predict_batch: ``(model, batch) → (t, q)`` for direct models.
+        twins: symmetry poses the keypoint model was trained up to (errors to the nearest twin).
     """
     model.eval()
     target = float(chi2.ppf(COVERAGE, 6))
     with torch.no_grad():
         if getattr(model, "kind", "direct") == "keypoints":
-            raw, failures, n = _keypoint_errors(model, loader)
+            raw, failures, n = _keypoint_errors(model, loader, twins)
             if not raw:
                 raise ValueError("calibration: PnP failed on every validation sample; train longer")
             scale = float(np.quantile(raw, COVERAGE)) / target

@@ -118,9 +118,17 @@ def keypoint_loss(pred_px: torch.Tensor, spread_px: torch.Tensor, true_px: torch
                   spread_weight: float = 0.05) -> torch.Tensor:
     """Mean L1 keypoint error as a fraction of the crop side, plus a small term for sharp heatmaps.
 
-    Keypoints whose label lies outside the crop are not counted (a soft-argmax cannot reach them).
+    ``true_px`` is (B, N, 2), or (B, T, N, 2) for T equally valid labellings (the keypoints under
+    the object's near-symmetries): each sample then counts its best-matching labelling, so the
+    network is not pushed to the average of the ends it cannot yet tell apart (the regressor's
+    twin check picks the right one on the image). Keypoints whose label lies outside the crop are
+    not counted (a soft-argmax cannot reach them).
     """
-    inside = ((true_px >= 0) & (true_px <= image_size - 1)).all(-1).float()
-    err = (pred_px - true_px).abs().sum(-1) / image_size
-    denom = inside.sum().clamp_min(1.0)
-    return (err * inside).sum() / denom + spread_weight * (spread_px / image_size * inside).sum() / denom
+    if true_px.ndim == 3:
+        true_px = true_px[:, None]
+    inside = ((true_px >= 0) & (true_px <= image_size - 1)).all(-1).float()   # (B, T, N)
+    err = (pred_px[:, None] - true_px).abs().sum(-1) / image_size            # (B, T, N)
+    spread = (spread_px[:, None] / image_size * inside).sum(-1)
+    count = inside.sum(-1).clamp_min(1.0)
+    per = (err * inside).sum(-1) / count + spread_weight * spread / count      # (B, T)
+    return per.min(dim=1).values.mean()

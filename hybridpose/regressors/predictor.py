@@ -81,9 +81,13 @@ class CheckpointRegressor(PoseRegressor):
             checkpoint was trained on (diameter differs by more than 1 %).
         threads: torch intra-op threads for inference (None = leave torch's setting).
         expect_model: refuse a checkpoint of another architecture (used by the named backends).
+        check_twins: keypoint models — compare the PnP pose with its box-symmetric twins on the
+            image edges and keep the best supported (:mod:`hybridpose.regressors.verify`); needs
+            the object's mesh: ``object``, or the built-in object the checkpoint names.
     """
 
-    def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None) -> None:
+    def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
+                 check_twins: bool = True) -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -113,6 +117,13 @@ class CheckpointRegressor(PoseRegressor):
             torch.set_num_threads(int(threads))
         if object is not None:
             self._check_object(object)
+        self.twin_check = None
+        if check_twins and self.kind == "keypoints":
+            obj = object if object is not None else _builtin_object(self.dataset.get("object"))
+            if obj is not None:
+                from .verify import TwinCheck
+
+                self.twin_check = TwinCheck(obj)
 
     # --- checks ----------------------------------------------------------------------------------
     def _check_object(self, obj) -> None:
@@ -196,7 +207,12 @@ class CheckpointRegressor(PoseRegressor):
         cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
         quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * self.image_size)))
-        return Measurement(pose=res.pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
+        pose = res.pose
+        if self.twin_check is not None:
+            pose, _, flipped = self.twin_check.best(Frame(image, cam, frame.timestamp, frame.index), pose)
+            if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
+                quality *= 0.5
+        return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 
     def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
@@ -238,6 +254,13 @@ class CheckpointRegressor(PoseRegressor):
     def _lost(self, frame: Frame) -> Measurement:
         return Measurement(pose=None, covariance=LOST_COVARIANCE, quality=0.0, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp, lost=True)
+
+
+def _builtin_object(name):
+    from ..registry import available
+    from ..objects import load_object
+
+    return load_object(name) if name in available("object") else None
 
 
 def _factory(name: str):

@@ -29,6 +29,7 @@ from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
 from .calibration import calibrate
 from .keypoint_net import keypoint_loss
 from .keypoint_pnp import solve_pnp
+from .verify import box_half_turns
 from .models import MODEL_DEFAULTS, available_models, build_model, model_kind
 from .vgg import load_imagenet_weights
 
@@ -53,6 +54,10 @@ class TrainConfig:
         imagenet_weights: optional local torchvision-format VGG state dict.
         workers: DataLoader worker processes. device: "auto", "cpu" or "cuda".
         schedule: learning rate over epochs, "constant" (the paper) or "cosine" (to 1 % of lr).
+        twin_loss: keypoint models — score each sample against the keypoints of the object and of
+            its bounding-box half-turn twins and keep the best (see ``keypoint_loss``); validation
+            errors are then measured to the nearest twin, the regressor's twin check resolves
+            which one at inference.
     """
 
     model: str
@@ -72,6 +77,7 @@ class TrainConfig:
     workers: int = 0
     device: str = "auto"
     schedule: str = "constant"
+    twin_loss: bool = True
     max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
 
     def __post_init__(self) -> None:
@@ -180,15 +186,37 @@ def predict_batch(model, batch, device) -> tuple[torch.Tensor, torch.Tensor]:
             torch.tensor(np.array(qs), dtype=torch.float32, device=device))
 
 
-def evaluate(model, loader, device, beta: float) -> dict:
+def nearest_twin(t_pred, q_pred, t_true, q_true, twins) -> tuple[torch.Tensor, torch.Tensor]:
+    """Ground truth replaced, per sample, by the twin pose (``gt @ S``) closest to the prediction."""
+    best_t, best_q = t_true.clone(), q_true.clone()
+    best = quat_geodesic_angle(q_pred, q_true) + (t_pred - t_true).norm(dim=1)
+    for S in twins:
+        tt, qq = [], []
+        for t, q in zip(t_true.cpu().numpy(), q_true.cpu().numpy()):
+            g = Pose.from_quat_t(q / np.linalg.norm(q), t) @ S
+            tt.append(g.t)
+            qq.append(g.quat_wxyz)
+        tt = torch.tensor(np.array(tt), dtype=t_true.dtype, device=t_true.device)
+        qq = torch.tensor(np.array(qq), dtype=q_true.dtype, device=q_true.device)
+        score = quat_geodesic_angle(q_pred, qq) + (t_pred - tt).norm(dim=1)
+        closer = score < best
+        best = torch.where(closer, score, best)
+        best_t[closer], best_q[closer] = tt[closer], qq[closer]
+    return best_t, best_q
+
+
+def evaluate(model, loader, device, beta: float, twins=()) -> dict:
     """Paper loss of the predicted poses, mean/median rotation error (°) and mean translation error
-    (m) over ``loader`` (the same numbers for direct and keypoint models)."""
+    (m) over ``loader`` (the same numbers for direct and keypoint models); with ``twins`` the error
+    is to the nearest twin of the ground truth."""
     model.eval()
     losses, rot, trans = [], [], []
     with torch.no_grad():
         for batch in loader:
             t, q = predict_batch(model, batch, device)
             t_true, q_true = batch["t"].to(device), batch["q"].to(device)
+            if twins:
+                t_true, q_true = nearest_twin(t, q, t_true, q_true, twins)
             losses.append(pose_loss(t, q, t_true, q_true, beta).item() * len(t))
             rot.append(torch.rad2deg(quat_geodesic_angle(q, q_true)).cpu())
             trans.append((t - t_true).norm(dim=1).cpu())
@@ -264,12 +292,14 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     kw = {"freeze_features": cfg.freeze_features}
     if cfg.model in ("branched-vgg19", "parallel-vgg19"):
         kw["image_size"] = cfg.image_size
-    obj = None
+    obj, twins, label_sets = None, [], None
     if model_kind(cfg.model) == "keypoints":
         obj = dataset_object(cfg.data)
         kw = {"keypoints_m": obj.keypoints, "image_size": cfg.image_size}
+        twins = box_half_turns(obj) if cfg.twin_loss else []
+        label_sets = np.stack([obj.keypoints] + [S @ obj.keypoints for S in twins])
     model = build_model(cfg.model, **kw)
-    train_ds, val_ds = make_datasets(cfg, keypoints_m=obj.keypoints if obj is not None else None)
+    train_ds, val_ds = make_datasets(cfg, keypoints_m=label_sets)
     gen = torch.Generator().manual_seed(cfg.seed)
     sampler = None
     if world > 1:
@@ -342,7 +372,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             if _stop_signal(None):
                 break
             continue
-        row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta),
+        row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta, twins),
                "lr": lr_used, "epoch_s": time.perf_counter() - t0}
         history.append(row)
         improved = row["val_loss"] < best
@@ -369,7 +399,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         bar.close()
     best_path = out / "best.pt"
     if main_process and best_path.exists():
-        _calibrate_checkpoint(best_path, model, val_loader, device)
+        _calibrate_checkpoint(best_path, model, val_loader, device, twins)
     if world > 1:
         import torch.distributed as dist
 
@@ -388,12 +418,12 @@ def _stop_signal(stop: bool | None) -> bool:
     return bool(box[0])
 
 
-def _calibrate_checkpoint(path: Path, model, val_loader, device) -> None:
+def _calibrate_checkpoint(path: Path, model, val_loader, device, twins=()) -> None:
     """Store the held-out covariance calibration (see calibration.py) in the best checkpoint."""
     ck = load_checkpoint(path)
     model.load_state_dict(ck["model"])
     try:
-        ck["calibration"] = calibrate(model.cpu(), val_loader, lambda m, b: _forward(m, b, torch.device("cpu")))
+        ck["calibration"] = calibrate(model.cpu(), val_loader, lambda m, b: _forward(m, b, torch.device("cpu")), twins)
     except ValueError as exc:
         log.warning("%s: not calibrated (%s); its covariances will be conservative defaults", path, exc)
         return
@@ -430,6 +460,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--schedule", choices=SCHEDULES, default=None, help="lr schedule (default: constant; cosine for default/keypoints)")
     p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     p.add_argument("--max-batches", type=int, default=None, help="cap batches per epoch (smoke runs)")
+    p.add_argument("--no-twin-loss", action="store_true",
+                   help="keypoint models: score against the true keypoints only (not also the box-symmetric twins)")
     p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
 
 
@@ -442,7 +474,7 @@ def config_from_args(args) -> TrainConfig:
                        lr=lr, beta=args.beta, image_size=image_size, seed=args.seed,
                        patience=args.patience, augment=not args.no_augment, freeze_features=args.freeze_features,
                        imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
-                       max_batches=args.max_batches, schedule=schedule)
+                       max_batches=args.max_batches, schedule=schedule, twin_loss=not args.no_twin_loss)
 
 
 def run(args: argparse.Namespace) -> int:

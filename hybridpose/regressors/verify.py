@@ -1,0 +1,63 @@
+"""Image check of a CNN pose against the pose's near-symmetric twins.
+
+The truss (like most trusses) is almost symmetric under the half-turns of its bounding box: only
+the grapple plate and the bolt heads tell its ends and faces apart. A keypoint network that
+confuses them predicts a consistent but flipped set of keypoints, and PnP returns a confident,
+flipped pose. So the regressor scores the PnP pose and its three twins by how many of their
+visible model edges land on an image edge (the edge trackers' search, no optimisation: ~1 ms each)
+and keeps the best one.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..core import Frame
+from ..geometry import Pose
+from ..objects import ObjectModel
+
+MATCH_PX = 2.0
+SEARCH_PX = 4
+SWITCH_MARGIN = 0.05  # a twin must beat the PnP pose by this much support to replace it
+
+
+def box_half_turns(obj: ObjectModel) -> list[Pose]:
+    """The three half-turns about the axes through the bounding-box centre (object frame), as
+    poses ``S`` with ``T_cam_obj @ S`` the flipped twin."""
+    c = 0.5 * (obj.bbox_min + obj.bbox_max)
+    out = []
+    for axis in np.eye(3):
+        R = 2 * np.outer(axis, axis) - np.eye(3)  # rotation by π about ``axis``
+        out.append(Pose(R, c - R @ c))
+    return out
+
+
+class TwinCheck:
+    """Edge support of a pose and of its box twins (see module doc)."""
+
+    def __init__(self, obj: ObjectModel) -> None:
+        from ..trackers.model_view import ModelView
+
+        self.view = ModelView(obj)
+        self.twins = box_half_turns(obj)
+
+    def support(self, gray: np.ndarray, frame: Frame, pose: Pose) -> float:
+        """Share of the visible edge samples with an image edge within ``MATCH_PX`` of the projection."""
+        from ..trackers.edges import search_edges
+
+        samples = self.view.visible_samples(pose, frame.camera, margin_px=2, max_samples=300)
+        if len(samples.index) < 10:
+            return 0.0
+        offset, valid, _ = search_edges(gray, samples, SEARCH_PX)
+        return float(np.mean(valid & (np.abs(offset) <= MATCH_PX)))
+
+    def best(self, frame: Frame, pose: Pose) -> tuple[Pose, float, bool]:
+        """(chosen pose, its support, whether a twin replaced ``pose``)."""
+        from ..trackers.edges import to_gray
+
+        gray = to_gray(frame.image)
+        base = self.support(gray, frame, pose)
+        scored = [(self.support(gray, frame, pose @ s), pose @ s) for s in self.twins]
+        score, twin = max(scored, key=lambda x: x[0])
+        if score > base + SWITCH_MARGIN:
+            return twin, score, True
+        return pose, base, False

@@ -7,6 +7,7 @@ import torch
 from hybridpose.core import Frame
 from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera, Pose, projection_jacobian, random_quat
+from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.calibration import nees, pnp_covariance
 from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax
 from hybridpose.regressors.keypoint_pnp import solve_pnp
@@ -161,3 +162,36 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
     assert (tmp_path / "rep" / "gradcam.png").stat().st_size > 1000
     assert "eval default on 10 images" in capsys.readouterr().out
+
+
+def test_twin_loss_scores_the_best_matching_labelling():
+    pred = torch.zeros(1, 2, 2)
+    labels = torch.tensor([[[[10.0, 0.0], [10.0, 0.0]], [[0.0, 0.0], [0.0, 0.0]]]])  # (B, T, N, 2)
+    assert keypoint_loss(pred, torch.zeros(1, 2), labels, 100, spread_weight=0.0).item() == pytest.approx(0.0)
+    assert keypoint_loss(pred, torch.zeros(1, 2), labels[:, :1], 100, spread_weight=0.0).item() == pytest.approx(0.1)
+
+
+def test_box_twins_are_half_turns_that_map_the_box_onto_itself(truss):
+    from hybridpose.regressors.verify import box_half_turns
+
+    corners = truss.bbox_corners
+    for S in box_half_turns(truss):
+        assert np.allclose(S.R @ S.R, np.eye(3)) and np.isclose(np.linalg.det(S.R), 1.0)
+        moved = S @ corners
+        assert np.allclose(np.sort(moved, axis=0), np.sort(corners, axis=0), atol=1e-9)
+
+
+def test_twin_check_finds_the_true_pose_among_its_twins(truss, camera):
+    from hybridpose.regressors.verify import TwinCheck
+    from hybridpose.render import Renderer, random_poses
+
+    check = TwinCheck(truss)
+    poses = random_poses(6, camera, (0.5, 0.9), rng=4, in_view_points=truss.bbox_corners)
+    with Renderer(truss, camera) as r:
+        for pose in poses:
+            frame = Frame(r.render(pose).rgb, camera, 0.0)
+            for S in check.twins:
+                chosen, support, flipped = check.best(frame, pose @ S)
+                assert flipped and rotation_error_deg(chosen, pose) < 1e-6, "the flipped twin was kept"
+            chosen, _, flipped = check.best(frame, pose)
+            assert not flipped

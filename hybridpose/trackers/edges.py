@@ -17,6 +17,7 @@ its rim a single line: the quality collapses. Below ``lost_quality`` (default 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -26,7 +27,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..geometry import projection_jacobian
+from ..geometry import projection_jacobian, se3_exp
 from .model_view import EdgeSamples, ModelView
 
 TUKEY_C = 4.685
@@ -76,13 +77,18 @@ def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_con
     return ks[j] + sub, best >= min_contrast, prof.mean(1)
 
 
+class _RT(NamedTuple):
+    R: np.ndarray
+    t: np.ndarray
+
+
 def _tukey(r: np.ndarray, scale: float) -> np.ndarray:
     u = r / (TUKEY_C * scale)
     return np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
 
 
 def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | None = None, search_px: int = 12,
-              outer: int = 3, inner: int = 4, inlier_px: float = 2.0, max_samples: int = 400,
+              outer: int = 3, inner: int = 3, inlier_px: float = 2.0, max_samples: int = 400,
               covariance_scale: float = 1.0, max_step_m: float | None = None) -> EdgeFit | None:
     """Align the visible model edges with the image edges, starting from ``start``.
 
@@ -97,8 +103,14 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     max_step_m = view.object.diameter if max_step_m is None else max_step_m
     pose = start
     rng_px = search_px
+    visible = None
     for _ in range(outer):
-        samples = view.visible_samples(pose, cam, margin_px=2, max_samples=max_samples)
+        # visibility once per frame (at the start pose: the pose moves by a fraction of a degree)
+        if visible is None:
+            samples = view.visible_samples(pose, cam, margin_px=2, max_samples=max_samples)
+            visible = samples.index
+        else:
+            samples = view.samples_at(pose, cam, visible, margin_px=2)
         if len(samples.index) < 6:
             return None
         offset, valid, brightness = search_edges(gray, samples, rng_px)
@@ -106,8 +118,9 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
             return None
         target = samples.uv + offset[:, None] * samples.normals   # matched edge points
         n, X, m = samples.normals[valid], samples.points_m[valid], target[valid]
+        rt = _RT(pose.R.copy(), pose.t.copy())  # plain arrays in the inner loop: a Pose validates itself
         for _ in range(inner):
-            uv, J = projection_jacobian(pose, X, K)
+            uv, J = projection_jacobian(rt, X, K)
             r = np.einsum("si,si->s", n, uv - m)                   # signed point-to-line distance, px
             Jn = np.einsum("si,sij->sj", n, J)                      # (S, 6)
             # MAD scale, capped by the search range: when an occluder's edges outnumber the model's
@@ -118,9 +131,11 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
                 return None
             H = (Jn * w[:, None]).T @ Jn
             delta = -np.linalg.solve(H + 1e-9 * np.eye(6), (Jn * w[:, None]).T @ r)
-            pose = pose.retract(delta)
+            dR, dt = se3_exp(delta)                                  # right perturbation, as Pose.retract
+            rt = _RT(rt.R @ dR, rt.R @ dt + rt.t)
             if np.abs(delta).max() < 1e-6:
                 break
+        pose = Pose(rt.R, rt.t)
         if np.linalg.norm(pose.t - start.t) > max_step_m:
             return None
         rng_px = max(4, rng_px // 2)

@@ -8,10 +8,10 @@ from RANSAC PnP + Levenberg–Marquardt.
   ``fb_px`` is dropped); with a ``prior`` the flow starts from the prior's projections.
 * Pose: ``solvePnPRansac`` (reprojection threshold ``ransac_px``, the prior as initial guess),
   ``solvePnPRefineLM`` on the inliers; covariance ``σ² (JᵀJ)⁻¹`` over ``[ω, v]``.
-* Refinement (``edge_refine``, default): the moving-edge fit runs from the PnP pose and from the
-  caller's start, the fit more edge samples agree with wins; it removes KLT's drift,
-  and the corners are re-detected and re-lifted at the refined pose each frame (so no drift
-  accumulates in them). Without it, when fewer than ``min_features`` survive, new corners are
+* Refinement (``edge_refine``, default): the moving-edge fit runs from the PnP pose (and, when
+  that fit is poor, from the caller's start; the better-supported wins); it removes KLT's drift,
+  and the surviving corners are re-lifted onto the model at the refined pose each frame (so no
+  drift accumulates in their 3D points), new ones detected when too few remain. Without it, when fewer than ``min_features`` survive, new corners are
   detected away from the tracked ones (only on frames that were not lost).
 
 Quality = inlier fraction of the tracks that entered the frame × min(1, inliers / 20) ×
@@ -33,6 +33,7 @@ from ..geometry import projection_jacobian
 from .model_view import ModelView
 
 MIN_INLIERS_FULL = 20
+GOOD_FIT = 0.7  # an edge fit this good from the first proposal is kept without trying the other
 RMS_SCALE_PX = 2.0
 
 
@@ -53,7 +54,7 @@ class KltPnpTracker(Tracker):
     name = "klt-pnp"
     default_lost_quality = 0.3
 
-    def __init__(self, object: ObjectModel, max_features: int = 150, min_features: int = 60, fb_px: float = 1.0,
+    def __init__(self, object: ObjectModel, max_features: int = 150, min_features: int = 40, fb_px: float = 1.0,
                  ransac_px: float = 2.0, edge_refine: bool = True, lost_quality: float | None = None) -> None:
         super().__init__(object, lost_quality)
         if not 6 <= min_features <= max_features:
@@ -61,20 +62,26 @@ class KltPnpTracker(Tracker):
         self.view = ModelView(object)
         self.max_features, self.min_features = int(max_features), int(min_features)
         self.fb_px, self.ransac_px, self.edge_refine = float(fb_px), float(ransac_px), bool(edge_refine)
-        self._lk = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+        self._lk = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
 
     # --- features -----------------------------------------------------------------------------------
-    def _detect(self, gray: np.ndarray, pose: Pose, frame: Frame, existing: np.ndarray, count: int):
-        ids = self.view.facet_ids(pose, frame.camera, scale=1.0)
+    def _detect(self, gray: np.ndarray, pose: Pose, frame: Frame, existing: np.ndarray, count: int, ids=None):
+        if ids is None:
+            ids = self.view.facet_ids(pose, frame.camera, scale=1.0)
         mask = cv2.erode((ids > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
         for x, y in existing.astype(int):
             cv2.circle(mask, (int(x), int(y)), 7, 0, -1)
         if count <= 0 or not mask.any():
             return np.zeros((0, 2), np.float32), np.zeros((0, 3))
-        pts = cv2.goodFeaturesToTrack(gray, maxCorners=count, qualityLevel=0.01, minDistance=7, mask=mask, blockSize=5)
+        # detect inside the object's box only: goodFeaturesToTrack scores every pixel it is given
+        ys, xs = np.nonzero(mask)
+        x0, y0 = max(xs.min() - 4, 0), max(ys.min() - 4, 0)
+        x1, y1 = min(xs.max() + 5, gray.shape[1]), min(ys.max() + 5, gray.shape[0])
+        pts = cv2.goodFeaturesToTrack(np.ascontiguousarray(gray[y0:y1, x0:x1]), maxCorners=count, qualityLevel=0.01,
+                                      minDistance=7, mask=np.ascontiguousarray(mask[y0:y1, x0:x1]), blockSize=5)
         if pts is None:
             return np.zeros((0, 2), np.float32), np.zeros((0, 3))
-        uv = pts.reshape(-1, 2)
+        uv = pts.reshape(-1, 2) + (x0, y0)
         X, ok = self.view.lift(pose, frame.camera, uv, ids=ids)
         ok &= self._surface_fixed(pose, frame, uv, ids)
         return uv[ok].astype(np.float32), X[ok]
@@ -155,20 +162,44 @@ class KltPnpTracker(Tracker):
             pose, cov, quality, keep, uv = klt
             self._carry(gray, keep, uv, pose if quality >= self.lost_quality else None, frame)
             return pose, cov, quality
-        # the KLT pose is a proposal next to the caller's start; the edge fit more model edges agree
-        # with wins (KLT reaches further under fast motion, the edges remove its drift)
+        # the KLT pose is a proposal next to the caller's start; the edge fit from it is kept unless
+        # it is poor and the fit from the start is better (KLT reaches further under fast motion,
+        # the edges remove its drift)
         g32 = gray.astype(np.float32)
-        starts = (start,) if klt is None else (klt[0], start)
-        fits = [f for f in (fit_edges(self.view, frame, p, gray=g32) for p in starts) if f is not None]
+        fits = []
+        for p in ((start,) if klt is None else (klt[0], start)):
+            f = fit_edges(self.view, frame, p, gray=g32)
+            if f is not None:
+                fits.append(f)
+                if f.quality >= GOOD_FIT:
+                    break
         if not fits:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0
         best = max(fits, key=lambda f: f.samples * f.quality)
         if best.quality >= self.lost_quality:
-            # drift-free: corners are re-detected and re-lifted at every trusted refined pose
-            self.uv, self.X = self._detect(gray, best.pose, frame, np.zeros((0, 2)), self.max_features)
-        self.gray = gray
+            self._refresh(gray, best.pose, frame, klt)
+        else:
+            self.gray = gray
         return best.pose, best.covariance, best.quality
+
+    def _refresh(self, gray, pose: Pose, frame: Frame, klt) -> None:
+        """Drift-free corners for the next frame: the surviving tracks re-lifted onto the model at
+        the refined pose (a corner that slid along an edge moves its 3D point with it), topped up
+        with new corners when fewer than ``min_features`` remain."""
+        ids = self.view.facet_ids(pose, frame.camera, scale=1.0)
+        uv = np.zeros((0, 2), np.float32) if klt is None else klt[4][klt[3]]
+        if len(uv):
+            X, ok = self.view.lift(pose, frame.camera, uv, ids=ids)
+            ok &= self._surface_fixed(pose, frame, uv, ids)
+            uv, X = uv[ok].astype(np.float32), X[ok]
+        else:
+            X = np.zeros((0, 3))
+        if len(uv) < self.min_features:
+            new_uv, new_X = self._detect(gray, pose, frame, uv, self.max_features - len(uv), ids=ids)
+            uv = np.concatenate([uv.reshape(-1, 2), new_uv]).astype(np.float32)
+            X = np.concatenate([X.reshape(-1, 3), new_X])
+        self.uv, self.X, self.gray = uv, X, gray
 
     def _carry(self, gray, keep, uv, pose: Pose | None = None, frame: Frame | None = None) -> None:
         """Keep the surviving tracks; top up with new lifted corners when a trusted pose allows."""

@@ -163,10 +163,25 @@ class ModelView:
             idx = idx[seen]
         if max_samples is not None and len(idx) > max_samples:
             idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
+        return self.samples_at(pose, camera, idx)
+
+    def samples_at(self, pose: Pose, camera: Camera, index: np.ndarray, margin_px: float | None = None) -> EdgeSamples:
+        """The samples ``index`` projected at ``pose`` (no visibility test: the trackers decide
+        visibility once per frame and re-project as the pose moves); with ``margin_px`` those that
+        left the image are dropped."""
+        R = pose.R
+        X = self.points[index] @ R.T + pose.t
+        K = camera.K
+        z = np.maximum(X[:, 2], 1e-3)
+        uv = np.stack([K[0, 0] * X[:, 0] / z + K[0, 2], K[1, 1] * X[:, 1] / z + K[1, 2]], 1)
+        if margin_px is not None:
+            ok = ((uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width - 1 - margin_px)
+                  & (uv[:, 1] >= margin_px) & (uv[:, 1] <= camera.height - 1 - margin_px) & (X[:, 2] > 1e-3))
+            index, X, uv = index[ok], X[ok], uv[ok]
         # image normal: perpendicular to the projected edge direction
-        d_img = project_direction(X[idx], self.directions[idx] @ R.T, K)
+        d_img = project_direction(X, self.directions[index] @ R.T, K)
         normals = np.stack([-d_img[:, 1], d_img[:, 0]], 1)
-        return EdgeSamples(index=idx, points_m=self.points[idx], uv=uv[idx], normals=normals)
+        return EdgeSamples(index=index, points_m=self.points[index], uv=uv, normals=normals)
 
 
 def project_direction(X_cam: np.ndarray, d_cam: np.ndarray, K: np.ndarray) -> np.ndarray:

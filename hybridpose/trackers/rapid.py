@@ -12,8 +12,8 @@ point-to-point matches. Consequences we handle here:
 * only the silhouette constrains the pose — on a thin open truss that leaves rotation weak
   (≈ 6–10° median on our tumble, ``refine=False`` in the benchmark). By default (``refine=True``)
   the silhouette pose is therefore a *proposal*: the moving-edge fit on all visible model edges
-  (:func:`~hybridpose.trackers.edges.fit_edges`) runs from it and from the caller's start, and the
-  fit more edge samples agree with wins; its inlier fraction × support is the quality (the cv2
+  (:func:`~hybridpose.trackers.edges.fit_edges`) runs from the caller's start and, when that fit
+  is poor (quality < 0.7), from the silhouette pose too; the fit more edge samples agree with wins; its inlier fraction × support is the quality (the cv2
   ratios are not comparable between variants: GOS always reports 1). The silhouette step helps
   when the start is far off (fast motion, re-acquisition), where its 20 px search reaches further;
 * OLS/GOS histograms only count pixels with saturation > 25 and value > 50: a grey spacecraft on
@@ -34,6 +34,7 @@ from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 from .edges import fit_edges, to_gray
+from .klt import GOOD_FIT
 from .model_view import ModelView
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
@@ -102,11 +103,16 @@ class RapidTracker(Tracker):
             if pose is start:
                 return None, None, 0.0
             return pose, np.diag([0.05**2] * 3 + [0.01**2] * 3), float(ratio)
-        # the silhouette pose is a proposal: refine it and the caller's start, keep the one more
-        # model edges agree with (on a clean slow tumble that is nearly always the start's)
+        # the silhouette pose is a proposal: the edge fit from the caller's start is kept when good,
+        # else the fit from the silhouette pose competes (more agreeing model edges win)
         gray = to_gray(frame.image)
-        fits = [fit_edges(self.view, frame, p, gray=gray) for p in ((start,) if pose is start else (start, pose))]
-        fits = [f for f in fits if f is not None]
+        fits = []
+        for p in ((start,) if pose is start else (start, pose)):
+            f = fit_edges(self.view, frame, p, gray=gray)
+            if f is not None:
+                fits.append(f)
+                if f.quality >= GOOD_FIT:
+                    break
         if not fits:
             return None, None, 0.0
         best = max(fits, key=lambda f: f.samples * f.quality)

@@ -103,9 +103,9 @@ class KltPnpTracker(Tracker):
         n, p0 = self.view.plane_normal[f], self.view.plane_point[f]          # (N, M, 3)
         denom = np.einsum("nmj,nj->nm", n, rays)
         lam = np.einsum("nmj,nmj->nm", n, p0 - origin) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
-        lam = np.where(f > 0, lam, np.nan)
-        depth_spread = np.nanmax(lam, 1) - np.nanmin(lam, 1)                  # ray parameter = depth (z = 1 rays)
-        return (f > 0).all(1) & np.isfinite(depth_spread) & (depth_spread < tol_m)
+        ok = (f > 0) & np.isfinite(lam)
+        depth_spread = np.where(ok, lam, -np.inf).max(1) - np.where(ok, lam, np.inf).min(1)  # ray parameter = depth
+        return ok.all(1) & (depth_spread < tol_m)
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)

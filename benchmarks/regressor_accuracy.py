@@ -1,0 +1,70 @@
+"""Trained regressors on the held-out rendered truss test set, beside the paper's table.
+
+Usage:
+    hybridpose render --object truss --kind random --count 1000 --size 640x480 --seed 100 --in-view \
+                      --sun-cone 40 --sun-range 0.7,1.3 --out data/truss_test
+    python benchmarks/regressor_accuracy.py --data data/truss_test [--checkpoint NAME=PATH ...]
+
+Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (full inference path,
+no roi: detection, two passes, PnP, twin check), copies its plots to ``benchmarks/results/`` and
+writes the "regressor-accuracy" section of RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+from pathlib import Path
+
+from _common import BENCH_DIR, environment, update_results_md, write_json
+from hybridpose.regressors.evaluate import PAPER, evaluate_checkpoint
+from hybridpose.regressors.predictor import shipped_checkpoint
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--checkpoint", action="append", default=[], help="NAME=PATH (default: the shipped default)")
+    ap.add_argument("--limit", type=int, default=None)
+    args = ap.parse_args()
+    pairs = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
+    results = {}
+    for name, path in pairs:
+        tmp = Path(tempfile.mkdtemp())
+        s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit)
+        for png in ("error_vs_distance.png", "gradcam.png"):
+            if (tmp / png).exists():
+                shutil.copy(tmp / png, BENCH_DIR / "results" / f"regressor_{name}_{png}")
+        shutil.rmtree(tmp)
+        results[name] = s
+        print(name, {k: v for k, v in s.items() if k != "error_vs_distance"})
+    env = environment()
+    write_json("regressor_accuracy", {"env": env, "data": args.data, "results": results})
+    lines = [
+        "## CNN regressors on the held-out test set (`python benchmarks/regressor_accuracy.py`)",
+        "",
+        f"`{args.data}`: {next(iter(results.values()))['images']} rendered 640×480 views, truss wholly in view, 0.4–1.2 m, "
+        "random orientation, sun direction within 40° of the default and intensity ×0.7–1.3 (seed 100; training used "
+        f"seed 1). Full inference path, no roi. Failures count as 180° / 1 m. git {env['git']}, {env['cpus']} CPU cores.",
+        "",
+        "| model | mean rot ° | median rot ° | mean trans m | median trans m | SPEED | ADD-0.1d | failures | ms/img 1 thr | ms/img 2 thr |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, (mr, md, mt) in PAPER.items():
+        lines.append(f"| paper: {name} (their data, GPU, 100 epochs) | {mr:.2f} | {md:.2f} | {mt:.2f} | – | – | – | – | – | – |")
+    for name, s in results.items():
+        ms = s["ms_per_image"]
+        lines.append(f"| **{name}** | {s['rot_mean_deg']:.2f} | {s['rot_median_deg']:.2f} | {s['trans_mean_m']:.3f} | "
+                     f"{s['trans_median_m']:.3f} | {s['speed_score']:.3f} | {s['add_0.1d_recall']:.2f} | {s['failures']} | "
+                     f"{ms['1_thread']:.1f} | {ms['2_threads']:.1f} |")
+    for name, s in results.items():
+        lines += ["", f"Error vs distance, `{name}` (mean ± 1σ; plot `results/regressor_{name}_error_vs_distance.png`, "
+                      f"Grad-CAM of best/worst `results/regressor_{name}_gradcam.png`):", "",
+                  "| distance m | n | rot ° | trans m |", "|---|---|---|---|"]
+        lines += [f"| {b['lo_m']:.1f}–{b['hi_m']:.1f} | {b['n']} | {b['rot_mean_deg']:.2f} ± {b['rot_std_deg']:.2f} | "
+                  f"{b['trans_mean_m']:.3f} ± {b['trans_std_m']:.3f} |" for b in s["error_vs_distance"]]
+    update_results_md("regressor-accuracy", "\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

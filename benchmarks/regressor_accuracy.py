@@ -6,7 +6,8 @@ Usage:
     python benchmarks/regressor_accuracy.py --data data/truss_test [--checkpoint NAME=PATH ...]
 
 Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (full inference path,
-no roi: detection, two passes, PnP, twin check), copies its plots to ``benchmarks/results/`` and
+no roi: detection, two passes, PnP, twin check), with and without the final edge refinement,
+copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
 from __future__ import annotations
@@ -29,12 +30,13 @@ def main() -> None:
     args = ap.parse_args()
     pairs = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
     results = {}
-    for name, path in pairs:
+    runs = [(n, p, True) for n, p in pairs] + [(f"{n}, no edge refinement", p, False) for n, p in pairs]
+    for name, path, refine in runs:
         tmp = Path(tempfile.mkdtemp())
-        s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit)
+        s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit, refine_edges=refine)
         for png in ("error_vs_distance.png", "gradcam.png"):
             if (tmp / png).exists():
-                shutil.copy(tmp / png, BENCH_DIR / "results" / f"regressor_{name}_{png}")
+                shutil.copy(tmp / png, BENCH_DIR / "results" / f"regressor_{name.split(',')[0]}{'' if refine else '_norefine'}_{png}")
         shutil.rmtree(tmp)
         results[name] = s
         print(name, {k: v for k, v in s.items() if k != "error_vs_distance"})
@@ -57,7 +59,7 @@ def main() -> None:
         lines.append(f"| **{name}** | {s['rot_mean_deg']:.2f} | {s['rot_median_deg']:.2f} | {s['trans_mean_m']:.3f} | "
                      f"{s['trans_median_m']:.3f} | {s['speed_score']:.3f} | {s['add_0.1d_recall']:.2f} | {s['failures']} | "
                      f"{ms['1_thread']:.1f} | {ms['2_threads']:.1f} |")
-    for name, s in results.items():
+    for name, s in list(results.items())[:1]:
         lines += ["", f"Error vs distance, `{name}` (mean ± 1σ; plot `results/regressor_{name}_error_vs_distance.png`, "
                       f"Grad-CAM of best/worst `results/regressor_{name}_gradcam.png`):", "",
                   "| distance m | n | rot ° | trans m |", "|---|---|---|---|"]

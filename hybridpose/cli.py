@@ -211,7 +211,8 @@ def cmd_track(args) -> int:
 def cmd_eval(args) -> int:
     from .regressors.evaluate import evaluate_checkpoint
 
-    s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"))
+    s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
+                            refine_edges=not args.no_refine)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -284,6 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--data", required=True, help="held-out BOP dataset (e.g. hybridpose render --kind random --seed 100)")
     e.add_argument("--out", required=True, help="report folder (report.json/.md, error_vs_distance.png, gradcam.png)")
     e.add_argument("--limit", type=int, default=None, help="evaluate the first N images only")
+    e.add_argument("--no-refine", action="store_true", help="keypoint models: CNN + PnP + twin check only, no edge refinement")
     e.set_defaults(func=cmd_eval)
 
     k = sub.add_parser("track", help="track your object through a video or image folder from an initial pose")

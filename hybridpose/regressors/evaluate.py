@@ -31,11 +31,11 @@ FAILED_TRANS_M = 1.0    # …and a 1 m translation error
 
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 30,
-                        gradcam_count: int = 4, progress=None) -> dict:
+                        gradcam_count: int = 4, progress=None, refine_edges: bool = True) -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    reg = CheckpointRegressor(checkpoint)
+    reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges)
     scenes = [BopScene(p) for p in find_scenes(data)]
     items = [(s, i) for s in scenes for i in s.image_ids]
     if not items:
@@ -65,6 +65,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     trans = np.array([r["trans_m"] for r in rows])
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
+        "refine_edges": reg.refine_edges and reg.twin_check is not None,
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "speed_score": float(np.mean([r["speed"] for r in rows])),
         "add_0.1d_recall": add_recall([r["add_m"] for r in rows], obj.diameter),

@@ -36,6 +36,8 @@ LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)
 QUALITY_RMS = 0.02  # RMS reprojection error (fraction of the crop side) at which quality falls to 1/e
 FOV_TOLERANCE = 0.02
 DETECT_THRESHOLD = 12
+REFINE_SEARCH_PX = 16
+REFINE_MIN_QUALITY = 0.5
 
 
 def shipped_checkpoint(name: str = "default") -> Path:
@@ -84,10 +86,14 @@ class CheckpointRegressor(PoseRegressor):
         check_twins: keypoint models — compare the PnP pose with its box-symmetric twins on the
             image edges and keep the best supported (:mod:`hybridpose.regressors.verify`); needs
             the object's mesh: ``object``, or the built-in object the checkpoint names.
+        refine_edges: keypoint models — finish with the moving-edge fit of the trackers
+            (:func:`~hybridpose.trackers.edges.fit_edges`) from the CNN pose, kept when it is
+            well supported (quality ≥ 0.5): CNN + model-based refinement, as pose refiners do. The
+            covariance stays the calibrated PnP one (conservative for a refined pose).
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
-                 check_twins: bool = True) -> None:
+                 check_twins: bool = True, refine_edges: bool = True) -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -118,12 +124,14 @@ class CheckpointRegressor(PoseRegressor):
         if object is not None:
             self._check_object(object)
         self.twin_check = None
-        if check_twins and self.kind == "keypoints":
+        self.refine_edges = bool(refine_edges)
+        if (check_twins or refine_edges) and self.kind == "keypoints":
             obj = object if object is not None else _builtin_object(self.dataset.get("object"))
             if obj is not None:
                 from .verify import TwinCheck
 
                 self.twin_check = TwinCheck(obj)
+        self.check_twins = bool(check_twins)
 
     # --- checks ----------------------------------------------------------------------------------
     def _check_object(self, obj) -> None:
@@ -209,9 +217,17 @@ class CheckpointRegressor(PoseRegressor):
         quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * self.image_size)))
         pose = res.pose
         if self.twin_check is not None:
-            pose, _, flipped = self.twin_check.best(Frame(image, cam, frame.timestamp, frame.index), pose)
-            if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
-                quality *= 0.5
+            undistorted = Frame(image, cam, frame.timestamp, frame.index)
+            if self.check_twins:
+                pose, _, flipped = self.twin_check.best(undistorted, pose)
+                if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
+                    quality *= 0.5
+            if self.refine_edges:
+                from ..trackers.edges import fit_edges
+
+                fit = fit_edges(self.twin_check.view, undistorted, pose, search_px=REFINE_SEARCH_PX)
+                if fit is not None and fit.quality >= REFINE_MIN_QUALITY:
+                    pose = fit.pose
         return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 
@@ -264,9 +280,9 @@ def _builtin_object(name):
 
 
 def _factory(name: str):
-    def make(checkpoint=None, object=None, threads: int | None = None) -> CheckpointRegressor:
+    def make(checkpoint=None, object=None, threads: int | None = None, **options) -> CheckpointRegressor:
         path = checkpoint if checkpoint is not None else shipped_checkpoint(name)
-        return CheckpointRegressor(path, object=object, threads=threads, expect_model=name)
+        return CheckpointRegressor(path, object=object, threads=threads, expect_model=name, **options)
 
     make.__name__ = f"make_{name.replace('-', '_')}"
     make.__doc__ = f"Regressor backend {name!r}: ``checkpoint=PATH`` (default: the shipped one, if any)."

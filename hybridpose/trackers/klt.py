@@ -20,6 +20,8 @@ exp(−rms / 2 px); with ``edge_refine`` the winning edge fit's quality (inlier 
 """
 from __future__ import annotations
 
+import logging
+
 import cv2
 import numpy as np
 
@@ -31,6 +33,8 @@ from .base import Tracker
 from .edges import fit_edges
 from ..geometry import projection_jacobian
 from .model_view import ModelView
+
+log = logging.getLogger(__name__)
 
 MIN_INLIERS_FULL = 20
 GOOD_FIT = 0.7  # an edge fit this good from the first proposal is kept without trying the other
@@ -110,12 +114,16 @@ class KltPnpTracker(Tracker):
     def _init(self, frame: Frame, pose: Pose) -> None:
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
         self.uv, self.X = self._detect(gray, pose, frame, np.zeros((0, 2)), self.max_features)
-        if len(self.uv) < 6:
+        self.gray = gray
+        if len(self.uv) >= 6:
+            return
+        if not self.edge_refine:
             raise ValueError(
                 f"pose: only {len(self.uv)} trackable corners on {self.object.name!r} at the initial pose "
                 "(need 6) — is the object in view, lit and the pose right?"
             )
-        self.gray = gray
+        # far away or in shadow: the edge fit carries the first frames, corners come as they appear
+        log.info("klt-pnp: only %d corners at init; edges only until more appear", len(self.uv))
 
     # --- tracking ------------------------------------------------------------------------------------
     def _klt_pnp(self, gray: np.ndarray, K: np.ndarray, start: Pose):

@@ -221,6 +221,15 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from .regressors.train import export_checkpoint
+
+    ck = export_checkpoint(args.checkpoint, args.out)
+    print(f"export: {ck['config']['model']} (epoch {ck.get('epoch')}) → {args.out} "
+          f"({Path(args.out).stat().st_size / 2**20:.1f} MB, calibration {'yes' if 'calibration' in ck else 'NO'})")
+    return 0
+
+
 def cmd_train(args) -> int:
     from .regressors.train import run
 
@@ -287,6 +296,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--limit", type=int, default=None, help="evaluate the first N images only")
     e.add_argument("--no-refine", action="store_true", help="keypoint models: CNN + PnP + twin check only, no edge refinement")
     e.set_defaults(func=cmd_eval)
+
+    x = sub.add_parser("export", help="inference-only copy of a training checkpoint (what the package ships)")
+    x.add_argument("--checkpoint", required=True, help="best.pt of a training run")
+    x.add_argument("--out", required=True)
+    x.set_defaults(func=cmd_export)
 
     k = sub.add_parser("track", help="track your object through a video or image folder from an initial pose")
     k.add_argument("source", help="video file (.mp4/.avi/...) or folder of images")

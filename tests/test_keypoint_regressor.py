@@ -195,3 +195,15 @@ def test_twin_check_finds_the_true_pose_among_its_twins(truss, camera):
                 assert flipped and rotation_error_deg(chosen, pose) < 1e-6, "the flipped twin was kept"
             chosen, _, flipped = check.best(frame, pose)
             assert not flipped
+
+
+def test_export_keeps_inference_state_only(tiny_checkpoint, tmp_path, truss, camera):
+    from hybridpose.cli import main
+
+    assert main(["export", "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "w.pt")]) == 0
+    ck = torch.load(tmp_path / "w.pt", map_location="cpu", weights_only=False)
+    assert "optimizer" not in ck and "torch_rng" not in ck and {"config", "model", "build", "validation"} <= set(ck)
+    reg = CheckpointRegressor(tmp_path / "w.pt", object=truss)
+    m = reg.predict(Frame(np.zeros((camera.height, camera.width, 3), np.uint8), camera, 0.0))
+    assert m.lost
+    assert main(["export", "--checkpoint", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "x.pt")]) == 2

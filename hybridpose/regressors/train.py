@@ -249,6 +249,24 @@ def save_checkpoint(path: Path, payload: dict) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+INFERENCE_KEYS = ("config", "model", "build", "dataset", "calibration", "epoch", "best")
+
+
+def export_checkpoint(src, dst) -> dict:
+    """Inference-only copy of a training checkpoint (no optimizer/RNG state; the best validation
+    row kept as ``validation``), written atomically. Returns it."""
+    ck = load_checkpoint(src)
+    missing = [k for k in ("config", "model", "build") if k not in ck]
+    if missing:
+        raise ValueError(f"{src}: not a hybridpose training checkpoint (missing {', '.join(missing)})")
+    out = {k: ck[k] for k in INFERENCE_KEYS if k in ck}
+    history = ck.get("history") or []
+    if history:
+        out["validation"] = min(history, key=lambda r: r["val_loss"])
+    save_checkpoint(Path(dst), out)
+    return out
+
+
 def load_checkpoint(path) -> dict:
     path = Path(path)
     if not path.is_file():

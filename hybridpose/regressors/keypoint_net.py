@@ -45,6 +45,9 @@ class KeypointNet(nn.Module):
             checkpoint carries the exact points the heatmaps were trained for.
         width: channels of the first stage (stages use width × 1, 2, 4, 8).
         image_size: crop side S in pixels (a multiple of 32).
+        twin_classes: > 0 adds a head (global pool of the deepest features → linear) that says
+            which labelling of the object's near-symmetric twins the keypoints follow (identity
+            first); trained with the twin loss, it lets inference undo the flip without guessing.
 
     Pixel convention: integer coordinates are pixel centres (OpenCV); ``spread`` is the standard
     deviation of each heatmap's distribution, a per-keypoint confidence (small = sharp peak).
@@ -52,7 +55,7 @@ class KeypointNet(nn.Module):
 
     kind = "keypoints"
 
-    def __init__(self, keypoints_m, width: int = 32, image_size: int = 128) -> None:
+    def __init__(self, keypoints_m, width: int = 32, image_size: int = 128, twin_classes: int = 0) -> None:
         super().__init__()
         kp = torch.tensor(np.array(keypoints_m, dtype=np.float32))
         if kp.ndim != 2 or kp.shape[1] != 3 or len(kp) < 4:
@@ -72,6 +75,7 @@ class KeypointNet(nn.Module):
         self.lat2, self.lat1 = nn.Conv2d(2 * w, d, 1), nn.Conv2d(w, d, 1)
         self.smooth3, self.smooth2, self.smooth1 = _conv_bn(d, d), _conv_bn(d, d), _conv_bn(d, d)
         self.head = nn.Conv2d(d, len(kp), 1)
+        self.twin_head = nn.Linear(8 * w, int(twin_classes)) if twin_classes else None
 
     @property
     def num_keypoints(self) -> int:
@@ -79,6 +83,9 @@ class KeypointNet(nn.Module):
 
     def heatmaps(self, x: torch.Tensor) -> torch.Tensor:
         """(B, 3, S, S) → (B, N, S/4, S/4) logits."""
+        return self._run(x)[0]
+
+    def _run(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         if x.ndim != 4 or x.shape[1] != 3:
             raise ValueError(f"image: expected (B, 3, H, W) float crops, got {tuple(x.shape)}")
         if x.shape[2] != self.image_size or x.shape[3] != self.image_size:
@@ -91,10 +98,16 @@ class KeypointNet(nn.Module):
         p = self.smooth3(self.lat3(c3) + F.interpolate(p, scale_factor=2.0, mode="nearest"))
         p = self.smooth2(self.lat2(c2) + F.interpolate(p, scale_factor=2.0, mode="nearest"))
         p = self.smooth1(self.lat1(c1) + F.interpolate(p, scale_factor=2.0, mode="nearest"))
-        return self.head(p)
+        return self.head(p), c4
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return soft_argmax(self.heatmaps(x), HEATMAP_STRIDE)
+    def forward(self, x: torch.Tensor, with_twin: bool = False):
+        """(uv (B, N, 2), spread (B, N)); with ``with_twin`` also the twin logits (B, T) or None."""
+        logits, c4 = self._run(x)
+        uv, spread = soft_argmax(logits, HEATMAP_STRIDE)
+        if not with_twin:
+            return uv, spread
+        twin = self.twin_head(c4.mean((2, 3))) if self.twin_head is not None else None
+        return uv, spread, twin
 
 
 def soft_argmax(logits: torch.Tensor, stride: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -115,14 +128,15 @@ def soft_argmax(logits: torch.Tensor, stride: int) -> tuple[torch.Tensor, torch.
 
 
 def keypoint_loss(pred_px: torch.Tensor, spread_px: torch.Tensor, true_px: torch.Tensor, image_size: int,
-                  spread_weight: float = 0.05) -> torch.Tensor:
+                  spread_weight: float = 0.05, return_best: bool = False):
     """Mean L1 keypoint error as a fraction of the crop side, plus a small term for sharp heatmaps.
 
     ``true_px`` is (B, N, 2), or (B, T, N, 2) for T equally valid labellings (the keypoints under
     the object's near-symmetries): each sample then counts its best-matching labelling, so the
     network is not pushed to the average of the ends it cannot yet tell apart (the regressor's
     twin check picks the right one on the image). Keypoints whose label lies outside the crop are
-    not counted (a soft-argmax cannot reach them).
+    not counted (a soft-argmax cannot reach them). ``return_best`` also returns each sample's
+    best labelling index (B,) (the twin head's target).
     """
     if true_px.ndim == 3:
         true_px = true_px[:, None]
@@ -131,4 +145,5 @@ def keypoint_loss(pred_px: torch.Tensor, spread_px: torch.Tensor, true_px: torch
     spread = (spread_px[:, None] / image_size * inside).sum(-1)
     count = inside.sum(-1).clamp_min(1.0)
     per = (err * inside).sum(-1) / count + spread_weight * spread / count      # (B, T)
-    return per.min(dim=1).values.mean()
+    best, index = per.min(dim=1)
+    return (best.mean(), index) if return_best else best.mean()

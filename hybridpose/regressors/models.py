@@ -16,8 +16,8 @@ MODELS: dict[str, Callable[..., nn.Module]] = {
     # CPU models: keypoint heatmaps on the object-centred crop, pose by PnP (see keypoint_net.py).
     # "default" is the one we ship trained (chosen by accuracy per ms, benchmarks/RESULTS.md);
     # "keypoints" the wider variant for when a few more ms buy accuracy.
-    "default": lambda keypoints_m, image_size=128, **kw: KeypointNet(keypoints_m, 32, image_size),
-    "keypoints": lambda keypoints_m, image_size=160, **kw: KeypointNet(keypoints_m, 48, image_size),
+    "default": lambda keypoints_m, image_size=128, twin_classes=0, **kw: KeypointNet(keypoints_m, 32, image_size, twin_classes),
+    "keypoints": lambda keypoints_m, image_size=160, twin_classes=0, **kw: KeypointNet(keypoints_m, 48, image_size, twin_classes),
 }
 
 KEYPOINT_MODELS = ("default", "keypoints")

@@ -12,6 +12,7 @@ the crop around its own translation estimate, or around ``roi``).
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -119,6 +120,8 @@ class CheckpointRegressor(PoseRegressor):
         self.image_size = int(ck["config"]["image_size"])
         self.dataset = ck.get("dataset", {})
         self.calibration = ck.get("calibration")
+        self.twins = [Pose.from_matrix(np.asarray(m)) for m in ck.get("twins", [])]
+        self.has_twin_head = getattr(self.net, "twin_head", None) is not None and bool(self.twins)
         if self.calibration is None:
             log.warning("%s: no covariance calibration stored; covariances are inflated ×%g", self.path, UNCALIBRATED_SCALE)
         if threads is not None:
@@ -177,10 +180,14 @@ class CheckpointRegressor(PoseRegressor):
 
     def _keypoint_pass(self, image, K, box):
         crop, K_crop = self._crop(image, K, *box)
-        uv, spread = self.net(_to_tensor(crop))
+        uv, _, twin = self.net(_to_tensor(crop), with_twin=True)
         uv = uv[0].numpy().astype(np.float64)
         res = solve_pnp(uv, self.net.keypoints_m.numpy().astype(np.float64), K_crop,
                         threshold_px=PNP_THRESHOLD * self.image_size)
+        if res is not None and self.has_twin_head:
+            k = int(twin[0].argmax())
+            if k > 0:  # the keypoints follow twin k: undo it (half-turns are their own inverses)
+                res = replace(res, pose=res.pose @ self.twins[k - 1])
         return res, uv, K_crop
 
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
@@ -222,7 +229,7 @@ class CheckpointRegressor(PoseRegressor):
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
             if self.refine_edges:
                 pose, quality = self._refine(undistorted, pose, quality)
-            elif self.check_twins:
+            elif self.check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
                     quality *= 0.5
@@ -234,7 +241,9 @@ class CheckpointRegressor(PoseRegressor):
         model edges agree with wins if it is well supported, else the CNN pose stays."""
         from ..trackers.edges import fit_edges
 
-        starts = [pose] + ([pose @ S for S in self.twin_check.twins] if self.check_twins else [])
+        # a twin head has already said which twin; otherwise each twin is tried
+        search_twins = self.check_twins and not self.has_twin_head
+        starts = [pose] + ([pose @ S for S in self.twin_check.twins] if search_twins else [])
         fits = [f for f in (fit_edges(self.twin_check.view, frame, p, search_px=REFINE_SEARCH_PX) for p in starts) if f]
         if not fits:
             return pose, quality

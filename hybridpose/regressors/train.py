@@ -158,28 +158,41 @@ def _forward(model, batch, device):
     return model(x)
 
 
+TWIN_CE_WEIGHT = 0.1
+
+
 def _batch_loss(model, batch, device, beta: float) -> torch.Tensor:
     if is_keypoint_model(model):
+        net = _unwrap(model)
+        labels = batch["kp2d"].to(device)
+        if net.twin_head is not None and labels.ndim == 4:
+            pred, spread, twin = model(batch["image"].to(device, non_blocking=True), with_twin=True)
+            loss, best = keypoint_loss(pred, spread, labels, net.image_size, return_best=True)
+            return loss + TWIN_CE_WEIGHT * torch.nn.functional.cross_entropy(twin, best)
         pred, spread = model(batch["image"].to(device, non_blocking=True))
-        return keypoint_loss(pred, spread, batch["kp2d"].to(device), _unwrap(model).image_size)
+        return keypoint_loss(pred, spread, labels, net.image_size)
     t, q = _forward(model, batch, device)
     return pose_loss(t, q, batch["t"].to(device), batch["q"].to(device), beta)
 
 
-def predict_batch(model, batch, device) -> tuple[torch.Tensor, torch.Tensor]:
+def predict_batch(model, batch, device, twins=()) -> tuple[torch.Tensor, torch.Tensor]:
     """(t (B, 3) m, q (B, 4)) for a batch; keypoint models go through PnP with the batch's ``K``.
 
     A keypoint prediction PnP cannot explain gets the pose at the crop centre, 1 m away, identity
-    rotation — a counted failure, not a skipped sample.
+    rotation — a counted failure, not a skipped sample. A model with a twin head has its
+    predicted twin undone (``pose @ S``, the half-turns are their own inverses).
     """
     if not is_keypoint_model(model):
         return _forward(model, batch, device)
-    pred, _ = model(batch["image"].to(device))
+    pred, _, twin = model(batch["image"].to(device), with_twin=True)
+    which = twin.argmax(1).cpu().numpy() if twin is not None and twins else np.zeros(len(pred), int)
     pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
     ts, qs = [], []
-    for uv, K in zip(pred.cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64)):
+    for uv, K, k in zip(pred.cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64), which):
         res = solve_pnp(uv, pts3, K, threshold_px=0.03 * model.image_size)
         pose = res.pose if res is not None else Pose.from_quat_t([1, 0, 0, 0], np.linalg.solve(K, [model.image_size / 2, model.image_size / 2, 1.0]))
+        if k > 0:
+            pose = pose @ twins[k - 1]
         ts.append(pose.t)
         qs.append(pose.quat_wxyz)
     return (torch.tensor(np.array(ts), dtype=torch.float32, device=device),
@@ -213,9 +226,9 @@ def evaluate(model, loader, device, beta: float, twins=()) -> dict:
     losses, rot, trans = [], [], []
     with torch.no_grad():
         for batch in loader:
-            t, q = predict_batch(model, batch, device)
+            t, q = predict_batch(model, batch, device, twins)
             t_true, q_true = batch["t"].to(device), batch["q"].to(device)
-            if twins:
+            if twins and getattr(_unwrap(model), "twin_head", None) is None:
                 t_true, q_true = nearest_twin(t, q, t_true, q_true, twins)
             losses.append(pose_loss(t, q, t_true, q_true, beta).item() * len(t))
             rot.append(torch.rad2deg(quat_geodesic_angle(q, q_true)).cpu())
@@ -249,7 +262,7 @@ def save_checkpoint(path: Path, payload: dict) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-INFERENCE_KEYS = ("config", "model", "build", "dataset", "calibration", "epoch", "best")
+INFERENCE_KEYS = ("config", "model", "build", "dataset", "twins", "calibration", "epoch", "best")
 
 
 def export_checkpoint(src, dst) -> dict:
@@ -316,6 +329,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         kw = {"keypoints_m": obj.keypoints, "image_size": cfg.image_size}
         twins = box_half_turns(obj) if cfg.twin_loss else []
         label_sets = np.stack([obj.keypoints] + [S @ obj.keypoints for S in twins])
+        if twins:
+            kw["twin_classes"] = len(label_sets)
     model = build_model(cfg.model, **kw)
     train_ds, val_ds = make_datasets(cfg, keypoints_m=label_sets)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -396,7 +411,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         improved = row["val_loss"] < best
         best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)
         payload = {"config": asdict(cfg), "model": model.state_dict(), "build": kw_for_checkpoint(kw),
-                   "dataset": dataset_info(cfg.data, obj), "optimizer": optim.state_dict(),
+                   "dataset": dataset_info(cfg.data, obj), "twins": [S.matrix.tolist() for S in twins], "optimizer": optim.state_dict(),
                    "scheduler": sched.state_dict() if sched is not None else None,
                    "epoch": epoch, "best": best, "history": history, "stale": stale,
                    "torch_rng": torch.get_rng_state(), "loader_rng": gen.get_state()}

@@ -1,0 +1,78 @@
+"""The `default` regressor shipped in the package: zero set-up, small, useful, honest covariance."""
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from hybridpose.core import Frame
+from hybridpose.geometry import Camera
+from hybridpose.metrics import rotation_error_deg, translation_error_m
+from hybridpose.registry import create
+from hybridpose.regressors.predictor import shipped_checkpoint
+from hybridpose.render import Renderer, SpaceLighting, random_poses
+from hybridpose.datasets.generate import sun_directions_in_cone
+
+HELD_OUT_SEED = 4242  # training used seed 1, the benchmark test set seed 100
+# Measured on these 24 views: median 9.8° / 4.2 cm (1000-view benchmark: 7.9° / 2.3 cm). A guard
+# against regressions, far from chance (≈ 120° / 0.3 m), not the paper's target (not met yet).
+MEDIAN_ROT_DEG = 20.0
+MEDIAN_TRANS_M = 0.08
+
+
+@pytest.fixture(scope="module")
+def held_out(truss):
+    """24 fresh 640×480 views drawn like the training data (whole truss in view, sun in a 40° cone)."""
+    camera = Camera.default()
+    poses = random_poses(24, camera, (0.3, 1.2), rng=HELD_OUT_SEED, in_view_points=truss.bbox_corners)
+    rng = np.random.default_rng(HELD_OUT_SEED)
+    suns = sun_directions_in_cone(SpaceLighting().sun_direction_cam, 40.0, len(poses), rng)
+    with Renderer(truss, camera) as r:
+        return [(Frame(r.render(p, sun_direction_cam=d, sun_scale=rng.uniform(0.7, 1.3)).rgb, camera, float(i), i), p)
+                for i, (p, d) in enumerate(zip(poses, suns))]
+
+
+@pytest.fixture(scope="module")
+def regressor(truss):
+    return create("regressor", "default", object=truss)
+
+
+def test_shipped_checkpoint_is_small_and_describes_itself():
+    path = shipped_checkpoint("default")
+    assert path.stat().st_size < 25 * 2**20
+    import torch
+
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    assert ck["config"]["model"] == "default" and ck["dataset"]["object"] == "truss"
+    assert ck["calibration"]["kind"] == "pnp" and ck["calibration"]["scale"] > 0 and ck["calibration"]["samples"] >= 1000
+    assert "optimizer" not in ck  # inference weights only
+
+
+def test_shipped_default_finds_the_truss_without_a_prior(regressor, held_out):
+    rot, trans = [], []
+    for frame, truth in held_out:
+        m = regressor.predict(frame)
+        assert m.source == "regressor:default"
+        rot.append(rotation_error_deg(m.pose, truth) if m.pose is not None else 180.0)
+        trans.append(translation_error_m(m.pose, truth) if m.pose is not None else 1.0)
+    assert np.median(rot) < MEDIAN_ROT_DEG, f"median rotation error {np.median(rot):.2f}°"
+    assert np.median(trans) < MEDIAN_TRANS_M, f"median translation error {np.median(trans):.3f} m"
+
+
+def test_shipped_default_covariance_is_not_over_confident(truss, held_out):
+    """The calibrated PnP covariance covers the error up to the truss's box twins (what the
+    calibration claims). Which twin is a separate, gross error (~180°): the fusion layer must gate
+    it; the shipped checkpoint has no twin head yet (see weights/README.md)."""
+    from hybridpose.geometry import Pose
+    from hybridpose.regressors.verify import box_half_turns
+
+    twins = [Pose.identity(), *box_half_turns(truss)]
+    reg = create("regressor", "default", object=truss, refine_edges=False)
+    inside = []
+    for frame, truth in held_out:
+        m = reg.predict(frame)
+        if m.pose is None:
+            continue
+        info = np.linalg.pinv(m.covariance)
+        nees = min(m.pose.local(truth @ S) @ info @ m.pose.local(truth @ S) for S in twins)
+        inside.append(nees <= chi2.ppf(0.9, 6))
+    # calibrated for 90 % on the validation split; 24 fresh views leave room for sampling noise
+    assert len(inside) >= 18 and np.mean(inside) >= 0.7, f"only {np.mean(inside):.0%} inside the 90 % ellipsoid"

@@ -10,7 +10,6 @@ import shutil
 import tempfile
 import time
 
-import numpy as np
 
 from _common import environment, update_results_md, write_json
 from hybridpose.datasets import render_random_dataset

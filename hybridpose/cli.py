@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import Camera, load_camera, parse_size
+from .geometry import Camera, load_camera
 
 log = logging.getLogger("hybridpose")
 

@@ -158,6 +158,23 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
                    rms_px=float(np.sqrt(np.mean(r[inl] ** 2))), samples=int(inl.sum()))
 
 
+GOOD_FIT = 0.7  # a fit this good from the first proposal is kept without trying the next
+
+
+def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray | None = None, **kwargs) -> EdgeFit | None:
+    """Edge fits from ``starts`` in order, stopping at the first with quality ≥ ``GOOD_FIT``; the
+    fit most samples agree with (inliers × quality) among those run, or None."""
+    gray = to_gray(frame.image) if gray is None else gray
+    fits = []
+    for start in starts:
+        fit = fit_edges(view, frame, start, gray=gray, **kwargs)
+        if fit is not None:
+            fits.append(fit)
+            if fit.quality >= GOOD_FIT:
+                break
+    return max(fits, key=lambda f: f.samples * f.quality) if fits else None
+
+
 @register("tracker", "edges")
 class EdgeTracker(Tracker):
     """Model-based moving-edge tracker on the visible sharp edges of the CAD model.

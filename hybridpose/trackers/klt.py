@@ -30,14 +30,13 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .edges import fit_edges
+from .edges import fit_from_proposals
 from ..geometry import projection_jacobian
 from .model_view import ModelView
 
 log = logging.getLogger(__name__)
 
 MIN_INLIERS_FULL = 20
-GOOD_FIT = 0.7  # an edge fit this good from the first proposal is kept without trying the other
 RMS_SCALE_PX = 2.0
 
 
@@ -173,18 +172,11 @@ class KltPnpTracker(Tracker):
         # the KLT pose is a proposal next to the caller's start; the edge fit from it is kept unless
         # it is poor and the fit from the start is better (KLT reaches further under fast motion,
         # the edges remove its drift)
-        g32 = gray.astype(np.float32)
-        fits = []
-        for p in ((start,) if klt is None else (klt[0], start)):
-            f = fit_edges(self.view, frame, p, gray=g32)
-            if f is not None:
-                fits.append(f)
-                if f.quality >= GOOD_FIT:
-                    break
-        if not fits:
+        best = fit_from_proposals(self.view, frame, (start,) if klt is None else (klt[0], start),
+                                  gray=gray.astype(np.float32))
+        if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0
-        best = max(fits, key=lambda f: f.samples * f.quality)
         if best.quality >= self.lost_quality:
             self._refresh(gray, best.pose, frame, klt)
         else:

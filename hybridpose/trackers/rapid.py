@@ -33,8 +33,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .edges import fit_edges, to_gray
-from .klt import GOOD_FIT
+from .edges import fit_from_proposals
 from .model_view import ModelView
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
@@ -105,17 +104,9 @@ class RapidTracker(Tracker):
             return pose, np.diag([0.05**2] * 3 + [0.01**2] * 3), float(ratio)
         # the silhouette pose is a proposal: the edge fit from the caller's start is kept when good,
         # else the fit from the silhouette pose competes (more agreeing model edges win)
-        gray = to_gray(frame.image)
-        fits = []
-        for p in ((start,) if pose is start else (start, pose)):
-            f = fit_edges(self.view, frame, p, gray=gray)
-            if f is not None:
-                fits.append(f)
-                if f.quality >= GOOD_FIT:
-                    break
-        if not fits:
+        best = fit_from_proposals(self.view, frame, (start,) if pose is start else (start, pose))
+        if best is None:
             return None, None, 0.0
-        best = max(fits, key=lambda f: f.samples * f.quality)
         return best.pose, best.covariance, best.quality
 
 

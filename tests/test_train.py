@@ -98,3 +98,20 @@ def test_ddp_two_cpu_processes_with_gloo(data, tmp_path):
     ck = load_checkpoint(out / "last.pt")
     assert ck["epoch"] == 1 and not any(k.startswith("module.") for k in ck["model"])
     assert [r["epoch"] for r in json.loads((out / "history.json").read_text())] == [0, 1]
+
+
+def test_init_from_copies_matching_weights_and_adds_new_layers(data, tmp_path):
+    base = TrainConfig(model="default", data=str(data), out=str(tmp_path / "a"), epochs=1, batch=4, lr=1e-3,
+                       image_size=64, patience=0, twin_loss=False, max_batches=2)
+    train(base, progress=False)
+    src = load_checkpoint(tmp_path / "a" / "last.pt")["model"]
+    assert not any(k.startswith("twin_head") for k in src)
+    tuned = TrainConfig(**{**base.__dict__, "out": str(tmp_path / "b"), "twin_loss": True, "max_batches": 0,
+                           "init_from": str(tmp_path / "a" / "last.pt")})
+    train(tuned, progress=False)  # no training step: the weights are the copied ones
+    got = load_checkpoint(tmp_path / "b" / "last.pt")["model"]
+    assert {k for k in got if k.startswith("twin_head")} == {"twin_head.weight", "twin_head.bias"}
+    for k, v in src.items():
+        torch.testing.assert_close(got[k], v)
+    with pytest.raises(FileNotFoundError):
+        train(TrainConfig(**{**tuned.__dict__, "init_from": str(tmp_path / "none.pt")}), progress=False)

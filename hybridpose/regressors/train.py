@@ -58,6 +58,8 @@ class TrainConfig:
             its bounding-box half-turn twins and keep the best (see ``keypoint_loss``); validation
             errors are then measured to the nearest twin, the regressor's twin check resolves
             which one at inference.
+        init_from: start from this checkpoint's weights where names and shapes match (fine-tuning,
+            e.g. adding the twin head to a trained model); new layers keep their initialisation.
     """
 
     model: str
@@ -78,6 +80,7 @@ class TrainConfig:
     device: str = "auto"
     schedule: str = "constant"
     twin_loss: bool = True
+    init_from: str | None = None
     max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
 
     def __post_init__(self) -> None:
@@ -344,9 +347,11 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                               drop_last=len(train_ds) > cfg.batch * world, pin_memory=device.type == "cuda")
     val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers)
 
+    if cfg.init_from:
+        _init_from(model, cfg.init_from)
     if cfg.imagenet_weights:
         load_imagenet_weights(model, cfg.imagenet_weights)
-    elif obj is None:
+    elif obj is None and not cfg.init_from:
         log.warning("no --imagenet-weights given: training %s from scratch (nothing is downloaded)", cfg.model)
     model.to(device)
     net = model
@@ -442,6 +447,20 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     return best_row
 
 
+def _init_from(model, path) -> None:
+    """Copy the weights of ``path`` whose names and shapes match ``model``'s; log what was left out."""
+    src = load_checkpoint(path)
+    if "model" not in src:
+        raise ValueError(f"{path}: not a hybridpose checkpoint (no 'model')")
+    own = model.state_dict()
+    take = {k: v for k, v in src["model"].items() if k in own and own[k].shape == v.shape}
+    if not take:
+        raise ValueError(f"{path}: no weight matches the {type(model).__name__} being trained")
+    model.load_state_dict(take, strict=False)
+    fresh = sorted(set(own) - set(take))
+    log.info("initialised %d tensors from %s; new: %s", len(take), path, ", ".join(fresh) or "none")
+
+
 def _stop_signal(stop: bool | None) -> bool:
     """Rank 0 broadcasts its early-stop decision after validating; the other ranks receive it."""
     import torch.distributed as dist
@@ -495,6 +514,7 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-batches", type=int, default=None, help="cap batches per epoch (smoke runs)")
     p.add_argument("--no-twin-loss", action="store_true",
                    help="keypoint models: score against the true keypoints only (not also the box-symmetric twins)")
+    p.add_argument("--init-from", default=None, help="start from a checkpoint's matching weights (fine-tuning)")
     p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
 
 
@@ -507,7 +527,8 @@ def config_from_args(args) -> TrainConfig:
                        lr=lr, beta=args.beta, image_size=image_size, seed=args.seed,
                        patience=args.patience, augment=not args.no_augment, freeze_features=args.freeze_features,
                        imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
-                       max_batches=args.max_batches, schedule=schedule, twin_loss=not args.no_twin_loss)
+                       max_batches=args.max_batches, schedule=schedule, twin_loss=not args.no_twin_loss,
+                       init_from=args.init_from)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -237,18 +237,19 @@ class CheckpointRegressor(PoseRegressor):
                            timestamp=frame.timestamp)
 
     def _refine(self, frame: Frame, pose: Pose, quality: float) -> tuple[Pose, float]:
-        """Edge fit from the CNN pose (and, with ``check_twins``, from each box twin); the fit most
-        model edges agree with wins if it is well supported, else the CNN pose stays."""
-        from ..trackers.edges import fit_edges
+        """Edge fit from the CNN pose and, with ``check_twins``, from its box twins; the fit most
+        model edges agree with wins if it is well supported, else the CNN pose stays. With a twin
+        head the twins are tried only when the fit from the head's choice is poor."""
+        from ..trackers.edges import fit_edges, fit_from_proposals
 
-        # a twin head has already said which twin; otherwise each twin is tried
-        search_twins = self.check_twins and not self.has_twin_head
-        starts = [pose] + ([pose @ S for S in self.twin_check.twins] if search_twins else [])
-        fits = [f for f in (fit_edges(self.twin_check.view, frame, p, search_px=REFINE_SEARCH_PX) for p in starts) if f]
-        if not fits:
-            return pose, quality
-        best = max(fits, key=lambda f: f.samples * f.quality)
-        if best.quality < REFINE_MIN_QUALITY:
+        twins = [pose @ S for S in self.twin_check.twins] if self.check_twins else []
+        view = self.twin_check.view
+        if self.has_twin_head:
+            best = fit_from_proposals(view, frame, [pose, *twins], search_px=REFINE_SEARCH_PX)
+        else:
+            fits = [f for f in (fit_edges(view, frame, p, search_px=REFINE_SEARCH_PX) for p in [pose, *twins]) if f]
+            best = max(fits, key=lambda f: f.samples * f.quality) if fits else None
+        if best is None or best.quality < REFINE_MIN_QUALITY:
             return pose, quality
         return best.pose, quality
 

@@ -9,6 +9,8 @@ from .geometry import Camera, Pose
 from .geometry.checks import as_array
 
 ESTIMATE_STATUSES = ("init", "tracking", "lost", "reinit")
+# the covariance of a measurement that knows nothing: ±180° rotation, ±1 m translation
+LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)
 
 
 def as_covariance6(cov, name: str = "covariance") -> np.ndarray:

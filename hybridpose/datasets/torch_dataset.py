@@ -5,6 +5,7 @@ enlarged by ``crop_margin``, resampled to ``size``; pixels outside the frame are
 """
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import cv2
@@ -46,6 +47,17 @@ def crop_affine(cx: float, cy: float, side: float, out_w: int, out_h: int) -> np
     return np.array([[sx, 0.0, (out_w - 1) / 2 - sx * cx], [0.0, sy, (out_h - 1) / 2 - sy * cy]])
 
 
+def crop_image(image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float, size: tuple[int, int]):
+    """The square ``(cx, cy, side)`` (source pixels) of ``image`` resampled to ``size`` (W, H), and the
+    intrinsics of the crop; outside the frame is black (space). Training and inference share it so
+    the network sees the same resampling in both."""
+    w, h = size
+    A = crop_affine(cx, cy, side, w, h)
+    out = cv2.warpAffine(image, A, (w, h), flags=cv2.INTER_AREA if side > w else cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out, np.vstack([A, [0, 0, 1]]) @ K
+
+
 class PoseDataset(Dataset):
     """Images and labels of one or more BOP scenes for training a pose regressor.
 
@@ -58,8 +70,9 @@ class PoseDataset(Dataset):
         crop_margin: crop side / max(bbox w, h).
         jitter: crop mode only — random, label-consistent crops for training: margin drawn from
             ``JITTER_MARGIN``, centre shifted by up to ``JITTER_SHIFT`` × side, and with probability
-            ``FULL_VIEW_PROB`` the whole frame (a square around the image centre) instead, so the
-            network also learns the coarse first pass. Draws use torch's RNG (seeded runs repeat).
+            ``FULL_VIEW_PROB`` the whole frame (a square around the image centre) instead — 0: the
+            regressors find the object by detection, and whole-frame views slowed learning. Draws
+            use torch's RNG (seeded runs repeat).
         keypoints_m: (N, 3) model keypoints in metres; adds ``kp2d`` (N, 2), their projections in
             the returned image's pixels. A (T, N, 3) stack (e.g. the keypoints under an object's
             near-symmetries) gives ``kp2d`` (T, N, 2).
@@ -85,9 +98,13 @@ class PoseDataset(Dataset):
             self.keypoints_m = np.asarray(keypoints_m, dtype=np.float64)
             if self.keypoints_m.ndim not in (2, 3) or self.keypoints_m.shape[-1] != 3:
                 raise ValueError(f"keypoints_m: expected (N, 3) or (T, N, 3) metres, got {self.keypoints_m.shape}")
-        self.indices = np.arange(len(self.samples)) if indices is None else np.asarray(indices, dtype=np.int64)
-        if len(self.indices) and (self.indices.min() < 0 or self.indices.max() >= len(self.samples)):
-            raise ValueError(f"indices: expected values in [0, {len(self.samples)}), got {self.indices.min()}..{self.indices.max()}")
+        self.indices = self._checked(np.arange(len(self.samples)) if indices is None else indices)
+
+    def _checked(self, indices) -> np.ndarray:
+        idx = np.asarray(indices, dtype=np.int64)
+        if len(idx) and (idx.min() < 0 or idx.max() >= len(self.samples)):
+            raise ValueError(f"indices: expected values in [0, {len(self.samples)}), got {idx.min()}..{idx.max()}")
+        return idx
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -105,10 +122,7 @@ class PoseDataset(Dataset):
             cx, cy, side = crop_box(gt.bbox_obj, self.crop_margin)
             if self.jitter:
                 cx, cy, side = self._jittered(cx, cy, side / self.crop_margin, img.shape[1], img.shape[0])
-            A = crop_affine(cx, cy, side, w, h)
-            out = cv2.warpAffine(img, A, (w, h), flags=cv2.INTER_AREA if side > w else cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            K = np.vstack([A, [0, 0, 1]]) @ gt.camera.K
+            out, K = crop_image(img, gt.camera.K, cx, cy, side, (w, h))
             crop = (cx, cy, side)
         else:
             cam = gt.camera.scaled((w, h))
@@ -129,6 +143,14 @@ class PoseDataset(Dataset):
             uv = (p[:, :2] / p[:, 2:]).reshape(*self.keypoints_m.shape[:-1], 2)
             item["kp2d"] = torch.tensor(uv, dtype=torch.float32)
         return item
+
+    def subset(self, indices, jitter: bool = False) -> "PoseDataset":
+        """The same data restricted to ``indices`` (e.g. a split), without re-reading the scenes."""
+        if jitter and not self.crop:
+            raise ValueError("jitter: random crops need crop=True")
+        sub = copy.copy(self)
+        sub.indices, sub.jitter = self._checked(indices), bool(jitter)
+        return sub
 
     def _jittered(self, cx: float, cy: float, extent: float, width: int, height: int) -> tuple[float, float, float]:
         r = torch.rand(4).tolist()

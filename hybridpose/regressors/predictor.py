@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 import torch
 
-from ..core import Frame, Measurement
-from ..datasets.torch_dataset import crop_affine, crop_box
+from ..core import LOST_COVARIANCE, Frame, Measurement
+from ..datasets.torch_dataset import crop_box, crop_image
 from ..geometry import Camera, Pose
 from ..registry import register
 from .base import PoseRegressor, check_roi
@@ -33,7 +33,6 @@ log = logging.getLogger(__name__)
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 CROP_MARGIN = 1.2
 UNCALIBRATED_SCALE = 100.0  # covariance inflation for a checkpoint without calibration
-LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)
 QUALITY_RMS = 0.02  # RMS reprojection error (fraction of the crop side) at which quality falls to 1/e
 FOV_TOLERANCE = 0.02
 DETECT_THRESHOLD = 12
@@ -172,11 +171,7 @@ class CheckpointRegressor(PoseRegressor):
             return self._predict_direct(frame, roi)
 
     def _crop(self, image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float):
-        S = self.image_size
-        A = crop_affine(cx, cy, side, S, S)
-        crop = cv2.warpAffine(image, A, (S, S), flags=cv2.INTER_AREA if side > S else cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        return crop, np.vstack([A, [0, 0, 1]]) @ K
+        return crop_image(image, K, cx, cy, side, (self.image_size, self.image_size))
 
     def _keypoint_pass(self, image, K, box):
         crop, K_crop = self._crop(image, K, *box)
@@ -228,7 +223,7 @@ class CheckpointRegressor(PoseRegressor):
         if self.twin_check is not None:
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
             if self.refine_edges:
-                pose, quality = self._refine(undistorted, pose, quality)
+                pose = self._refine(undistorted, pose)
             elif self.check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
@@ -236,7 +231,7 @@ class CheckpointRegressor(PoseRegressor):
         return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 
-    def _refine(self, frame: Frame, pose: Pose, quality: float) -> tuple[Pose, float]:
+    def _refine(self, frame: Frame, pose: Pose) -> Pose:
         """Edge fit from the CNN pose and, with ``check_twins``, from its box twins; the fit most
         model edges agree with wins if it is well supported, else the CNN pose stays. With a twin
         head the twins are tried only when the fit from the head's choice is poor."""
@@ -249,9 +244,7 @@ class CheckpointRegressor(PoseRegressor):
         else:
             fits = [f for f in (fit_edges(view, frame, p, search_px=REFINE_SEARCH_PX) for p in [pose, *twins]) if f]
             best = max(fits, key=lambda f: f.samples * f.quality) if fits else None
-        if best is None or best.quality < REFINE_MIN_QUALITY:
-            return pose, quality
-        return best.pose, quality
+        return pose if best is None or best.quality < REFINE_MIN_QUALITY else best.pose
 
     def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
         cam = frame.camera

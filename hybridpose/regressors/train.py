@@ -26,7 +26,7 @@ from ..datasets.torch_dataset import PoseDataset, split_indices
 from ..geometry import Pose
 from ..io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
-from .calibration import calibrate
+from .calibration import PNP_THRESHOLD, calibrate
 from .keypoint_net import keypoint_loss
 from .keypoint_pnp import solve_pnp
 from .verify import box_half_turns
@@ -118,11 +118,9 @@ def make_datasets(cfg: TrainConfig, keypoints_m=None) -> tuple[Dataset, Dataset]
     deterministic object-centred crop.
     """
     if keypoints_m is not None:
-        n = len(PoseDataset(cfg.data, size=cfg.image_size, crop=True))
-        train_idx, val_idx = split_indices(n, cfg.val_fraction, cfg.seed)
-        make = lambda idx, jitter: PoseDataset(cfg.data, size=cfg.image_size, crop=True, indices=idx,  # noqa: E731
-                                               jitter=jitter, keypoints_m=keypoints_m)
-        return make(train_idx, cfg.augment), make(val_idx, False)
+        crops = PoseDataset(cfg.data, size=cfg.image_size, crop=True, keypoints_m=keypoints_m)
+        train_idx, val_idx = split_indices(len(crops), cfg.val_fraction, cfg.seed)
+        return crops.subset(train_idx, jitter=cfg.augment), crops.subset(val_idx)
     data: Dataset = PoseDataset(cfg.data, size=cfg.image_size)
     if cfg.model == "parallel-vgg19":
         data = _Paired(data, PoseDataset(cfg.data, size=cfg.image_size, crop=True))
@@ -192,7 +190,7 @@ def predict_batch(model, batch, device, twins=()) -> tuple[torch.Tensor, torch.T
     pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
     ts, qs = [], []
     for uv, K, k in zip(pred.cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64), which):
-        res = solve_pnp(uv, pts3, K, threshold_px=0.03 * model.image_size)
+        res = solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size)
         pose = res.pose if res is not None else Pose.from_quat_t([1, 0, 0, 0], np.linalg.solve(K, [model.image_size / 2, model.image_size / 2, 1.0]))
         if k > 0:
             pose = pose @ twins[k - 1]

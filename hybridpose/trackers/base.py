@@ -11,12 +11,11 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from ..core import Frame, Measurement
+from ..core import LOST_COVARIANCE, Frame, Measurement
 from ..geometry import Pose
 from ..objects import ObjectModel
 
 MIN_DEPTH_M = 0.01
-LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)  # "knows nothing": ±180°, ±1 m
 
 
 class Tracker(ABC):

@@ -77,12 +77,12 @@ def cmd_render(args) -> int:
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
                                       progress=_progress("render"), sun_cone_deg=args.sun_cone,
-                                      sun_scale_range=args.sun_range, in_view=args.in_view)
+                                      sun_scale_range=args.sun_range, in_view=args.in_view, workers=args.workers)
     else:
         spec = SequenceSpec(trajectory=args.trajectory, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                             lighting=args.lighting, seed=args.seed)
         scene = render_sequence_dataset(args.out, obj, camera, spec, lighting=lighting, sensor=sensor,
-                                        progress=_progress("render"))
+                                        progress=_progress("render"), workers=args.workers)
     print(f"wrote {scene} ({camera.width}×{camera.height}, BOP format) and {Path(args.out) / 'labels.csv'}")
     return 0
 
@@ -273,6 +273,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--noise", type=float, default=0.0, help="Gaussian read noise, fraction of full scale")
     r.add_argument("--blur", type=float, default=0.0, help="Gaussian blur sigma, px")
     r.add_argument("--gamma", type=float, default=1.0)
+    r.add_argument("--workers", type=int, default=1,
+                   help="render processes (each with its own GL context); same images for any number")
     r.add_argument("--out", required=True)
     r.set_defaults(func=cmd_render)
 

@@ -85,6 +85,29 @@ def test_interrupted_render_resumes_to_identical_files(truss, tmp_path):
         render_random_dataset(part, truss, CAM, count=6, seed=10)
 
 
+def test_render_workers_write_the_same_dataset_and_resume(truss, tmp_path):
+    one, par = tmp_path / "one", tmp_path / "par"
+    render_random_dataset(one, truss, CAM, count=60, seed=3)
+    # half of it first (a resumed job), then the rest with 2 worker processes
+    shutil.copytree(one, par)
+    scene = par / "train" / "000000"
+    for f in scene.rglob("*.png"):
+        if int(f.name[:6]) >= 30:
+            f.unlink()
+    calls = []
+    render_random_dataset(par, truss, CAM, count=60, seed=3, workers=2, progress=lambda d, t: calls.append(d))
+    assert calls and calls[0] > 30 and calls[-1] == 60
+    for sub in ("rgb", "mask_visib", "depth", "mask"):
+        names = sorted(f.name for f in (one / "train/000000" / sub).iterdir())
+        assert names == sorted(f.name for f in (scene / sub).iterdir())
+        for name in names:
+            assert (one / "train/000000" / sub / name).read_bytes() == (scene / sub / name).read_bytes(), name
+    for name in ("scene_gt.json", "scene_gt_info.json", "scene_camera.json"):
+        assert (one / "train/000000" / name).read_text() == (scene / name).read_text()
+    with pytest.raises(ValueError, match="workers"):
+        render_random_dataset(tmp_path / "bad", truss, CAM, count=2, workers=0)
+
+
 def test_sequence_dataset_has_timestamps_and_occlusion(truss, tmp_path):
     spec = SequenceSpec("tumble", frames=12, fps=10, occlusion="arm-full", seed=2)
     scene_dir = render_sequence_dataset(tmp_path / "seq", truss, CAM, spec)

@@ -65,6 +65,20 @@ def test_early_stop(data, tmp_path, tiny):
     assert len(json.loads((tmp_path / "es" / "history.json").read_text())) < 50
 
 
+def test_time_limit_stops_cleanly_and_amp_trains(data, tmp_path, tiny, caplog):
+    cfg = TrainConfig(model="tiny", data=str(data), out=str(tmp_path / "tl"), epochs=5, batch=4, lr=1e-2,
+                      image_size=32, patience=0, amp=True, time_limit_min=1e-6)
+    with caplog.at_level("INFO", logger="hybridpose.regressors.train"):
+        best = train(cfg, progress=False)
+    assert "time limit: stopping after epoch 0 of 5" in caplog.text
+    hist = json.loads((tmp_path / "tl" / "history.json").read_text())
+    assert len(hist) == 1 and all(map(torch.isfinite, torch.tensor([hist[0]["train_loss"], best["val_loss"]])))
+    ck = load_checkpoint(tmp_path / "tl" / "best.pt")
+    assert ck["config"]["amp"] and all(v.dtype == torch.float32 for v in ck["model"].values() if v.is_floating_point())
+    with pytest.raises(ValueError, match="time_limit_min"):
+        TrainConfig(model="tiny", data=str(data), out=str(tmp_path), time_limit_min=0)
+
+
 def test_train_errors(data, tmp_path, tiny):
     with pytest.raises(ValueError, match="model: unknown 'resnet'"):
         TrainConfig(model="resnet", data=str(data), out=str(tmp_path))

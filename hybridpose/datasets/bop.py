@@ -83,16 +83,17 @@ def read_camera_json(root) -> Camera:
 class BopSceneWriter:
     """Writes one BOP scene image by image; JSON files are rewritten atomically on :meth:`flush`.
 
-    Re-opening an existing scene keeps its entries (this is how an interrupted render resumes).
+    Re-opening an existing scene keeps its entries (this is how an interrupted render resumes);
+    ``load=False`` starts empty (a worker process whose records another writer :meth:`merge` s).
     """
 
-    def __init__(self, scene_dir, camera: Camera) -> None:
+    def __init__(self, scene_dir, camera: Camera, load: bool = True) -> None:
         self.dir = Path(scene_dir)
         self.camera = camera
         self.gt: dict[str, list] = {}
         self.cam: dict[str, dict] = {}
         self.info: dict[str, list] = {}
-        if (self.dir / "scene_gt.json").exists():
+        if load and (self.dir / "scene_gt.json").exists():
             scene = BopScene(self.dir)
             self.gt, self.cam, self.info = scene.gt_raw, scene.camera_raw, scene.info_raw
 
@@ -133,6 +134,12 @@ class BopSceneWriter:
             "bbox_obj": bbox_obj, "bbox_visib": bbox_xywh(mask_visib), "px_count_all": n_all,
             "px_count_valid": n_all, "px_count_visib": n_vis, "visib_fract": (n_vis / n_all) if n_all else 0.0,
         }]
+
+    def merge(self, other: "BopSceneWriter") -> None:
+        """Take over the records of ``other`` (same scene; its image files are already written)."""
+        self.gt.update(other.gt)
+        self.cam.update(other.cam)
+        self.info.update(other.info)
 
     def flush(self) -> None:
         def ordered(d):

@@ -7,6 +7,8 @@ different configuration in the same ``out`` is refused.
 from __future__ import annotations
 
 import logging
+import multiprocessing
+import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
@@ -25,7 +27,8 @@ from .labels import Label, write_labels
 log = logging.getLogger(__name__)
 
 CONFIG_FILE = "hybridpose.json"
-CHECKPOINT_EVERY = 25
+CHECKPOINT_EVERY = 25  # images per work unit
+FLUSH_EVERY_S = 10.0  # the scene JSONs are rewritten whole: at 40k images each rewrite takes ~0.5 s
 
 
 def _open_job(out: Path, kind: str, obj: ObjectModel, camera: Camera, lighting: SpaceLighting,
@@ -49,6 +52,27 @@ def _open_job(out: Path, kind: str, obj: ObjectModel, camera: Camera, lighting: 
         atomic_write_json(path, config)
 
 
+def _render_chunk(scene_dir: Path, obj: ObjectModel, camera: Camera, chunk, seed: int,
+                  lighting: SpaceLighting, sensor: SensorModel) -> BopSceneWriter:
+    """Worker process: render and write the images of ``chunk`` ([(index, item), ...]); returns a
+    writer holding only their ground-truth records (the parent merges and flushes them)."""
+    writer = BopSceneWriter(scene_dir, camera, load=False)
+    with Renderer(obj, camera, lighting, sensor) as renderer:
+        for i, (pose, arm, sun, sun_dir) in chunk:
+            res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
+                                  sun_direction_cam=sun_dir)
+            writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
+    return writer
+
+
+def _flush_now(writer: BopSceneWriter, last_flush: float) -> float:
+    """Flush ``writer`` when ``FLUSH_EVERY_S`` has passed since ``last_flush``; returns the flush time."""
+    if time.monotonic() - last_flush < FLUSH_EVERY_S:
+        return last_flush
+    writer.flush()
+    return time.monotonic()
+
+
 def _run_job(
     out: Path,
     split: str,
@@ -59,7 +83,10 @@ def _run_job(
     lighting: SpaceLighting,
     sensor: SensorModel,
     progress: Callable[[int, int], None] | None,
+    workers: int = 1,
 ) -> Path:
+    if workers < 1:
+        raise ValueError(f"workers: expected ≥ 1 processes, got {workers}")
     scene_dir = out / split / "000000"
     writer = BopSceneWriter(scene_dir, camera)
     todo = [i for i in range(len(items)) if not writer.done(i)]
@@ -67,17 +94,34 @@ def _run_job(
         log.info("resuming %s: %d of %d images already rendered", out, len(items) - len(todo), len(items))
     write_models(out, obj)
     write_camera_json(out, camera)
-    if todo:
+    chunks = [[(i, items[i]) for i in todo[k:k + CHECKPOINT_EVERY]] for k in range(0, len(todo), CHECKPOINT_EVERY)]
+    done, last_flush = len(items) - len(todo), time.monotonic()
+    if workers == 1 or len(chunks) <= 1:
+        # one process: a single renderer (GL context) for the whole job
         with Renderer(obj, camera, lighting, sensor) as renderer:
-            for n, i in enumerate(todo, 1):
-                pose, arm, sun, sun_dir = items[i]
-                res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
-                                      sun_direction_cam=sun_dir)
-                writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
-                if n % CHECKPOINT_EVERY == 0:
-                    writer.flush()
+            for chunk in chunks:
+                for i, (pose, arm, sun, sun_dir) in chunk:
+                    res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
+                                          sun_direction_cam=sun_dir)
+                    writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
+                    done += 1
+                    if progress:
+                        progress(done, len(items))
+                last_flush = _flush_now(writer, last_flush)
+    else:
+        # Worker processes render chunks and write the image files; the parent alone merges their
+        # records and rewrites the scene JSONs, so a stop loses at most the chunks in flight.
+        # "spawn": a forked GL context is not safe.
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(workers) as pool:
+            jobs = [pool.apply_async(_render_chunk, (scene_dir, obj, camera, chunk, seed, lighting, sensor))
+                    for chunk in chunks]
+            for chunk, job in zip(chunks, jobs):
+                writer.merge(job.get())
+                last_flush = _flush_now(writer, last_flush)
+                done += len(chunk)
                 if progress:
-                    progress(len(items) - len(todo) + n, len(items))
+                    progress(done, len(items))
     writer.flush()
     labels = [Label(f"{split}/000000/rgb/{i:06d}.png", items[i][0]) for i in range(len(items))]
     write_labels(out / "labels.csv", labels)
@@ -111,13 +155,15 @@ def render_random_dataset(
     sun_cone_deg: float = 0.0,
     sun_scale_range: tuple[float, float] = (1.0, 1.0),
     in_view: bool = False,
+    workers: int = 1,
 ) -> Path:
     """``count`` random views within arm's reach (split ``train``) + ``labels.csv``; resumable.
 
     ``in_view`` keeps the whole object in the image (its bounding-box corners project inside);
     otherwise only its centre is. ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
     ``lighting.sun_direction_cam`` and ``sun_scale_range`` its intensity factor, so a network
-    trained on the data does not learn one shading. Returns the scene directory.
+    trained on the data does not learn one shading. ``workers`` > 1 renders in that many processes
+    (identical images: each image's noise is seeded by its index). Returns the scene directory.
     """
     if count < 1:
         raise ValueError(f"count: expected ≥ 1 images, got {count}")
@@ -138,7 +184,7 @@ def render_random_dataset(
             if sun_cone_deg > 0 else [None] * count)
     scales = sun_rng.uniform(lo, hi, count) if hi > lo else np.full(count, lo)
     items = [(p, None, float(k), d) for p, k, d in zip(poses, scales, dirs)]
-    return _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress)
+    return _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress, workers)
 
 
 def render_sequence_dataset(
@@ -149,6 +195,7 @@ def render_sequence_dataset(
     lighting: SpaceLighting | None = None,
     sensor: SensorModel | None = None,
     progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
 ) -> Path:
     """A rendered sequence (split ``test``) with timestamps and occlusion per frame; resumable.
 
@@ -159,7 +206,7 @@ def render_sequence_dataset(
     _open_job(out, "sequence", obj, camera, lighting, sensor, spec=asdict(spec))
     frames = make_sequence(spec, obj, camera)
     items = [(f.pose, f.arm, f.sun_scale, None) for f in frames]
-    scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress)
+    scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress, workers)
     meta = {str(f.index): {"timestamp_s": f.timestamp, "occlusion": f.occlusion, "sun_scale": f.sun_scale} for f in frames}
     atomic_write_json(scene_dir / "scene_meta.json", {"fps": spec.fps, "frames": meta})
     return scene_dir

@@ -38,13 +38,13 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> float:
     return float(xi @ np.linalg.pinv(cov) @ xi)
 
 
-def _keypoint_errors(model, loader, twins=()) -> tuple[list[float], int, int]:
+def _keypoint_errors(model, loader, twins=(), device=None) -> tuple[list[float], int, int]:
     """Unscaled NEES of every validation sample (PnP in crop pixels), and the failure count."""
     pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
     raw, failures, n = [], 0, 0
     for batch in loader:
-        pred, _ = model(batch["image"])
-        for uv, K, t, q in zip(pred.numpy().astype(np.float64), batch["K"].numpy().astype(np.float64),
+        pred, _ = model(batch["image"].to(device or "cpu"))
+        for uv, K, t, q in zip(pred.float().cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64),
                                batch["t"].numpy(), batch["q"].numpy()):
             n += 1
             res = solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size)
@@ -58,7 +58,7 @@ def _keypoint_errors(model, loader, twins=()) -> tuple[list[float], int, int]:
     return raw, failures, n
 
 
-def calibrate(model, loader, predict_batch, twins=()) -> dict:
+def calibrate(model, loader, predict_batch, twins=(), device=None) -> dict:
     """Calibration record stored in the checkpoint (``checkpoint["calibration"]``).
 
     Args:
@@ -66,12 +66,13 @@ def calibrate(model, loader, predict_batch, twins=()) -> dict:
         loader: validation batches (held out from training).
         predict_batch: ``(model, batch) → (t, q)`` for direct models.
         twins: symmetry poses the keypoint model was trained up to (errors to the nearest twin).
+        device: where ``model`` lives (default CPU); PnP and statistics run on the CPU.
     """
     model.eval()
     target = float(chi2.ppf(COVERAGE, 6))
     with torch.no_grad():
         if getattr(model, "kind", "direct") == "keypoints":
-            raw, failures, n = _keypoint_errors(model, loader, twins)
+            raw, failures, n = _keypoint_errors(model, loader, twins, device)
             if not raw:
                 raise ValueError("calibration: PnP failed on every validation sample; train longer")
             scale = float(np.quantile(raw, COVERAGE)) / target
@@ -80,7 +81,7 @@ def calibrate(model, loader, predict_batch, twins=()) -> dict:
         xis = []
         for batch in loader:
             t, q = predict_batch(model, batch)
-            for tp, qp, tt, qt in zip(t.numpy(), q.numpy(), batch["t"].numpy(), batch["q"].numpy()):
+            for tp, qp, tt, qt in zip(t.float().cpu().numpy(), q.float().cpu().numpy(), batch["t"].numpy(), batch["q"].numpy()):
                 xis.append(Pose.from_quat_t(qp, tp).local(Pose.from_quat_t(qt, tt)))
     xis = np.array(xis)
     cov = xis.T @ xis / len(xis) + 1e-12 * np.eye(6)

@@ -60,6 +60,10 @@ class TrainConfig:
             which one at inference.
         init_from: start from this checkpoint's weights where names and shapes match (fine-tuning,
             e.g. adding the twin head to a trained model); new layers keep their initialisation.
+        amp: bfloat16 autocast for the training forward pass (the big VGG models on a GPU; the
+            validation, calibration and checkpoints stay float32).
+        time_limit_min: stop after the epoch that would make the next one end past this many
+            minutes of training (best.pt is calibrated as after a normal end); None = no limit.
     """
 
     model: str
@@ -81,6 +85,8 @@ class TrainConfig:
     schedule: str = "constant"
     twin_loss: bool = True
     init_from: str | None = None
+    amp: bool = False
+    time_limit_min: float | None = None
     max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
 
     def __post_init__(self) -> None:
@@ -93,6 +99,8 @@ class TrainConfig:
             raise ValueError(f"schedule: expected one of {SCHEDULES}, got {self.schedule!r}")
         if self.lr <= 0 or not math.isfinite(self.lr):
             raise ValueError(f"lr: expected a positive learning rate, got {self.lr}")
+        if self.time_limit_min is not None and not self.time_limit_min > 0:
+            raise ValueError(f"time_limit_min: expected a positive number of minutes, got {self.time_limit_min}")
 
 
 class _Paired(Dataset):
@@ -352,6 +360,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     elif obj is None and not cfg.init_from:
         log.warning("no --imagenet-weights given: training %s from scratch (nothing is downloaded)", cfg.model)
     model.to(device)
+    if device.type == "cuda":
+        torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
     net = model
     if world > 1:
         from torch.nn.parallel import DistributedDataParallel
@@ -383,6 +393,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         from tqdm import tqdm
 
         bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
+    run_start = time.perf_counter()
     for epoch in range(start_epoch, cfg.epochs):
         if sampler is not None:
             sampler.set_epoch(epoch)
@@ -395,7 +406,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                 batch["image"] = augment(batch["image"].to(device))
                 if "crop_image" in batch:
                     batch["crop_image"] = augment(batch["crop_image"].to(device))
-            loss = _batch_loss(net, batch, device, cfg.beta)
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.amp):
+                loss = _batch_loss(net, batch, device, cfg.beta)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"epoch {epoch} batch {b}: loss is {loss.item()}; lower --lr")
             optim.zero_grad(set_to_none=True)
@@ -426,10 +438,16 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             bar.update(1)
             bar.set_postfix(val_loss=f"{row['val_loss']:.3f}", rot=f"{row['rot_mean_deg']:.1f}°", t=f"{row['trans_mean_m']:.3f}m")
         stop = bool(cfg.patience and stale >= cfg.patience)
+        if stop:
+            log.info("early stop at epoch %d: no validation improvement for %d epochs", epoch, stale)
+        elapsed_min = (time.perf_counter() - run_start) / 60
+        if cfg.time_limit_min and epoch + 1 < cfg.epochs and elapsed_min * (epoch + 2 - start_epoch) / (epoch + 1 - start_epoch) > cfg.time_limit_min:
+            log.info("time limit: stopping after epoch %d of %d (%.1f of %.1f min used)",
+                     epoch, cfg.epochs, elapsed_min, cfg.time_limit_min)
+            stop = True
         if world > 1:
             _stop_signal(stop)
         if stop:
-            log.info("early stop at epoch %d: no validation improvement for %d epochs", epoch, stale)
             break
     if bar:
         bar.close()
@@ -473,12 +491,10 @@ def _calibrate_checkpoint(path: Path, model, val_loader, device, twins=()) -> No
     ck = load_checkpoint(path)
     model.load_state_dict(ck["model"])
     try:
-        ck["calibration"] = calibrate(model.cpu(), val_loader, lambda m, b: _forward(m, b, torch.device("cpu")), twins)
+        ck["calibration"] = calibrate(model, val_loader, lambda m, b: _forward(m, b, device), twins, device)
     except ValueError as exc:
         log.warning("%s: not calibrated (%s); its covariances will be conservative defaults", path, exc)
         return
-    finally:
-        model.to(device)
     save_checkpoint(path, ck)
     log.info("calibrated %s: %s", path, {k: v for k, v in ck["calibration"].items() if k != "covariance"})
 
@@ -513,6 +529,10 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-twin-loss", action="store_true",
                    help="keypoint models: score against the true keypoints only (not also the box-symmetric twins)")
     p.add_argument("--init-from", default=None, help="start from a checkpoint's matching weights (fine-tuning)")
+    p.add_argument("--val-fraction", type=float, default=0.2, help="share of the data held out for validation")
+    p.add_argument("--amp", action="store_true", help="bfloat16 autocast for training (GPU; big VGG models)")
+    p.add_argument("--time-limit", type=float, default=None, metavar="MIN",
+                   help="stop cleanly before the next epoch would end past MIN minutes")
     p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
 
 
@@ -526,7 +546,8 @@ def config_from_args(args) -> TrainConfig:
                        patience=args.patience, augment=not args.no_augment, freeze_features=args.freeze_features,
                        imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
                        max_batches=args.max_batches, schedule=schedule, twin_loss=not args.no_twin_loss,
-                       init_from=args.init_from)
+                       init_from=args.init_from, val_fraction=args.val_fraction, amp=args.amp,
+                       time_limit_min=args.time_limit)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,9 +4,9 @@
 (``hybridpose/regressors/weights/default.pt``, how it was made: ``weights/README.md``); every other
 name needs ``checkpoint=PATH`` from ``hybridpose train --model NAME``.
 
-Keypoint models run in two passes: the first on a crop around the ``roi`` or, without one, around
-the sunlit pixels (:func:`detect_bright_object`); the second on the crop centred on the first
-pass's pose. Keypoints → PnP → pose; the calibrated PnP covariance is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
+Keypoint models run one pass on a crop around the ``roi`` or, without one, around the sunlit
+pixels (:func:`detect_bright_object`); ``passes=2`` adds a second on the crop centred on the first
+pass's pose (measured worse and slower on the held-out views: see benchmarks/RESULTS.md). Keypoints → PnP → pose; the calibrated PnP covariance is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
 the crop around its own translation estimate, or around ``roi``).
 """
 from __future__ import annotations
@@ -38,6 +38,8 @@ FOV_TOLERANCE = 0.02
 DETECT_THRESHOLD = 12
 REFINE_SEARCH_PX = 16
 REFINE_MIN_QUALITY = 0.5
+REFINE_GOOD_FIT = 0.6  # measured: 0.7 tries more twins for no accuracy, 0.5 stops on wrong ones
+REFINE_MAX_SAMPLES = 400
 
 
 def shipped_checkpoint(name: str = "default") -> Path:
@@ -57,17 +59,18 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     specks smaller than ``min_area_px`` removed (noise, stars). Not for an Earth background — pass
     the ``roi`` there (the hybrid passes the tracker's predicted box).
     """
-    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    # at half resolution (4× fewer pixels to label; a 1.2 m-away beam is still 3–4 px wide)
+    small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    gray = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
     bright = (gray > threshold).astype(np.uint8)
     n, _, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=8)
-    keep = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area_px]
-    if not keep:
+    keep = stats[1:][stats[1:, cv2.CC_STAT_AREA] * 4 >= min_area_px]
+    if not len(keep):
         return None
-    x0 = min(stats[i, cv2.CC_STAT_LEFT] for i in keep)
-    y0 = min(stats[i, cv2.CC_STAT_TOP] for i in keep)
-    x1 = max(stats[i, cv2.CC_STAT_LEFT] + stats[i, cv2.CC_STAT_WIDTH] for i in keep)
-    y1 = max(stats[i, cv2.CC_STAT_TOP] + stats[i, cv2.CC_STAT_HEIGHT] for i in keep)
-    return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
+    x0, y0 = keep[:, cv2.CC_STAT_LEFT].min(), keep[:, cv2.CC_STAT_TOP].min()
+    x1 = (keep[:, cv2.CC_STAT_LEFT] + keep[:, cv2.CC_STAT_WIDTH]).max()
+    y1 = (keep[:, cv2.CC_STAT_TOP] + keep[:, cv2.CC_STAT_HEIGHT]).max()
+    return 2.0 * x0, 2.0 * y0, 2.0 * (x1 - x0), 2.0 * (y1 - y0)
 
 
 def _to_tensor(img: np.ndarray) -> torch.Tensor:
@@ -92,10 +95,12 @@ class CheckpointRegressor(PoseRegressor):
             0.5): CNN + model-based refinement, as pose refiners do, and the twin decided by the
             refined fits (the unrefined edge support alone picks badly when the CNN pose is 10–20°
             off). The covariance stays the calibrated PnP one (conservative for a refined pose).
+        passes: keypoint models — 1 (default) or 2 network passes (the second re-centred on the
+            first pose).
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
-                 check_twins: bool = True, refine_edges: bool = True) -> None:
+                 check_twins: bool = True, refine_edges: bool = True, passes: int = 1) -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -136,6 +141,9 @@ class CheckpointRegressor(PoseRegressor):
 
                 self.twin_check = TwinCheck(obj)
         self.check_twins = bool(check_twins)
+        if passes not in (1, 2):
+            raise ValueError(f"passes: expected 1 or 2 network passes, got {passes}")
+        self.passes = int(passes)
 
     # --- checks ----------------------------------------------------------------------------------
     def _check_object(self, obj) -> None:
@@ -174,16 +182,21 @@ class CheckpointRegressor(PoseRegressor):
         return crop_image(image, K, cx, cy, side, (self.image_size, self.image_size))
 
     def _keypoint_pass(self, image, K, box):
+        """One network pass on ``box``: (PnP result in the head's most likely twin, keypoints (N, 2)
+        in crop pixels, crop K, twin order). The order lists the symmetry indices (0 = the
+        keypoints' own pose, k = ``twins[k-1]``) most likely first by the twin head (fixed
+        0, 1, 2, 3 without one); the result's pose is already turned to the first."""
         crop, K_crop = self._crop(image, K, *box)
         uv, _, twin = self.net(_to_tensor(crop), with_twin=True)
         uv = uv[0].numpy().astype(np.float64)
         res = solve_pnp(uv, self.net.keypoints_m.numpy().astype(np.float64), K_crop,
                         threshold_px=PNP_THRESHOLD * self.image_size)
-        if res is not None and self.has_twin_head:
-            k = int(twin[0].argmax())
-            if k > 0:  # the keypoints follow twin k: undo it (half-turns are their own inverses)
-                res = replace(res, pose=res.pose @ self.twins[k - 1])
-        return res, uv, K_crop
+        order = list(range(len(self.twins) + 1))
+        if self.has_twin_head:
+            order = [int(k) for k in torch.argsort(twin[0], descending=True)]
+            if res is not None and order[0] > 0:  # undo the twin the keypoints follow (half-turns are their own inverses)
+                res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
+        return res, uv, K_crop, order
 
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
         """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""
@@ -207,13 +220,13 @@ class CheckpointRegressor(PoseRegressor):
             if found is None:
                 return self._lost(frame)
             box = crop_box(found, CROP_MARGIN)
-        res, uv, K_crop = self._keypoint_pass(image, K, box)
+        res, uv, K_crop, order = self._keypoint_pass(image, K, box)
         # second pass on the crop centred on the first pose (the crop the network knows best)
-        again = self._box_around(res.pose if res is not None else None, uv, K_crop, K)
+        again = self._box_around(res.pose if res is not None else None, uv, K_crop, K) if self.passes > 1 else None
         if again is not None:
-            res2, _, _ = self._keypoint_pass(image, K, again)
+            res2, _, _, order2 = self._keypoint_pass(image, K, again)
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
-                res = res2
+                res, order = res2, order2
         if res is None:
             return self._lost(frame)
         cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
@@ -223,7 +236,7 @@ class CheckpointRegressor(PoseRegressor):
         if self.twin_check is not None:
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
             if self.refine_edges:
-                pose = self._refine(undistorted, pose)
+                pose = self._refine(undistorted, pose, order)
             elif self.check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
@@ -231,18 +244,24 @@ class CheckpointRegressor(PoseRegressor):
         return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 
-    def _refine(self, frame: Frame, pose: Pose) -> Pose:
+    def _refine(self, frame: Frame, pose: Pose, order) -> Pose:
         """Edge fit from the CNN pose and, with ``check_twins``, from its box twins; the fit most
         model edges agree with wins if it is well supported, else the CNN pose stays. With a twin
-        head the twins are tried only when the fit from the head's choice is poor."""
+        head the twins are tried in the head's order, and only while the fits are poor."""
         from ..trackers.edges import fit_edges, fit_from_proposals
 
-        twins = [pose @ S for S in self.twin_check.twins] if self.check_twins else []
         view = self.twin_check.view
+        if not self.check_twins:
+            starts = [pose]
+        else:  # ``pose`` is twin order[0] of the keypoints' pose P; twin k of P is pose @ S0 @ Sk
+            S = [Pose.identity(), *(self.twins or self.twin_check.twins)]
+            first = S[order[0]]
+            starts = [pose] + [pose @ first @ S[k] for k in order[1:]]
         if self.has_twin_head:
-            best = fit_from_proposals(view, frame, [pose, *twins], search_px=REFINE_SEARCH_PX)
+            best = fit_from_proposals(view, frame, starts, search_px=REFINE_SEARCH_PX,
+                                      good_fit=REFINE_GOOD_FIT, max_samples=REFINE_MAX_SAMPLES)
         else:
-            fits = [f for f in (fit_edges(view, frame, p, search_px=REFINE_SEARCH_PX) for p in [pose, *twins]) if f]
+            fits = [f for f in (fit_edges(view, frame, p, search_px=REFINE_SEARCH_PX) for p in starts) if f]
             best = max(fits, key=lambda f: f.samples * f.quality) if fits else None
         return pose if best is None or best.quality < REFINE_MIN_QUALITY else best.pose
 

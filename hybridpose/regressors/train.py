@@ -17,6 +17,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Subset
@@ -350,8 +351,9 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         sampler = DistributedSampler(train_ds, num_replicas=world, rank=rank, shuffle=True, seed=cfg.seed)
     train_loader = DataLoader(train_ds, batch_size=cfg.batch, shuffle=sampler is None, sampler=sampler,
                               generator=gen if sampler is None else None, num_workers=cfg.workers,
-                              drop_last=len(train_ds) > cfg.batch * world, pin_memory=device.type == "cuda")
-    val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers)
+                              drop_last=len(train_ds) > cfg.batch * world, pin_memory=device.type == "cuda",
+                              worker_init_fn=_single_threaded_worker)
+    val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers, worker_init_fn=_single_threaded_worker)
 
     if cfg.init_from:
         _init_from(model, cfg.init_from)
@@ -461,6 +463,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         dist.destroy_process_group()
     best_row = min(history, key=lambda r: r["val_loss"]) if history else {}
     return best_row
+
+
+def _single_threaded_worker(_worker_id: int) -> None:
+    """DataLoader workers decode and crop one image at a time: OpenCV's own thread pool in every
+    worker oversubscribed a 16-core GPU machine (load average 168 with three trainings at once)."""
+    cv2.setNumThreads(1)
 
 
 def _init_from(model, path) -> None:

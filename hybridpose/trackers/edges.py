@@ -161,8 +161,9 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
 GOOD_FIT = 0.7  # a fit this good from the first proposal is kept without trying the next
 
 
-def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray | None = None, **kwargs) -> EdgeFit | None:
-    """Edge fits from ``starts`` in order, stopping at the first with quality ≥ ``GOOD_FIT``; the
+def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray | None = None,
+                       good_fit: float = GOOD_FIT, **kwargs) -> EdgeFit | None:
+    """Edge fits from ``starts`` in order, stopping at the first with quality ≥ ``good_fit``; the
     fit most samples agree with (inliers × quality) among those run, or None."""
     gray = to_gray(frame.image) if gray is None else gray
     fits = []
@@ -170,7 +171,7 @@ def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray |
         fit = fit_edges(view, frame, start, gray=gray, **kwargs)
         if fit is not None:
             fits.append(fit)
-            if fit.quality >= GOOD_FIT:
+            if fit.quality >= good_fit:
                 break
     return max(fits, key=lambda f: f.samples * f.quality) if fits else None
 

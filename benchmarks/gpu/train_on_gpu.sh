@@ -7,6 +7,7 @@
 #   launch  three trainings at once, detached (setsid), each stopping itself by TIME_LIMIT minutes
 #   status  epochs so far (metrics.csv tails)
 #   collect exported checkpoints, metrics and the parallel-vgg19 evaluation report into OUTDIR
+#           (a short call of its own, as soon as the runs end: see README.md)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export PYTHONPATH=/tmp/site:$PWD MUJOCO_GL=egl PYTHONUNBUFFERED=1
@@ -29,10 +30,13 @@ render)
 launch)
     mkdir -p "$RUNS"
     train=(train --data "$DATA/train" --seed 0 --val-fraction 0.05 --patience 0 --time-limit "$TIME_LIMIT")
-    setsid nohup bash -c "python3 -m hybridpose ${train[*]} --model default --epochs 24 --batch 32 --workers 4 \
-        --out $RUNS/default > $RUNS/default.log 2>&1" > /dev/null 2>&1 &
-    setsid nohup bash -c "python3 -m hybridpose ${train[*]} --model keypoints --epochs 20 --batch 32 --workers 4 \
-        --out $RUNS/keypoints > $RUNS/keypoints.log 2>&1" > /dev/null 2>&1 &
+    # each run exports its inference checkpoint as soon as it ends, so `collect` only copies
+    for spec in "default 24" "keypoints 20"; do
+        set -- $spec
+        setsid nohup bash -c "python3 -m hybridpose ${train[*]} --model $1 --epochs $2 --batch 32 --workers 4 \
+            --out $RUNS/$1 > $RUNS/$1.log 2>&1 && python3 -m hybridpose export --checkpoint $RUNS/$1/best.pt \
+            --out $RUNS/$1.pt >> $RUNS/$1.log 2>&1" > /dev/null 2>&1 &
+    done
     setsid nohup bash -c "python3 -m hybridpose ${train[*]} --model parallel-vgg19 --epochs 10 --batch 32 --workers 6 \
         --amp --out $RUNS/pvgg > $RUNS/pvgg.log 2>&1 && \
         python3 -m hybridpose eval --checkpoint $RUNS/pvgg/best.pt --data $DATA/test --out $RUNS/pvgg_eval \
@@ -49,7 +53,7 @@ status)
 collect)
     out=${2:?collect OUTDIR}
     for r in default keypoints; do
-        [ -f "$RUNS/$r/best.pt" ] && hp export --checkpoint "$RUNS/$r/best.pt" --out "$out/$r.pt"
+        cp "$RUNS/$r.pt" "$out/" || echo "$r: not exported yet"
         cp "$RUNS/$r/metrics.csv" "$out/$r.metrics.csv" || true
     done
     cp "$RUNS/pvgg/metrics.csv" "$out/pvgg.metrics.csv" || true

@@ -100,13 +100,8 @@ class KltPnpTracker(Tracker):
         off = np.arange(-r, r + 1)
         ys = np.clip(c[:, 1, None, None] + off[None, :, None], 0, h - 1)
         xs = np.clip(c[:, 0, None, None] + off[None, None, :], 0, w - 1)
-        f = ids[ys, xs].reshape(len(uv), -1).astype(np.int64)                 # (N, (2r+1)²)
-        rays = np.linalg.solve(frame.camera.K, np.c_[uv, np.ones(len(uv))].T).T @ pose.R  # object frame
-        origin = -pose.R.T @ pose.t
-        n, p0 = self.view.plane_normal[f], self.view.plane_point[f]          # (N, M, 3)
-        denom = np.einsum("nmj,nj->nm", n, rays)
-        lam = np.einsum("nmj,nmj->nm", n, p0 - origin) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
-        ok = (f > 0) & np.isfinite(lam)
+        f = ids[ys, xs].reshape(len(uv), -1)                                  # (N, (2r+1)²)
+        _, lam, ok = self.view.ray_plane_depths(pose, frame.camera, uv, f)
         depth_spread = np.where(ok, lam, -np.inf).max(1) - np.where(ok, lam, np.inf).min(1)  # ray parameter = depth
         return ok.all(1) & (depth_spread < tol_m)
 

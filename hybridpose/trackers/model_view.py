@@ -122,15 +122,26 @@ class ModelView:
         inside = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
         f = np.zeros(len(uv), np.int64)
         f[inside] = ids[c[inside, 1], c[inside, 0]]
+        origin = -pose.R.T @ pose.t                                          # camera centre, object frame
+        d, lam, ok = self.ray_plane_depths(pose, camera, uv, f)
+        return origin + lam[:, None] * d, ok
+
+    def ray_plane_depths(self, pose: Pose, camera: Camera, uv: np.ndarray, facets: np.ndarray):
+        """Where the rays of pixels ``uv`` (N, 2) meet the planes of ``facets`` ((N,) or (N, M) facet
+        id + 1, 0 = background): ray directions (N, 3) in the object frame (camera z = 1, so the ray
+        parameter is the depth in metres), parameters λ of ``facets``' shape, and where a plane is met
+        in front of the camera."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        f = np.asarray(facets, dtype=np.int64)
         rays = np.linalg.solve(camera.K, np.c_[uv, np.ones(len(uv))].T).T     # camera frame, z = 1
         origin = -pose.R.T @ pose.t                                          # camera centre, object frame
         d = rays @ pose.R                                                    # ray directions, object frame
         n, p0 = self.plane_normal[f], self.plane_point[f]
-        denom = np.einsum("ij,ij->i", n, d)
+        d_b = d.reshape(len(d), *([1] * (f.ndim - 1)), 3)
+        denom = np.sum(n * d_b, axis=-1)
         ok = (f > 0) & (np.abs(denom) > 1e-9)
-        lam = np.where(ok, np.einsum("ij,ij->i", n, p0 - origin) / np.where(ok, denom, 1.0), 0.0)
-        ok &= lam > 0
-        return origin + lam[:, None] * d, ok
+        lam = np.where(ok, np.sum(n * (p0 - origin), axis=-1) / np.where(ok, denom, 1.0), 0.0)
+        return d, lam, ok & (lam > 0)
 
     # --- visible samples ----------------------------------------------------------------------------
     def visible_samples(self, pose: Pose, camera: Camera, margin_px: float = 0.0,

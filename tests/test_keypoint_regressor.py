@@ -157,6 +157,8 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     s = rep["summary"]
     assert s["images"] == 10 and len(rep["per_image"]) == 10
     assert {"rot_mean_deg", "rot_median_deg", "trans_mean_m", "speed_score", "add_0.1d_recall", "failures"} <= set(s)
+    rot = [r["rot_deg"] for r in rep["per_image"]]
+    assert s["gross_error_share"] == pytest.approx(sum(r > 30 for r in rot) / 10)
     assert set(s["ms_per_image"]) == {"1_thread", "2_threads"}
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md

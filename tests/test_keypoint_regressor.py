@@ -143,6 +143,8 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
         CheckpointRegressor(bad)
     with pytest.raises(FileNotFoundError, match="no trained 'vgg19' checkpoint ships"):
         create("regressor", "vgg19")
+    with pytest.raises(ValueError, match="passes: expected 1 or 2"):
+        CheckpointRegressor(tiny_checkpoint, passes=3)
 
 
 def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, capsys):

@@ -50,7 +50,7 @@ def main() -> None:
         f"`{args.data}`: {next(iter(results.values()))['images']} rendered 640×480 views, truss wholly in view, 0.4–1.2 m, "
         "random orientation, sun direction within 40° of the default and intensity ×0.7–1.3 (seed 100; training used "
         f"seeds 1 and 2). Full inference path, no roi. Failures count as 180° / 1 m; *> 30°*: share of views off by more "
-        "than 30° in rotation (mostly the truss turned end for end). git {env['git']}, {env['cpus']} CPU cores.",
+        f"than 30° in rotation (mostly the truss turned end for end). git {env['git']}, {env['cpus']} CPU cores.",
         "",
         "| model | mean rot ° | median rot ° | mean trans m | median trans m | SPEED | ADD-0.1d | > 30° | failures | ms/img 1 thr | ms/img 2 thr |",
         "|---|---|---|---|---|---|---|---|---|---|---|",

@@ -58,11 +58,18 @@ def _render_chunk(scene_dir: Path, obj: ObjectModel, camera: Camera, chunk, seed
     writer holding only their ground-truth records (the parent merges and flushes them)."""
     writer = BopSceneWriter(scene_dir, camera, load=False)
     with Renderer(obj, camera, lighting, sensor) as renderer:
-        for i, (pose, arm, sun, sun_dir) in chunk:
-            res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
-                                  sun_direction_cam=sun_dir)
-            writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
+        for _ in _render_into(renderer, writer, obj, chunk, seed):
+            pass
     return writer
+
+
+def _render_into(renderer: Renderer, writer: BopSceneWriter, obj: ObjectModel, chunk, seed: int):
+    """Render the images of ``chunk`` ([(index, item), ...]) into ``writer``, yielding after each."""
+    for i, (pose, arm, sun, sun_dir) in chunk:
+        res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
+                              sun_direction_cam=sun_dir)
+        writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
+        yield i
 
 
 def _flush_now(writer: BopSceneWriter, last_flush: float) -> float:
@@ -100,10 +107,7 @@ def _run_job(
         # one process: a single renderer (GL context) for the whole job
         with Renderer(obj, camera, lighting, sensor) as renderer:
             for chunk in chunks:
-                for i, (pose, arm, sun, sun_dir) in chunk:
-                    res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
-                                          sun_direction_cam=sun_dir)
-                    writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
+                for _ in _render_into(renderer, writer, obj, chunk, seed):
                     done += 1
                     if progress:
                         progress(done, len(items))

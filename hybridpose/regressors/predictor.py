@@ -40,7 +40,6 @@ DETECT_THRESHOLD = 12
 REFINE_SEARCH_PX = 16
 REFINE_MIN_QUALITY = 0.5
 REFINE_GOOD_FIT = 0.4  # measured on 300 held-out views: with a well-trained twin head, trying the other twins at a higher bar swaps right heads for wrong fits (13 % → 18 % of views > 30°)
-REFINE_MAX_SAMPLES = 400
 
 
 def shipped_checkpoint(name: str = "default") -> Path:
@@ -260,7 +259,7 @@ class CheckpointRegressor(PoseRegressor):
             starts = [pose] + [pose @ first @ S[k] for k in order[1:]]
         if self.has_twin_head:
             best = fit_from_proposals(view, frame, starts, search_px=REFINE_SEARCH_PX,
-                                      good_fit=REFINE_GOOD_FIT, max_samples=REFINE_MAX_SAMPLES)
+                                      good_fit=REFINE_GOOD_FIT)
         else:
             fits = [f for f in (fit_edges(view, frame, p, search_px=REFINE_SEARCH_PX) for p in starts) if f]
             best = max(fits, key=lambda f: f.samples * f.quality) if fits else None

@@ -1,19 +1,24 @@
 #!/usr/bin/env bash
 # The GPU training runs behind the shipped weights and the GPU rows of benchmarks/RESULTS.md, as they
 # ran on a lent machine (one H100, 16 cores, no network; see benchmarks/gpu/README.md).
-# Phases, one per call of a short lease: setup | render | launch | status | collect OUTDIR
+# Phases, one per call of a short lease: start (= setup render launch) | status | collect OUTDIR
 #   setup   unpack EGL libraries (.gl/*.deb) and the wheels the image lacks (.whl/) into /tmp/site
-#   render  40 000 training views (seed 1) + the 1 000-view test set (seed 100), 14 processes
-#   launch  three trainings at once, detached (setsid), each stopping itself by TIME_LIMIT minutes
+#   render  TRAIN_COUNT training views (seed TRAIN_SEED) + the 1 000-view test set (seed 100), 15 processes
+#   launch  three trainings at once, detached (setsid), each stopping itself by TIME_LIMIT minutes:
+#           `default` fine-tuned from INIT (a checkpoint carried in .carry/), `keypoints` and
+#           `parallel-vgg19` from scratch (the latter evaluated on the test set when it ends)
 #   status  epochs so far (metrics.csv tails)
-#   collect exported checkpoints, metrics and the parallel-vgg19 evaluation report into OUTDIR
-#           (a short call of its own, as soon as the runs end: see README.md)
+#   collect exported checkpoints (split below the 16 MiB a returned file may have), metrics, logs and
+#           the parallel-vgg19 evaluation report into OUTDIR (a short call of its own: see README.md)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export PYTHONPATH=/tmp/site:$PWD MUJOCO_GL=egl PYTHONUNBUFFERED=1
-DATA=${DATA:-/tmp/hp/data} RUNS=${RUNS:-/tmp/hp/runs} TIME_LIMIT=${TIME_LIMIT:-16}
+DATA=${DATA:-/tmp/hp/data} RUNS=${RUNS:-/tmp/hp/runs} TIME_LIMIT=${TIME_LIMIT:-15}
+TRAIN_COUNT=${TRAIN_COUNT:-24000} TRAIN_SEED=${TRAIN_SEED:-4} INIT=${INIT:-.carry/stage4.pt}
 hp() { python3 -m hybridpose "$@"; }
-case "${1:-}" in
+phase=${1:-}
+if [ "$phase" = start ]; then bash "$0" setup && bash "$0" render && exec bash "$0" launch; fi
+case "$phase" in
 setup)
     for f in .gl/*.deb; do dpkg -x "$f" /; done
     ldconfig
@@ -22,24 +27,25 @@ setup)
     python3 -c "import torch, cv2, mujoco, kornia; print('torch', torch.__version__, torch.cuda.is_available(), 'cv2', cv2.__version__, 'mujoco', mujoco.__version__)"
     ;;
 render)
-    common=(--object truss --kind random --size 640x480 --in-view --sun-cone 40 --sun-range 0.7,1.3 --workers 14)
+    common=(--object truss --kind random --size 640x480 --in-view --sun-cone 40 --sun-range 0.7,1.3 --workers 15)
     hp render "${common[@]}" --count 1000 --seed 100 --out "$DATA/test" 2>&1 | tail -1
-    hp render "${common[@]}" --count 40000 --seed 1 --out "$DATA/train" 2>&1 | tail -1
+    hp render "${common[@]}" --count "$TRAIN_COUNT" --seed "$TRAIN_SEED" --out "$DATA/train" 2>&1 | tail -1
     du -sh "$DATA"/*
     ;;
 launch)
     mkdir -p "$RUNS"
-    train=(train --data "$DATA/train" --seed 0 --val-fraction 0.05 --patience 0 --time-limit "$TIME_LIMIT")
+    train=(train --data "$DATA/train" --seed 0 --val-fraction 0.05 --patience 0)
     # each run exports its inference checkpoint as soon as it ends, so `collect` only copies
-    for spec in "default 24" "keypoints 20"; do
-        set -- $spec
-        setsid nohup bash -c "python3 -m hybridpose ${train[*]} --model $1 --epochs $2 --batch 32 --workers 4 \
-            --out $RUNS/$1 > $RUNS/$1.log 2>&1 && python3 -m hybridpose export --checkpoint $RUNS/$1/best.pt \
-            --out $RUNS/$1.pt >> $RUNS/$1.log 2>&1" > /dev/null 2>&1 &
-    done
-    setsid nohup bash -c "python3 -m hybridpose ${train[*]} --model parallel-vgg19 --epochs 10 --batch 32 --workers 6 \
-        --amp --out $RUNS/pvgg > $RUNS/pvgg.log 2>&1 && \
-        python3 -m hybridpose eval --checkpoint $RUNS/pvgg/best.pt --data $DATA/test --out $RUNS/pvgg_eval \
+    export_after() { echo "&& python3 -m hybridpose export --checkpoint $RUNS/$1/best.pt --out $RUNS/$1.pt >> $RUNS/$1.log 2>&1"; }
+    setsid nohup bash -c "python3 -m hybridpose ${train[*]} --time-limit $TIME_LIMIT --model default --epochs 12 --lr 2e-4 --init-from $INIT \
+        --batch 32 --workers 6 --out $RUNS/default > $RUNS/default.log 2>&1 $(export_after default)" > /dev/null 2>&1 &
+    setsid nohup bash -c "python3 -m hybridpose ${train[*]} --time-limit $TIME_LIMIT --model keypoints --epochs 14 --batch 32 --workers 4 \
+        --out $RUNS/keypoints > $RUNS/keypoints.log 2>&1 $(export_after keypoints)" > /dev/null 2>&1 &
+    # parallel-vgg19 stops 3 minutes earlier: its evaluation follows, on the CPU (the predictor's device),
+    # so on the first 500 test views only
+    setsid nohup bash -c "python3 -m hybridpose ${train[*]} --time-limit $((TIME_LIMIT - 3)) \
+        --model parallel-vgg19 --epochs 10 --batch 32 --workers 5 --amp --out $RUNS/pvgg > $RUNS/pvgg.log 2>&1 && \
+        python3 -m hybridpose eval --checkpoint $RUNS/pvgg/best.pt --data $DATA/test --limit 500 --out $RUNS/pvgg_eval \
         > $RUNS/pvgg_eval.log 2>&1" > /dev/null 2>&1 &
     sleep 60
     tail -n 3 "$RUNS"/*.log
@@ -53,15 +59,13 @@ status)
 collect)
     out=${2:?collect OUTDIR}
     for r in default keypoints; do
-        cp "$RUNS/$r.pt" "$out/" || echo "$r: not exported yet"
-        cp "$RUNS/$r/metrics.csv" "$out/$r.metrics.csv" || true
+        [ -f "$RUNS/$r.pt" ] && split -b 15M -d "$RUNS/$r.pt" "$out/$r.pt.part" || echo "$r: not exported yet"
     done
-    cp "$RUNS/pvgg/metrics.csv" "$out/pvgg.metrics.csv" || true
-    tar -C "$RUNS" -czf "$out/logs_and_pvgg_eval.tgz" $(cd "$RUNS" && ls -d *.log pvgg_eval 2>/dev/null)
+    tar -C "$RUNS" -czf "$out/logs_metrics_pvgg_eval.tgz" $(cd "$RUNS" && ls -d *.log */metrics.csv */history.json pvgg_eval 2>/dev/null)
     ls -la "$out"
     ;;
 *)
-    echo "usage: $0 setup|render|launch|status|collect OUTDIR" >&2
+    echo "usage: $0 start|setup|render|launch|status|collect OUTDIR" >&2
     exit 2
     ;;
 esac

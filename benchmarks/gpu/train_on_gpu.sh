@@ -7,7 +7,8 @@
 #   launch  three trainings at once, detached (setsid), each stopping itself by TIME_LIMIT minutes:
 #           `default` fine-tuned from INIT (a checkpoint carried in .carry/), `keypoints` and
 #           `parallel-vgg19` from scratch (the latter evaluated on the test set when it ends)
-#   status  epochs so far (metrics.csv tails)
+#   status [OUTDIR]  epochs so far (metrics.csv tails); with OUTDIR also what `collect` copies, so
+#           that every keep-warm call brings back what is finished (a lost warm window loses the rest)
 #   collect exported checkpoints (split below the 16 MiB a returned file may have), metrics, logs and
 #           the parallel-vgg19 evaluation report into OUTDIR (a short call of its own: see README.md)
 set -euo pipefail
@@ -55,11 +56,12 @@ status)
     for r in default keypoints pvgg; do echo "== $r"; tail -n 4 "$RUNS/$r/metrics.csv" 2>/dev/null || tail -c 600 "$RUNS/$r.log"; done
     nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader
     uptime
+    if [ -n "${2:-}" ]; then exec bash "$0" collect "$2"; fi
     ;;
 collect)
     out=${2:?collect OUTDIR}
     for r in default keypoints; do
-        [ -f "$RUNS/$r.pt" ] && split -b 15M -d "$RUNS/$r.pt" "$out/$r.pt.part" || echo "$r: not exported yet"
+        if [ -f "$RUNS/$r.pt" ]; then split -b 15M -d "$RUNS/$r.pt" "$out/$r.pt.part"; else echo "$r: not exported yet"; fi
     done
     tar -C "$RUNS" -czf "$out/logs_metrics_pvgg_eval.tgz" $(cd "$RUNS" && ls -d *.log */metrics.csv */history.json pvgg_eval 2>/dev/null)
     ls -la "$out"

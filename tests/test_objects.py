@@ -7,7 +7,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from hybridpose import registry
-from hybridpose.objects import ObjectModel, load_object
+from hybridpose.objects import ObjectModel, load_builtin, load_object
 
 
 def test_truss_dimensions_and_mesh(truss):
@@ -37,6 +37,14 @@ def test_registry_lists_truss():
     assert "truss" in registry.available("object")
     with pytest.raises(ValueError, match="unknown object 'nope'; available: truss"):
         registry.create("object", "nope")
+
+
+def test_load_builtin_only_for_registered_names(truss, tmp_path):
+    assert load_builtin("truss").diameter == pytest.approx(truss.diameter)
+    # a user's mesh is recorded by its file name: not a built-in, even when the file exists
+    truss.mesh.export(tmp_path / "truss.ply")
+    for name in ("nope", None, str(tmp_path / "truss.ply")):
+        assert load_builtin(name) is None
 
 
 @pytest.mark.parametrize("ext", ["obj", "ply", "stl"])

@@ -265,17 +265,15 @@ def dataset_object(root, object_name: str | None = None):
     A dataset rendered from a registered built-in object (its name in ``hybridpose.json``) gets that
     object back, with its own keypoints, rather than the re-read mesh.
     """
-    from ..objects import load_object
-    from ..registry import available
+    from ..objects import load_builtin, load_object
 
     root = Path(root)
     if object_name is not None:
         return load_object(object_name)
     config = root / "hybridpose.json"
-    if config.is_file():
-        name = json.loads(config.read_text()).get("object")
-        if name in available("object"):
-            return load_object(name)
+    builtin = load_builtin(json.loads(config.read_text()).get("object")) if config.is_file() else None
+    if builtin is not None:
+        return builtin
     model_path = root / "models" / "obj_000001.ply"
     if model_path.is_file():
         return load_object(model_path, scale=0.001, name="obj_000001")  # BOP models are in mm

@@ -19,6 +19,12 @@ MAX_PLAUSIBLE_DIAMETER_M = 5.0
 MIN_PLAUSIBLE_DIAMETER_M = 0.005
 
 
+def load_builtin(name) -> ObjectModel | None:
+    """The registered built-in object called ``name``, or None when it is not one (a user's mesh
+    recorded in a dataset or checkpoint by its file name, say)."""
+    return registry.create("object", name) if name in registry.available("object") else None
+
+
 def load_object(name_or_path, scale: float = 1.0, name: str | None = None) -> ObjectModel:
     """A built-in object (``"truss"``) or a mesh file (.obj, .ply, .stl, ...).
 

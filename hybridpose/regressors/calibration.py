@@ -38,16 +38,23 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> float:
     return float(xi @ np.linalg.pinv(cov) @ xi)
 
 
+def keypoint_pnp_batch(model, batch, device=None) -> tuple[list, torch.Tensor | None]:
+    """One network pass of a keypoint model over ``batch`` and PnP per sample (crop pixels, the
+    batch's crop ``K``): (``PnPResult`` or None where PnP fails, per sample; twin logits (B, T) or None)."""
+    pred, _, twin = model(batch["image"].to(device or "cpu"), with_twin=True)
+    pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
+    results = [solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size)
+               for uv, K in zip(pred.float().cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64))]
+    return results, twin
+
+
 def _keypoint_errors(model, loader, twins=(), device=None) -> tuple[list[float], int, int]:
     """Unscaled NEES of every validation sample (PnP in crop pixels), and the failure count."""
-    pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
     raw, failures, n = [], 0, 0
     for batch in loader:
-        pred, _ = model(batch["image"].to(device or "cpu"))
-        for uv, K, t, q in zip(pred.float().cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64),
-                               batch["t"].numpy(), batch["q"].numpy()):
+        results, _ = keypoint_pnp_batch(model, batch, device)
+        for res, t, q in zip(results, batch["t"].numpy(), batch["q"].numpy()):
             n += 1
-            res = solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size)
             if res is None:
                 failures += 1
                 continue

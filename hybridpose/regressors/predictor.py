@@ -135,7 +135,9 @@ class CheckpointRegressor(PoseRegressor):
         self.twin_check = None
         self.refine_edges = bool(refine_edges)
         if (check_twins or refine_edges) and self.kind == "keypoints":
-            obj = object if object is not None else _builtin_object(self.dataset.get("object"))
+            from ..objects import load_builtin
+
+            obj = object if object is not None else load_builtin(self.dataset.get("object"))
             if obj is not None:
                 from .verify import TwinCheck
 
@@ -304,13 +306,6 @@ class CheckpointRegressor(PoseRegressor):
     def _lost(self, frame: Frame) -> Measurement:
         return Measurement(pose=None, covariance=LOST_COVARIANCE, quality=0.0, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp, lost=True)
-
-
-def _builtin_object(name):
-    from ..registry import available
-    from ..objects import load_object
-
-    return load_object(name) if name in available("object") else None
 
 
 def _factory(name: str):

@@ -27,9 +27,8 @@ from ..datasets.torch_dataset import PoseDataset, split_indices
 from ..geometry import Pose
 from ..io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
-from .calibration import PNP_THRESHOLD, calibrate
+from .calibration import calibrate, keypoint_pnp_batch
 from .keypoint_net import keypoint_loss
-from .keypoint_pnp import solve_pnp
 from .verify import box_half_turns
 from .models import MODEL_DEFAULTS, available_models, build_model, model_kind
 from .vgg import load_imagenet_weights
@@ -194,12 +193,10 @@ def predict_batch(model, batch, device, twins=()) -> tuple[torch.Tensor, torch.T
     """
     if not is_keypoint_model(model):
         return _forward(model, batch, device)
-    pred, _, twin = model(batch["image"].to(device), with_twin=True)
-    which = twin.argmax(1).cpu().numpy() if twin is not None and twins else np.zeros(len(pred), int)
-    pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
+    results, twin = keypoint_pnp_batch(model, batch, device)
+    which = twin.argmax(1).cpu().numpy() if twin is not None and twins else np.zeros(len(results), int)
     ts, qs = [], []
-    for uv, K, k in zip(pred.cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64), which):
-        res = solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size)
+    for res, K, k in zip(results, batch["K"].numpy().astype(np.float64), which):
         pose = res.pose if res is not None else Pose.from_quat_t([1, 0, 0, 0], np.linalg.solve(K, [model.image_size / 2, model.image_size / 2, 1.0]))
         if k > 0:
             pose = pose @ twins[k - 1]

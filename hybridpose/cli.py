@@ -212,7 +212,8 @@ def cmd_eval(args) -> int:
     from .regressors.evaluate import evaluate_checkpoint
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
-                            refine_edges=not args.no_refine, passes=args.passes)
+                            refine_edges=not args.no_refine, passes=args.passes,
+                            device=args.device)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -299,6 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--no-refine", action="store_true", help="keypoint models: CNN + PnP + twin check only, no edge refinement")
     e.add_argument("--passes", type=int, choices=(1, 2), default=1,
                    help="keypoint models: network passes (2 = again on the crop re-centred on the first pose)")
+    e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.set_defaults(func=cmd_eval)
 
     x = sub.add_parser("export", help="inference-only copy of a training checkpoint (what the package ships)")

@@ -145,6 +145,30 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
         create("regressor", "vgg19")
     with pytest.raises(ValueError, match="passes: expected 1 or 2"):
         CheckpointRegressor(tiny_checkpoint, passes=3)
+    with pytest.raises(ValueError, match="device: expected 'cpu', 'cuda' or 'cuda:N', got 'gpu0'"):
+        CheckpointRegressor(tiny_checkpoint, device="gpu0")
+    with pytest.raises(ValueError, match="device: expected 'cpu', 'cuda' or 'cuda:N', got 'meta'"):
+        CheckpointRegressor(tiny_checkpoint, device="meta")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device: 'cuda' asked for, but torch sees no CUDA GPU"):
+            CheckpointRegressor(tiny_checkpoint, device="cuda")
+
+
+@pytest.mark.gpu
+def test_regressor_on_cuda_matches_cpu(truss, camera, device="cuda"):
+    """The shipped network on the GPU gives the CPU's keypoints (float32 both): the same pose."""
+    if device == "cuda" and not torch.cuda.is_available():
+        pytest.skip("no CUDA device")
+    from hybridpose.render import Renderer
+
+    pose = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.02, -0.01, 0.7])
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(pose).rgb, camera, 0.0)
+    m_cpu = create("regressor", "default", refine_edges=False).predict(frame)
+    m_gpu = create("regressor", "default", refine_edges=False, device=device).predict(frame)
+    assert m_gpu.pose is not None and m_cpu.pose is not None
+    assert np.allclose(m_gpu.pose.t, m_cpu.pose.t, atol=1e-3)
+    assert abs(np.dot(m_gpu.pose.quat_wxyz, m_cpu.pose.quat_wxyz)) > 1 - 1e-5
 
 
 def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, capsys):

@@ -42,11 +42,10 @@ launch)
         --batch 32 --workers 6 --out $RUNS/default > $RUNS/default.log 2>&1 $(export_after default)" > /dev/null 2>&1 &
     setsid nohup bash -c "python3 -m hybridpose ${train[*]} --time-limit $TIME_LIMIT --model keypoints --epochs 14 --batch 32 --workers 4 \
         --out $RUNS/keypoints > $RUNS/keypoints.log 2>&1 $(export_after keypoints)" > /dev/null 2>&1 &
-    # parallel-vgg19 stops 3 minutes earlier: its evaluation follows, on the CPU (the predictor's device),
-    # so on the first 500 test views only
+    # parallel-vgg19 stops 3 minutes earlier: its evaluation (on the GPU: `eval --device cuda`) follows
     setsid nohup bash -c "python3 -m hybridpose ${train[*]} --time-limit $((TIME_LIMIT - 3)) \
         --model parallel-vgg19 --epochs 10 --batch 32 --workers 5 --amp --out $RUNS/pvgg > $RUNS/pvgg.log 2>&1 && \
-        python3 -m hybridpose eval --checkpoint $RUNS/pvgg/best.pt --data $DATA/test --limit 500 --out $RUNS/pvgg_eval \
+        python3 -m hybridpose eval --checkpoint $RUNS/pvgg/best.pt --data $DATA/test --device cuda --out $RUNS/pvgg_eval \
         > $RUNS/pvgg_eval.log 2>&1" > /dev/null 2>&1 &
     sleep 60
     tail -n 3 "$RUNS"/*.log

@@ -77,6 +77,22 @@ def _to_tensor(img: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float().div_(255.0)[None]
 
 
+def inference_device(device) -> torch.device:
+    """``device`` ("cpu", "cuda", "cuda:N" or a torch.device) checked against what torch can reach."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"device: expected 'cpu', 'cuda' or 'cuda:N', got {device!r}") from exc
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"device: {device!r} asked for, but torch sees no CUDA GPU here; use 'cpu'")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(f"device: {device!r} asked for, but torch sees {torch.cuda.device_count()} CUDA GPU(s)")
+    elif dev.type != "cpu":
+        raise ValueError(f"device: expected 'cpu', 'cuda' or 'cuda:N', got {device!r}")
+    return dev
+
+
 class CheckpointRegressor(PoseRegressor):
     """A trained network from :func:`hybridpose.regressors.train.train` as a regressor backend.
 
@@ -97,10 +113,13 @@ class CheckpointRegressor(PoseRegressor):
             off). The covariance stays the calibrated PnP one (conservative for a refined pose).
         passes: keypoint models — 1 (default) or 2 network passes (the second re-centred on the
             first pose).
+        device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
+            one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
+            the edge fit always run on the CPU.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
-                 check_twins: bool = True, refine_edges: bool = True, passes: int = 1) -> None:
+                 check_twins: bool = True, refine_edges: bool = True, passes: int = 1, device="cpu") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -120,7 +139,11 @@ class CheckpointRegressor(PoseRegressor):
             self.net.load_state_dict(ck["model"])
         except RuntimeError as exc:
             raise ValueError(f"{self.path}: weights do not fit the {self.model_name!r} network ({exc})") from exc
-        self.net.eval()
+        self.device = inference_device(device)
+        self.net.eval().to(self.device)
+        # the keypoints' 3D coordinates for PnP, once (the network's buffer may live on the GPU)
+        self.keypoints_m = (self.net.keypoints_m.cpu().numpy().astype(np.float64)
+                            if hasattr(self.net, "keypoints_m") else None)
         self.image_size = int(ck["config"]["image_size"])
         self.dataset = ck.get("dataset", {})
         self.calibration = ck.get("calibration")
@@ -170,6 +193,10 @@ class CheckpointRegressor(PoseRegressor):
                 )
 
     # --- inference -------------------------------------------------------------------------------
+    def _tensor(self, img: np.ndarray) -> torch.Tensor:
+        """(1, 3, H, W) float in [0, 1] on the network's device, from an (H, W, 3) uint8 RGB image."""
+        return _to_tensor(img).to(self.device)
+
     def predict(self, frame: Frame, roi=None) -> Measurement:
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
@@ -189,9 +216,9 @@ class CheckpointRegressor(PoseRegressor):
         keypoints' own pose, k = ``twins[k-1]``) most likely first by the twin head (fixed
         0, 1, 2, 3 without one); the result's pose is already turned to the first."""
         crop, K_crop = self._crop(image, K, *box)
-        uv, _, twin = self.net(_to_tensor(crop), with_twin=True)
-        uv = uv[0].numpy().astype(np.float64)
-        res = solve_pnp(uv, self.net.keypoints_m.numpy().astype(np.float64), K_crop,
+        uv, _, twin = self.net(self._tensor(crop), with_twin=True)
+        uv = uv[0].float().cpu().numpy().astype(np.float64)
+        res = solve_pnp(uv, self.keypoints_m, K_crop,
                         threshold_px=PNP_THRESHOLD * self.image_size)
         order = list(range(len(self.twins) + 1))
         if self.has_twin_head:
@@ -203,7 +230,7 @@ class CheckpointRegressor(PoseRegressor):
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
         """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""
         if pose is not None:
-            p = (pose @ self.net.keypoints_m.numpy().astype(np.float64)) @ K.T
+            p = (pose @ self.keypoints_m) @ K.T
             pts = p[:, :2] / p[:, 2:3]
         else:  # PnP failed: the raw coarse keypoints, mapped back to the frame
             A = K @ np.linalg.inv(K_crop)
@@ -277,9 +304,9 @@ class CheckpointRegressor(PoseRegressor):
     def _predict_direct(self, frame: Frame, roi) -> Measurement:
         image, cam = self._undistorted(frame)
         S = self.image_size
-        x = _to_tensor(cv2.resize(image, (S, S), interpolation=cv2.INTER_AREA))
+        x = self._tensor(cv2.resize(image, (S, S), interpolation=cv2.INTER_AREA))
         if self.model_name == "parallel-vgg19":
-            t = self.net.translation(x)[0].numpy().astype(np.float64)
+            t = self.net.translation(x)[0].float().cpu().numpy().astype(np.float64)
             if roi is not None:
                 box = crop_box(roi, CROP_MARGIN)
             else:  # the bounded image around the projected translation, sized by the object's diameter
@@ -288,10 +315,10 @@ class CheckpointRegressor(PoseRegressor):
                 uv = cam.K @ (t / z)
                 box = (uv[0], uv[1], CROP_MARGIN * max(cam.fx, cam.fy) * d / z)
             crop, _ = self._crop(image, cam.K, *box)
-            q = self.net.rotation(_to_tensor(crop))[0].numpy().astype(np.float64)
+            q = self.net.rotation(self._tensor(crop))[0].float().cpu().numpy().astype(np.float64)
         else:
             t_, q_ = self.net(x)
-            t, q = t_[0].numpy().astype(np.float64), q_[0].numpy().astype(np.float64)
+            t, q = t_[0].float().cpu().numpy().astype(np.float64), q_[0].float().cpu().numpy().astype(np.float64)
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or t[2] <= 0:
             return self._lost(frame)
         pose = Pose.from_quat_t(q / np.linalg.norm(q), t)

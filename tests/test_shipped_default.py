@@ -79,3 +79,22 @@ def test_shipped_default_covariance_is_not_over_confident(truss, held_out):
         inside.append(nees <= chi2.ppf(0.9, 6))
     # calibrated for 90 % on the validation split; 24 fresh views leave room for sampling noise
     assert len(inside) >= 18 and np.mean(inside) >= 0.7, f"only {np.mean(inside):.0%} inside the 90 % ellipsoid"
+
+
+@pytest.mark.parametrize("head", [1, 2, 3])
+def test_twin_choice_trusts_a_sure_head_and_asks_the_edges_when_unsure(regressor, truss, head):
+    """The keypoints are right, the head names a wrong box twin: sure (p ≥ TWIN_SURE), the wrong twin
+    is kept (refined in place); unsure, the edges outweigh it and the right twin comes back."""
+    from hybridpose.geometry import Pose
+    from hybridpose.regressors.predictor import TWIN_SURE
+
+    camera = Camera.default()
+    truth = Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.03, -0.02, 0.75])
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(truth).rgb, camera, 0.0)
+    wrong = truth @ regressor.twins[head - 1]
+    order = [head] + [k for k in range(4) if k != head]
+    unsure, sure = np.full(4, 0.2), np.full(4, (1 - TWIN_SURE - 0.05) / 3)
+    unsure[head], sure[head] = 0.4, TWIN_SURE + 0.05
+    assert rotation_error_deg(regressor._refine(frame, wrong, order, unsure), truth) < 2.0
+    assert rotation_error_deg(regressor._refine(frame, wrong, order, sure), truth) > 170.0

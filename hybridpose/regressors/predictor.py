@@ -39,7 +39,13 @@ FOV_TOLERANCE = 0.02
 DETECT_THRESHOLD = 12
 REFINE_SEARCH_PX = 16
 REFINE_MIN_QUALITY = 0.5
-REFINE_GOOD_FIT = 0.4  # measured on 300 held-out views: with a well-trained twin head, trying the other twins at a higher bar swaps right heads for wrong fits (13 % → 18 % of views > 30°)
+# The twin choice (see _refine). Tuned on test views 0–399, confirmed on 400–999 (benchmarks/RESULTS.md):
+# the head is right whenever it is sure (no wrong twin above p = 0.99 in 400 views), so its twin alone is
+# fitted from p ≥ TWIN_SURE; below, every twin is fitted and the head's belief is weighed against the
+# edge support, log p + TWIN_EDGE_WEIGHT · log quality. Edge support alone picks worse than the head
+# (20 % vs 9 % of views > 30°): wrong-twin fits lock onto the truss's symmetric chords.
+TWIN_SURE = 0.8
+TWIN_EDGE_WEIGHT = 8.0
 
 
 def shipped_checkpoint(name: str = "default") -> Path:
@@ -106,11 +112,12 @@ class CheckpointRegressor(PoseRegressor):
             image edges and keep the best supported (:mod:`hybridpose.regressors.verify`); needs
             the object's mesh: ``object``, or the built-in object the checkpoint names.
         refine_edges: keypoint models — finish with the moving-edge fit of the trackers
-            (:func:`~hybridpose.trackers.edges.fit_edges`) from the CNN pose and from each of its
-            box twins; the fit most model edges agree with wins when well supported (quality ≥
-            0.5): CNN + model-based refinement, as pose refiners do, and the twin decided by the
-            refined fits (the unrefined edge support alone picks badly when the CNN pose is 10–20°
-            off). The covariance stays the calibrated PnP one (conservative for a refined pose).
+            (:func:`~hybridpose.trackers.edges.fit_edges`) from the CNN pose: CNN + model-based
+            refinement, as pose refiners do. With a twin head the other box twins are fitted too
+            when the head is unsure (p < ``TWIN_SURE``), and the head's belief is weighed against
+            each fit's edge support; without one, the best-supported fit of all twins wins. A fit
+            of quality < 0.5 is not used. The covariance stays the calibrated PnP one
+            (conservative for a refined pose).
         passes: keypoint models — 1 (default) or 2 network passes (the second re-centred on the
             first pose).
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
@@ -212,20 +219,22 @@ class CheckpointRegressor(PoseRegressor):
 
     def _keypoint_pass(self, image, K, box):
         """One network pass on ``box``: (PnP result in the head's most likely twin, keypoints (N, 2)
-        in crop pixels, crop K, twin order). The order lists the symmetry indices (0 = the
-        keypoints' own pose, k = ``twins[k-1]``) most likely first by the twin head (fixed
-        0, 1, 2, 3 without one); the result's pose is already turned to the first."""
+        in crop pixels, crop K, twin order, twin probabilities). The order lists the symmetry
+        indices (0 = the keypoints' own pose, k = ``twins[k-1]``) most likely first by the twin head
+        (fixed 0, 1, 2, 3 without one); the result's pose is already turned to the first. The
+        probabilities (T,), indexed like the symmetries, are the head's softmax (None without one)."""
         crop, K_crop = self._crop(image, K, *box)
         uv, _, twin = self.net(self._tensor(crop), with_twin=True)
         uv = uv[0].float().cpu().numpy().astype(np.float64)
         res = solve_pnp(uv, self.keypoints_m, K_crop,
                         threshold_px=PNP_THRESHOLD * self.image_size)
-        order = list(range(len(self.twins) + 1))
+        order, prob = list(range(len(self.twins) + 1)), None
         if self.has_twin_head:
-            order = [int(k) for k in torch.argsort(twin[0], descending=True)]
+            prob = torch.softmax(twin[0].float(), 0).cpu().numpy()
+            order = [int(k) for k in np.argsort(-prob, kind="stable")]
             if res is not None and order[0] > 0:  # undo the twin the keypoints follow (half-turns are their own inverses)
                 res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
-        return res, uv, K_crop, order
+        return res, uv, K_crop, order, prob
 
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
         """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""
@@ -249,13 +258,13 @@ class CheckpointRegressor(PoseRegressor):
             if found is None:
                 return self._lost(frame)
             box = crop_box(found, CROP_MARGIN)
-        res, uv, K_crop, order = self._keypoint_pass(image, K, box)
+        res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box)
         # second pass on the crop centred on the first pose (the crop the network knows best)
         again = self._box_around(res.pose if res is not None else None, uv, K_crop, K) if self.passes > 1 else None
         if again is not None:
-            res2, _, _, order2 = self._keypoint_pass(image, K, again)
+            res2, _, _, order2, prob2 = self._keypoint_pass(image, K, again)
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
-                res, order = res2, order2
+                res, order, prob = res2, order2, prob2
         if res is None:
             return self._lost(frame)
         cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
@@ -265,7 +274,7 @@ class CheckpointRegressor(PoseRegressor):
         if self.twin_check is not None:
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
             if self.refine_edges:
-                pose = self._refine(undistorted, pose, order)
+                pose = self._refine(undistorted, pose, order, prob)
             elif self.check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
@@ -273,26 +282,40 @@ class CheckpointRegressor(PoseRegressor):
         return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 
-    def _refine(self, frame: Frame, pose: Pose, order) -> Pose:
-        """Edge fit from the CNN pose and, with ``check_twins``, from its box twins; the fit most
-        model edges agree with wins if it is well supported, else the CNN pose stays. With a twin
-        head the twins are tried in the head's order, and only while the fits are poor."""
-        from ..trackers.edges import fit_edges, fit_from_proposals
+    def _refine(self, frame: Frame, pose: Pose, order, prob=None) -> Pose:
+        """Edge fit from the CNN pose and, with ``check_twins``, from its box twins.
+
+        With a twin head (``prob``): when the head is sure (p ≥ ``TWIN_SURE``) only its twin is
+        fitted; else every twin is, and the one with the best ``log p + TWIN_EDGE_WEIGHT · log
+        quality`` wins. Without one, the fit most model edges agree with (inliers × quality) wins.
+        A winning fit below ``REFINE_MIN_QUALITY`` is not used (the unrefined pose of its twin with a
+        head, the CNN pose without).
+        """
+        from ..trackers.edges import fit_edges, to_gray
 
         view = self.twin_check.view
+        gray = to_gray(frame.image)
         if not self.check_twins:
             starts = [pose]
         else:  # ``pose`` is twin order[0] of the keypoints' pose P; twin k of P is pose @ S0 @ Sk
             S = [Pose.identity(), *(self.twins or self.twin_check.twins)]
             first = S[order[0]]
             starts = [pose] + [pose @ first @ S[k] for k in order[1:]]
-        if self.has_twin_head:
-            best = fit_from_proposals(view, frame, starts, search_px=REFINE_SEARCH_PX,
-                                      good_fit=REFINE_GOOD_FIT)
+            if prob is not None and prob[order[0]] >= TWIN_SURE:
+                starts = starts[:1]
+        fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]
+        if prob is not None:
+            score = [np.log(prob[k] + 1e-6) + TWIN_EDGE_WEIGHT * np.log((f.quality if f else 0.0) + 1e-3)
+                     for k, f in zip(order, fits)]
+            best = int(np.argmax(score))
         else:
-            fits = [f for f in (fit_edges(view, frame, p, search_px=REFINE_SEARCH_PX) for p in starts) if f]
-            best = max(fits, key=lambda f: f.samples * f.quality) if fits else None
-        return pose if best is None or best.quality < REFINE_MIN_QUALITY else best.pose
+            ranked = [(f.samples * f.quality, i) for i, f in enumerate(fits) if f]
+            best = max(ranked)[1] if ranked else 0
+        fit = fits[best]
+        if fit is not None and fit.quality >= REFINE_MIN_QUALITY:
+            return fit.pose
+        # a poor fit: the twin the head and edges chose, unrefined; without a head, the CNN's own pose
+        return starts[best] if prob is not None else pose
 
     def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
         cam = frame.camera

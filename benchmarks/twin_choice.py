@@ -119,7 +119,7 @@ def main() -> None:
                                "tune_views": args.tune, "views": len(m["prob"]), "shipped_rule": shipped,
                                "tune": tune, "confirm": confirm})
     n_tune, n_conf = min(args.tune, len(m["prob"])), max(len(m["prob"]) - args.tune, 0)
-    lines = [f"## Twin choice of the shipped keypoint regressor (`benchmarks/twin_choice.py`)", "",
+    lines = ["## Twin choice of the shipped keypoint regressor (`benchmarks/twin_choice.py`)", "",
              f"`{args.data}`, checkpoint `{args.checkpoint.split('/')[-1]}`: views 0–{n_tune - 1} choose the rule's "
              f"constants, views {n_tune}–{n_tune + n_conf - 1} confirm them. Gated rule (the predictor's): the head's "
              "twin alone when its probability ≥ tau, else every twin is edge-fitted and the best "

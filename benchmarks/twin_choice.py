@@ -28,6 +28,7 @@ from hybridpose.geometry import Pose
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG
 from hybridpose.regressors.predictor import (CROP_MARGIN, REFINE_MIN_QUALITY, REFINE_SEARCH_PX, TWIN_EDGE_WEIGHT,
+                                             twin_scores,
                                              TWIN_SURE, CheckpointRegressor, detect_bright_object, shipped_checkpoint)
 from hybridpose.trackers.edges import fit_edges, to_gray
 
@@ -76,7 +77,7 @@ def final_error(m: dict, pick: np.ndarray) -> np.ndarray:
 def gated(m: dict, tau: float, a: float) -> tuple[np.ndarray, float]:
     """The predictor's rule: (twin per view, edge fits per view)."""
     head = m["prob"].argmax(1)
-    score = np.log(m["prob"] + 1e-6) + a * np.log(m["fit_q"] + 1e-3)
+    score = twin_scores(m["prob"], m["fit_q"], edge_weight=a)
     sure = m["prob"].max(1) >= tau
     pick = np.where(sure, head, score.argmax(1))
     return pick, float(np.mean(np.where(sure, 1, m["prob"].shape[1])))

@@ -11,7 +11,7 @@ from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.calibration import nees, pnp_covariance
 from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax
 from hybridpose.regressors.keypoint_pnp import solve_pnp
-from hybridpose.regressors.predictor import CheckpointRegressor, detect_bright_object
+from hybridpose.regressors.predictor import CheckpointRegressor, detect_bright_object, twin_scores
 from hybridpose.regressors.train import TrainConfig, train
 from hybridpose.registry import available, create
 
@@ -145,9 +145,9 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
         create("regressor", "vgg19")
     with pytest.raises(ValueError, match="passes: expected 1 or 2"):
         CheckpointRegressor(tiny_checkpoint, passes=3)
-    with pytest.raises(ValueError, match="device: expected 'cpu', 'cuda' or 'cuda:N', got 'gpu0'"):
+    with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'gpu0'"):
         CheckpointRegressor(tiny_checkpoint, device="gpu0")
-    with pytest.raises(ValueError, match="device: expected 'cpu', 'cuda' or 'cuda:N', got 'meta'"):
+    with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'meta'"):
         CheckpointRegressor(tiny_checkpoint, device="meta")
     if not torch.cuda.is_available():
         with pytest.raises(ValueError, match="device: 'cuda' asked for, but torch sees no CUDA GPU"):
@@ -235,3 +235,16 @@ def test_export_keeps_inference_state_only(tiny_checkpoint, tmp_path, truss, cam
     m = reg.predict(Frame(np.zeros((camera.height, camera.width, 3), np.uint8), camera, 0.0))
     assert m.lost
     assert main(["export", "--checkpoint", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "x.pt")]) == 2
+
+
+def test_twin_scores_weigh_head_against_edges():
+    # hand-computed: log(0.6) + 8 log(0.501) = -6.04 < log(0.4) + 8 log(0.901) = -1.75, so the better
+    # edge fit wins over a head that is only mildly sure; a failed fit (quality 0) scores -55 + log p
+    score = twin_scores([[0.6, 0.4], [0.9, 0.1]], [[0.5, 0.9], [0.0, 0.7]])
+    np.testing.assert_allclose(score[0], [np.log(0.600001) + 8 * np.log(0.501), np.log(0.400001) + 8 * np.log(0.901)])
+    assert score[0].argmax() == 1 and score[1].argmax() == 1
+    np.testing.assert_allclose(score[0], [-6.0400, -1.7503], atol=1e-3)
+    # with a weight of 0 the head alone decides
+    assert twin_scores([0.6, 0.4], [0.5, 0.9], edge_weight=0.0).argmax() == 0
+    with pytest.raises(ValueError, match="prob and quality: expected the same shape"):
+        twin_scores([0.6, 0.4], [0.5, 0.9, 0.1])

@@ -27,7 +27,7 @@ from ..registry import register
 from .base import PoseRegressor, check_roi
 from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance
 from .keypoint_pnp import solve_pnp
-from .models import available_models, build_model, model_kind
+from .models import available_models, build_model, model_kind, torch_device
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,21 @@ REFINE_MIN_QUALITY = 0.5
 # (20 % vs 9 % of views > 30°): wrong-twin fits lock onto the truss's symmetric chords.
 TWIN_SURE = 0.8
 TWIN_EDGE_WEIGHT = 8.0
+
+
+def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT) -> np.ndarray:
+    """The twin choice's score ``log p + edge_weight · log quality`` (the higher, the likelier).
+
+    ``prob``: the twin head's probabilities, ``quality``: the edge fits' quality in [0, 1] (0 where a
+    fit failed); same shape, (..., n_twins), any leading batch shape. The benchmark that tunes the
+    rule calls this too, so the two cannot drift apart.
+    """
+    prob = np.asarray(prob, dtype=float)
+    quality = np.asarray(quality, dtype=float)
+    if prob.shape != quality.shape:
+        raise ValueError(f"prob and quality: expected the same shape (..., n_twins), got {prob.shape} and "
+                         f"{quality.shape}")
+    return np.log(prob + 1e-6) + edge_weight * np.log(quality + 1e-3)
 
 
 def shipped_checkpoint(name: str = "default") -> Path:
@@ -81,22 +96,6 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
 
 def _to_tensor(img: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float().div_(255.0)[None]
-
-
-def inference_device(device) -> torch.device:
-    """``device`` ("cpu", "cuda", "cuda:N" or a torch.device) checked against what torch can reach."""
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError) as exc:
-        raise ValueError(f"device: expected 'cpu', 'cuda' or 'cuda:N', got {device!r}") from exc
-    if dev.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ValueError(f"device: {device!r} asked for, but torch sees no CUDA GPU here; use 'cpu'")
-        if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise ValueError(f"device: {device!r} asked for, but torch sees {torch.cuda.device_count()} CUDA GPU(s)")
-    elif dev.type != "cpu":
-        raise ValueError(f"device: expected 'cpu', 'cuda' or 'cuda:N', got {device!r}")
-    return dev
 
 
 class CheckpointRegressor(PoseRegressor):
@@ -146,7 +145,7 @@ class CheckpointRegressor(PoseRegressor):
             self.net.load_state_dict(ck["model"])
         except RuntimeError as exc:
             raise ValueError(f"{self.path}: weights do not fit the {self.model_name!r} network ({exc})") from exc
-        self.device = inference_device(device)
+        self.device = torch_device(device)
         self.net.eval().to(self.device)
         # the keypoints' 3D coordinates for PnP, once (the network's buffer may live on the GPU)
         self.keypoints_m = (self.net.keypoints_m.cpu().numpy().astype(np.float64)
@@ -305,8 +304,7 @@ class CheckpointRegressor(PoseRegressor):
                 starts = starts[:1]
         fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]
         if prob is not None:
-            score = [np.log(prob[k] + 1e-6) + TWIN_EDGE_WEIGHT * np.log((f.quality if f else 0.0) + 1e-3)
-                     for k, f in zip(order, fits)]
+            score = twin_scores([prob[k] for k in order[:len(fits)]], [f.quality if f else 0.0 for f in fits])
             best = int(np.argmax(score))
         else:
             ranked = [(f.samples * f.quality, i) for i, f in enumerate(fits) if f]

@@ -30,7 +30,7 @@ from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
 from .calibration import calibrate, keypoint_pnp_batch
 from .keypoint_net import keypoint_loss
 from .verify import box_half_turns
-from .models import MODEL_DEFAULTS, available_models, build_model, model_kind
+from .models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
 from .vgg import load_imagenet_weights
 
 log = logging.getLogger(__name__)
@@ -322,9 +322,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     """
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else
-                          ("cpu" if cfg.device == "auto" else cfg.device))
-    rank, world, device = _distributed(device)
+    rank, world, device = _distributed(torch_device(cfg.device))
     main_process = rank == 0
     torch.manual_seed(cfg.seed)
     kw = {"freeze_features": cfg.freeze_features}

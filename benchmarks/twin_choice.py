@@ -111,9 +111,16 @@ def main() -> None:
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
     ap.add_argument("--tune", type=int, default=400, help="views that choose (tau, a); the rest confirm")
     ap.add_argument("--limit", type=int, default=None)
+    ap.add_argument("--save", help="also write the per-view measurements to this .npz")
+    ap.add_argument("--load", help="replay the rules on measurements saved with --save (no inference)")
     args = ap.parse_args()
     reg = CheckpointRegressor(args.checkpoint)
-    m = measure(reg, args.data, args.limit)
+    if args.load:
+        m = dict(np.load(args.load))
+    else:
+        m = measure(reg, args.data, args.limit)
+        if args.save:
+            np.savez(args.save, **m)
     tune, confirm = rules(split(m, slice(0, args.tune))), rules(split(m, slice(args.tune, None)))
     shipped = f"gated tau={TWIN_SURE} a={TWIN_EDGE_WEIGHT:g}"
     write_json("twin_choice", {"env": environment(), "data": args.data, "checkpoint": args.checkpoint,

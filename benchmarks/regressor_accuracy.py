@@ -41,15 +41,15 @@ def main() -> None:
                     shutil.copy(tmp / png, BENCH_DIR / "results" / f"regressor_{name}_{png}")
         shutil.rmtree(tmp)
         results[name] = s
-        print(name, {k: v for k, v in s.items() if k != "error_vs_distance"})
+        print(name, {k: v for k, v in s.items() if not k.startswith("error_vs")})
     env = environment()
     write_json("regressor_accuracy", {"env": env, "data": args.data, "results": results})
     lines = [
         "## CNN regressors on the held-out test set (`python benchmarks/regressor_accuracy.py`)",
         "",
         f"`{args.data}`: {next(iter(results.values()))['images']} rendered 640×480 views, truss wholly in view, 0.4–1.2 m, "
-        "random orientation, sun direction within 40° of the default and intensity ×0.7–1.3 (seed 100; training used "
-        f"seeds 1 and 2). Full inference path, no roi. Failures count as 180° / 1 m; *> 30°*: share of views off by more "
+        "random orientation, sun direction within 40° of the default and intensity ×0.7–1.3 (seed 100; the training "
+        f"sets use other seeds, `hybridpose/regressors/weights/README.md`). Full inference path, no roi. Failures count as 180° / 1 m; *> 30°*: share of views off by more "
         f"than 30° in rotation (mostly the truss turned end for end). git {env['git']}, {env['cpus']} CPU cores.",
         "",
         "| model | mean rot ° | median rot ° | mean trans m | median trans m | SPEED | ADD-0.1d | > 30° | failures | ms/img 1 thr | ms/img 2 thr |",
@@ -68,6 +68,10 @@ def main() -> None:
                   "| distance m | n | rot ° | trans m |", "|---|---|---|---|"]
         lines += [f"| {b['lo_m']:.1f}–{b['hi_m']:.1f} | {b['n']} | {b['rot_mean_deg']:.2f} ± {b['rot_std_deg']:.2f} | "
                   f"{b['trans_mean_m']:.3f} ± {b['trans_std_m']:.3f} |" for b in s["error_vs_distance"]]
+        lines += ["", f"Error vs view elevation, `{name}` (the line of sight's angle to the truss's plane: 0° edge-on, "
+                      "90° face-on):", "", "| elevation ° | n | mean rot ° | median rot ° | > 30° |", "|---|---|---|---|---|"]
+        lines += [f"| {b['lo_deg']:.0f}–{b['hi_deg']:.0f} | {b['n']} | {b['rot_mean_deg']:.2f} | {b['rot_median_deg']:.2f} | "
+                  f"{b['gross_error_share']:.1%} |" for b in s["error_vs_elevation"]]
     update_results_md("regressor-accuracy", "\n".join(lines))
 
 

@@ -186,7 +186,10 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     rot = [r["rot_deg"] for r in rep["per_image"]]
     assert s["gross_error_share"] == pytest.approx(sum(r > 30 for r in rot) / 10)
     assert set(s["ms_per_image"]) == {"1_thread", "2_threads"}
+    assert sum(b["n"] for b in s["error_vs_elevation"]) == 10
+    assert all(0.0 <= r["elevation_deg"] <= 90.0 for r in rep["per_image"])
     md = (tmp_path / "rep" / "report.md").read_text()
+    assert "| elevation ° | n | mean rot ° | median rot ° | > 30° |" in md
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
     assert (tmp_path / "rep" / "gradcam.png").stat().st_size > 1000
     assert "eval default on 10 images" in capsys.readouterr().out
@@ -248,3 +251,19 @@ def test_twin_scores_weigh_head_against_edges():
     assert twin_scores([0.6, 0.4], [0.5, 0.9], edge_weight=0.0).argmax() == 0
     with pytest.raises(ValueError, match="prob and quality: expected the same shape"):
         twin_scores([0.6, 0.4], [0.5, 0.9, 0.1])
+
+
+def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
+    from scipy.spatial.transform import Rotation
+
+    from hybridpose.regressors.evaluate import view_elevation_deg
+
+    assert int(np.argmin(truss.extents)) == 2  # the truss is flat in its z
+    face_on = Pose(np.eye(3), np.array([0.0, 0.0, 0.8]) - truss.center)      # looking along object z
+    assert view_elevation_deg(face_on, truss) == pytest.approx(90.0)
+    edge_on = Pose(Rotation.from_euler("x", 90, degrees=True).as_matrix(), np.array([0.0, 0.0, 0.8]))
+    assert view_elevation_deg(edge_on, truss) == pytest.approx(0.0, abs=0.5)  # box centre ≈ origin
+    for deg in (10.0, 35.0, 70.0):  # tilt the plane by ``deg`` out of edge-on, object centred on the axis
+        R = Rotation.from_euler("x", 90 - deg, degrees=True).as_matrix()
+        pose = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ truss.center)
+        assert view_elevation_deg(pose, truss) == pytest.approx(deg, abs=1e-6)

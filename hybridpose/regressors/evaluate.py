@@ -3,7 +3,8 @@
 Writes to ``--out``: ``report.json`` and ``report.md`` (the paper's table — mean/median rotation °,
 mean translation m — beside ours, plus SPEED score, ADD-0.1d recall, failures, ms/image at 1 and 2
 threads), ``error_vs_distance.png`` (mean ± 1σ per distance bin, as in the paper) and
-``gradcam.png`` (Grad-CAM of the best and worst predictions, as in the paper).
+``gradcam.png`` (Grad-CAM of the best and worst predictions, as in the paper), and errors per
+bin of view elevation (how far from edge-on the object is seen, :func:`view_elevation_deg`).
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import torch
 
 from ..core import Frame
 from ..datasets.bop import BopScene, find_scenes
+from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text, write_image
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
 from .predictor import CheckpointRegressor
@@ -29,6 +31,17 @@ DISTANCE_BINS_M = np.linspace(0.3, 1.2, 10)
 FAILED_ROT_DEG = 180.0  # a lost prediction counts as the worst possible rotation…
 FAILED_TRANS_M = 1.0    # …and a 1 m translation error
 GROSS_ERROR_DEG = 30.0
+# Edge-on views (a flat object seen along its plane) hold most of the gross errors: bins fine near 0°.
+ELEVATION_BINS_DEG = np.array([0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 90.0])
+
+
+def view_elevation_deg(pose: Pose, obj) -> float:
+    """Angle (°, 0–90) between the line of sight to the object's box centre and the object's main
+    plane (the plane of its two longest bounding-box axes, object frame): 0° edge-on, 90° face-on."""
+    thin_axis = pose.R[:, int(np.argmin(obj.extents))]
+    centre = pose.R @ obj.center + pose.t
+    sight = centre / np.linalg.norm(centre)
+    return float(np.degrees(np.arcsin(min(1.0, abs(float(thin_axis @ sight))))))
 
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 30,
@@ -59,7 +72,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         gt = scene.image(im_id)
         frame = Frame(scene.rgb(im_id), gt.camera, float(im_id), im_id)
         m = reg.predict(frame)
-        row = {"image": f"{scene.dir.name}/{im_id:06d}", "distance_m": float(gt.pose.t[2]), "lost": m.lost}
+        row = {"image": f"{scene.dir.name}/{im_id:06d}", "distance_m": float(gt.pose.t[2]),
+               "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost}
         if m.pose is None:
             row.update(rot_deg=FAILED_ROT_DEG, trans_m=FAILED_TRANS_M, speed=np.pi + FAILED_TRANS_M / np.linalg.norm(gt.pose.t),
                        add_m=float("inf"))
@@ -82,6 +96,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     }
     bins = error_vs_distance(rows)
     summary["error_vs_distance"] = bins
+    summary["error_vs_elevation"] = error_vs_elevation(rows)
     plot_error_vs_distance(bins, out / "error_vs_distance.png", reg.model_name)
     order = np.argsort(rot)
     picks = [items[i] for i in order[:gradcam_count]] + [items[i] for i in order[::-1][:gradcam_count]]
@@ -126,6 +141,21 @@ def error_vs_distance(rows) -> list[dict]:
             out.append({"lo_m": float(lo), "hi_m": float(hi), "n": int(sel.sum()),
                         "rot_mean_deg": float(rot[sel].mean()), "rot_std_deg": float(rot[sel].std()),
                         "trans_mean_m": float(trans[sel].mean()), "trans_std_m": float(trans[sel].std())})
+    return out
+
+
+def error_vs_elevation(rows) -> list[dict]:
+    """Per view-elevation bin (°, :func:`view_elevation_deg`): count, mean / median rotation error (°)
+    and the share of views more than ``GROSS_ERROR_DEG`` off (failures included, as 180°)."""
+    elev = np.array([r["elevation_deg"] for r in rows])
+    rot = np.array([r["rot_deg"] for r in rows])
+    out = []
+    for lo, hi in zip(ELEVATION_BINS_DEG[:-1], ELEVATION_BINS_DEG[1:]):
+        sel = (elev >= lo) & ((elev < hi) | (hi == ELEVATION_BINS_DEG[-1]))
+        if sel.any():
+            out.append({"lo_deg": float(lo), "hi_deg": float(hi), "n": int(sel.sum()),
+                        "rot_mean_deg": float(rot[sel].mean()), "rot_median_deg": float(np.median(rot[sel])),
+                        "gross_error_share": float(np.mean(rot[sel] > GROSS_ERROR_DEG))})
     return out
 
 
@@ -236,4 +266,10 @@ def report_markdown(s: dict) -> str:
     for b in s["error_vs_distance"]:
         lines.append(f"| {b['lo_m']:.1f}–{b['hi_m']:.1f} | {b['n']} | {b['rot_mean_deg']:.2f} ± {b['rot_std_deg']:.2f} | "
                      f"{b['trans_mean_m']:.3f} ± {b['trans_std_m']:.3f} |")
+    if s.get("error_vs_elevation"):
+        lines += ["", "View elevation: the line of sight's angle to the object's main plane (0° edge-on, 90° face-on).", "",
+                  "| elevation ° | n | mean rot ° | median rot ° | > 30° |", "|---|---|---|---|---|"]
+        for b in s["error_vs_elevation"]:
+            lines.append(f"| {b['lo_deg']:.0f}–{b['hi_deg']:.0f} | {b['n']} | {b['rot_mean_deg']:.2f} | "
+                         f"{b['rot_median_deg']:.2f} | {b['gross_error_share']:.1%} |")
     return "\n".join(lines) + "\n"

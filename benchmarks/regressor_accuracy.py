@@ -6,7 +6,8 @@ Usage:
     python benchmarks/regressor_accuracy.py --data data/truss_test [--checkpoint NAME=PATH ...]
 
 Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (full inference path,
-no roi: detection, one network pass, PnP, twin head + edge check), with and without the final edge refinement,
+no roi: detection, a network pass (a second where the twin head is unsure), PnP, twin head + edge
+check), with and without the final edge refinement, with always one and always two passes;
 copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
@@ -30,12 +31,12 @@ def main() -> None:
     args = ap.parse_args()
     pairs = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
     results = {}
-    runs = ([(n, p, True, 1) for n, p in pairs] + [(f"{n}, no edge refinement", p, False, 1) for n, p in pairs]
-            + [(f"{n}, 2 passes", p, True, 2) for n, p in pairs])
+    runs = ([(n, p, True, "auto") for n, p in pairs] + [(f"{n}, no edge refinement", p, False, "auto") for n, p in pairs]
+            + [(f"{n}, 1 pass", p, True, 1) for n, p in pairs] + [(f"{n}, 2 passes", p, True, 2) for n, p in pairs])
     for name, path, refine, passes in runs:
         tmp = Path(tempfile.mkdtemp())
         s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit, refine_edges=refine, passes=passes)
-        if refine and passes == 1:  # the plots of the default inference path
+        if refine and passes == "auto":  # the plots of the default inference path
             for png in ("error_vs_distance.png", "gradcam.png"):
                 if (tmp / png).exists():
                     shutil.copy(tmp / png, BENCH_DIR / "results" / f"regressor_{name}_{png}")

@@ -298,8 +298,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="report folder (report.json/.md, error_vs_distance.png, gradcam.png)")
     e.add_argument("--limit", type=int, default=None, help="evaluate the first N images only")
     e.add_argument("--no-refine", action="store_true", help="keypoint models: CNN + PnP + twin check only, no edge refinement")
-    e.add_argument("--passes", type=int, choices=(1, 2), default=1,
-                   help="keypoint models: network passes (2 = again on the crop re-centred on the first pose)")
+    e.add_argument("--passes", choices=("1", "2", "auto"), default="auto",
+                   help="keypoint models: network passes (2 = again on the crop re-centred on the first pose; "
+                        "auto, the default: the second only where the first one's twin head is unsure)")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.set_defaults(func=cmd_eval)
 

@@ -143,8 +143,9 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
         CheckpointRegressor(bad)
     with pytest.raises(FileNotFoundError, match="no trained 'vgg19' checkpoint ships"):
         create("regressor", "vgg19")
-    with pytest.raises(ValueError, match="passes: expected 1 or 2"):
-        CheckpointRegressor(tiny_checkpoint, passes=3)
+    for bad_passes in (3, "two", True):
+        with pytest.raises(ValueError, match="passes: expected 1 or 2 network passes, or 'auto'"):
+            CheckpointRegressor(tiny_checkpoint, passes=bad_passes)
     with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'gpu0'"):
         CheckpointRegressor(tiny_checkpoint, device="gpu0")
     with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'meta'"):
@@ -267,3 +268,19 @@ def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
         R = Rotation.from_euler("x", 90 - deg, degrees=True).as_matrix()
         pose = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ truss.center)
         assert view_elevation_deg(pose, truss) == pytest.approx(deg, abs=1e-6)
+
+
+def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_checkpoint):
+    from hybridpose.regressors.predictor import SECOND_PASS_BELOW
+
+    reg = CheckpointRegressor(tiny_checkpoint)
+    assert reg.passes == "auto" and CheckpointRegressor(tiny_checkpoint, passes="2").passes == 2
+    res = object()  # any PnP result
+    sure, unsure = np.array([SECOND_PASS_BELOW + 0.05, 0.0]), np.array([SECOND_PASS_BELOW - 0.05, 0.1])
+    assert not reg._second_pass(res, sure) and reg._second_pass(res, unsure)
+    assert reg._second_pass(None, sure), "a failed first PnP gets a second chance"
+    assert reg._second_pass(res, None), "no twin head: no belief to trust, two passes"
+    reg.passes = 1
+    assert not reg._second_pass(None, unsure)
+    reg.passes = 2
+    assert reg._second_pass(res, sure)

@@ -45,7 +45,7 @@ def view_elevation_deg(pose: Pose, obj) -> float:
 
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 30,
-                        gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes: int = 1,
+                        gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
                         device="cpu") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
@@ -87,7 +87,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     trans = np.array([r["trans_m"] for r in rows])
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
-        "refine_edges": reg.refine_edges and reg.twin_check is not None, "device": str(reg.device),
+        "refine_edges": reg.refine_edges and reg.twin_check is not None, "passes": reg.passes,
+        "device": str(reg.device),
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "gross_error_share": float(np.mean(rot > GROSS_ERROR_DEG)), "speed_score": float(np.mean([r["speed"] for r in rows])),
         "add_0.1d_recall": add_recall([r["add_m"] for r in rows], obj.diameter),

@@ -46,6 +46,11 @@ REFINE_MIN_QUALITY = 0.5
 # (20 % vs 9 % of views > 30°): wrong-twin fits lock onto the truss's symmetric chords.
 TWIN_SURE = 0.8
 TWIN_EDGE_WEIGHT = 8.0
+# passes="auto": the second, re-centred network pass only where the first pass's twin head is below
+# this (≈ 15 % of views): it buys most of what two passes always would (benchmarks/second_pass.py)
+# for ≈ 1 ms on average instead of 7.
+SECOND_PASS_BELOW = 0.9
+PASSES = (1, 2, "auto")
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT) -> np.ndarray:
@@ -117,15 +122,18 @@ class CheckpointRegressor(PoseRegressor):
             each fit's edge support; without one, the best-supported fit of all twins wins. A fit
             of quality < 0.5 is not used. The covariance stays the calibrated PnP one
             (conservative for a refined pose).
-        passes: keypoint models — 1 (default) or 2 network passes (the second re-centred on the
-            first pose).
+        passes: keypoint models — network passes: 1, 2 (the second on the crop re-centred on the
+            first pose; the one whose PnP keeps more inliers wins) or ``"auto"`` (default: the
+            second pass only where the first one's twin head is below ``SECOND_PASS_BELOW``, or
+            its PnP failed; models without a twin head then always make two).
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
             one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
             the edge fit always run on the CPU.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
-                 check_twins: bool = True, refine_edges: bool = True, passes: int = 1, device="cpu") -> None:
+                 check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
+                 device="cpu") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -172,9 +180,11 @@ class CheckpointRegressor(PoseRegressor):
 
                 self.twin_check = TwinCheck(obj)
         self.check_twins = bool(check_twins)
-        if passes not in (1, 2):
-            raise ValueError(f"passes: expected 1 or 2 network passes, got {passes}")
-        self.passes = int(passes)
+        if isinstance(passes, str) and passes.isdigit():
+            passes = int(passes)
+        if passes not in PASSES or isinstance(passes, bool):
+            raise ValueError(f"passes: expected 1 or 2 network passes, or 'auto', got {passes!r}")
+        self.passes = passes
 
     # --- checks ----------------------------------------------------------------------------------
     def _check_object(self, obj) -> None:
@@ -235,6 +245,11 @@ class CheckpointRegressor(PoseRegressor):
                 res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
         return res, uv, K_crop, order, prob
 
+    def _second_pass(self, res, prob) -> bool:
+        if self.passes == "auto":
+            return res is None or prob is None or float(prob.max()) < SECOND_PASS_BELOW
+        return self.passes == 2
+
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
         """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""
         if pose is not None:
@@ -259,7 +274,8 @@ class CheckpointRegressor(PoseRegressor):
             box = crop_box(found, CROP_MARGIN)
         res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box)
         # second pass on the crop centred on the first pose (the crop the network knows best)
-        again = self._box_around(res.pose if res is not None else None, uv, K_crop, K) if self.passes > 1 else None
+        again = (self._box_around(res.pose if res is not None else None, uv, K_crop, K)
+                 if self._second_pass(res, prob) else None)
         if again is not None:
             res2, _, _, order2, prob2 = self._keypoint_pass(image, K, again)
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):

@@ -39,3 +39,18 @@ def update_results_md(section: str, markdown: str) -> None:
     else:
         text = text.rstrip() + "\n\n" + block + "\n"
     RESULTS_MD.write_text(text)
+
+
+def tune_confirm_parser(chooses: str):
+    """Arguments of the benchmarks that tune a rule of the shipped regressor on the first ``--tune``
+    held-out views and confirm it on the rest: --data, --checkpoint, --tune, --limit."""
+    import argparse
+
+    from hybridpose.regressors.predictor import shipped_checkpoint
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
+    ap.add_argument("--tune", type=int, default=400, help=f"views that choose {chooses}; the rest confirm")
+    ap.add_argument("--limit", type=int, default=None)
+    return ap

@@ -13,19 +13,17 @@ first ``--tune`` views choose the threshold; the rest confirm the shipped one. W
 """
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
 
-from _common import environment, update_results_md, write_json
+from _common import environment, tune_confirm_parser, update_results_md, write_json
 from hybridpose.core import Frame
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.datasets.torch_dataset import crop_box
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG
 from hybridpose.regressors.predictor import (CROP_MARGIN, SECOND_PASS_BELOW, CheckpointRegressor,
-                                             detect_bright_object, shipped_checkpoint)
+                                             detect_bright_object)
 
 THRESHOLDS = (0.5, 0.7, 0.8, 0.9, 0.95, 0.99)
 
@@ -65,11 +63,7 @@ def rules(m: dict) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--data", required=True)
-    ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
-    ap.add_argument("--tune", type=int, default=400, help="views that choose the threshold; the rest confirm")
-    ap.add_argument("--limit", type=int, default=None)
+    ap = tune_confirm_parser("the threshold")
     args = ap.parse_args()
     m = measure(args.checkpoint, args.data, args.limit)
     n = len(m["conf"])

@@ -15,12 +15,10 @@ as in the predictor (the twin's unrefined pose counts instead). Writes
 """
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
 
-from _common import environment, update_results_md, write_json
+from _common import environment, tune_confirm_parser, update_results_md, write_json
 from hybridpose.core import Frame
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.datasets.torch_dataset import crop_box
@@ -28,8 +26,7 @@ from hybridpose.geometry import Pose
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG
 from hybridpose.regressors.predictor import (CROP_MARGIN, REFINE_MIN_QUALITY, REFINE_SEARCH_PX, TWIN_EDGE_WEIGHT,
-                                             twin_scores,
-                                             TWIN_SURE, CheckpointRegressor, detect_bright_object, shipped_checkpoint)
+                                             TWIN_SURE, CheckpointRegressor, detect_bright_object, twin_scores)
 from hybridpose.trackers.edges import fit_edges, to_gray
 
 TAUS = (0.5, 0.7, 0.8, 0.9, 0.95)
@@ -106,11 +103,7 @@ def split(m: dict, rows: slice) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--data", required=True)
-    ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
-    ap.add_argument("--tune", type=int, default=400, help="views that choose (tau, a); the rest confirm")
-    ap.add_argument("--limit", type=int, default=None)
+    ap = tune_confirm_parser("(tau, a)")
     ap.add_argument("--save", help="also write the per-view measurements to this .npz")
     ap.add_argument("--load", help="replay the rules on measurements saved with --save (no inference)")
     args = ap.parse_args()

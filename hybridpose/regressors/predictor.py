@@ -5,9 +5,9 @@
 name needs ``checkpoint=PATH`` from ``hybridpose train --model NAME``.
 
 Keypoint models run one pass on a crop around the ``roi`` or, without one, around the sunlit
-pixels (:func:`detect_bright_object`); ``passes=2`` adds a second on the crop centred on the first
-pass's pose (on the 1000 held-out views: 10 % instead of 13 % gross errors, 21 instead of 13 ms;
-benchmarks/RESULTS.md). Keypoints → PnP → pose; the calibrated PnP covariance is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
+pixels (:func:`detect_bright_object`), and a second on the crop centred on the first pass's pose
+where the first pass's twin head is unsure (``passes="auto"``; ``passes=2`` always makes it, at
+≈ 7 ms more; benchmarks/RESULTS.md, "Second network pass"). Keypoints → PnP → pose; the calibrated PnP covariance is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
 the crop around its own translation estimate, or around ``roi``).
 """
 from __future__ import annotations

@@ -77,7 +77,8 @@ def cmd_render(args) -> int:
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
                                       progress=_progress("render"), sun_cone_deg=args.sun_cone,
-                                      sun_scale_range=args.sun_range, in_view=args.in_view, workers=args.workers)
+                                      sun_scale_range=args.sun_range, in_view=args.in_view, workers=args.workers,
+                                      elevation_range_deg=args.elevation)
     else:
         spec = SequenceSpec(trajectory=args.trajectory, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                             lighting=args.lighting, seed=args.seed)
@@ -268,6 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="random: per-image sun direction uniform within this cone (degrees) around --sun-dir")
     r.add_argument("--in-view", action="store_true",
                    help="random: keep the whole object in the image (default: only its centre)")
+    r.add_argument("--elevation", type=_float_pair, default=None, metavar="LOW,HIGH",
+                   help="random: only views LOW..HIGH degrees from edge-on (0 edge-on, 90 face-on), "
+                        "e.g. 0,20 for more of the hard views of a flat object")
     r.add_argument("--sun-range", type=_float_pair, default=(1.0, 1.0),
                    help="random: per-image sun intensity factor drawn from LOW,HIGH")
     r.add_argument("--exposure", type=float, default=1.0)

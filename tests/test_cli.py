@@ -24,6 +24,22 @@ def test_render_random_and_sequence_then_verify(tmp_path, capsys):
     assert img.shape[2] == 3 and img.max() > 0 and (img[..., 1] == 255).any()  # green wireframe
 
 
+def test_render_views_near_edge_on(tmp_path, truss):
+    from hybridpose.datasets import read_labels
+    from hybridpose.objects import view_elevation_deg
+
+    out = tmp_path / "edge_on"
+    args = ["render", "--object", "truss", "--kind", "random", "--count", "3", "--size", "64", "--seed", "0",
+            "--in-view", "--elevation", "0,12", "--out", str(out)]
+    assert main(args) == 0
+    labels = read_labels(out / "labels.csv")
+    assert len(labels) == 3
+    assert all(view_elevation_deg(lb.pose, truss) <= 12.0 for lb in labels)
+    assert json.loads((out / "hybridpose.json").read_text())["elevation_range_deg"] == [0.0, 12.0]
+    assert main(args) == 0  # the same job resumes
+    assert main(args[:-4] + ["--out", str(out)]) == 2  # another band is another dataset
+
+
 def test_cli_errors_are_clear(tmp_path, capsys):
     assert main(["render", "--object", str(tmp_path / "nope.stl"), "--kind", "random", "--count", "1", "--out", str(tmp_path / "x")]) == 2
     assert "neither a built-in object" in capsys.readouterr().err

@@ -30,6 +30,34 @@ def test_random_poses_with_the_whole_object_in_view(truss):
     assert z.max() > 1.1 and z.min() < 0.5 and np.histogram(z, bins=4, range=(0.45, 1.2))[0].min() > 40
 
 
+def test_random_poses_within_an_elevation_band(truss):
+    from hybridpose.objects import view_elevation_deg
+
+    cam = Camera.default()
+    poses = random_poses(400, cam, (0.3, 1.2), rng=5, in_view_points=truss.bbox_corners,
+                         elevation_range_deg=(0.0, 20.0), obj=truss)
+    elev = np.array([view_elevation_deg(p, truss) for p in poses])
+    assert elev.max() <= 20.0 and elev.min() >= 0.0
+    # orientation stays uniform inside the band: sin(elevation) is uniform, so below 10° ≈ sin10/sin20
+    assert abs(np.mean(elev < 10.0) - np.sin(np.radians(10)) / np.sin(np.radians(20))) < 0.07
+    for p in poses[:50]:
+        uv = cam.project(truss.bbox_corners, p)
+        assert np.all(uv >= -0.5) and np.all(uv <= [cam.width - 0.5, cam.height - 0.5])
+    # the band check draws nothing: a band that admits every view gives the unfiltered poses
+    whole = random_poses(40, cam, (0.3, 1.2), rng=5, in_view_points=truss.bbox_corners,
+                         elevation_range_deg=(0.0, 90.0), obj=truss)
+    plain = random_poses(40, cam, (0.3, 1.2), rng=5, in_view_points=truss.bbox_corners)
+    assert all(a.allclose(b) for a, b in zip(whole, plain))
+
+
+def test_random_poses_elevation_errors_name_the_argument(truss):
+    cam = Camera.default()
+    with pytest.raises(ValueError, match="elevation_range_deg"):
+        random_poses(3, cam, elevation_range_deg=(30.0, 10.0), obj=truss)
+    with pytest.raises(ValueError, match="obj"):
+        random_poses(3, cam, elevation_range_deg=(0.0, 10.0))
+
+
 def test_sun_directions_stay_in_their_cone():
     from hybridpose.datasets.generate import sun_directions_in_cone
 

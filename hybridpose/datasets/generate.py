@@ -160,11 +160,14 @@ def render_random_dataset(
     sun_scale_range: tuple[float, float] = (1.0, 1.0),
     in_view: bool = False,
     workers: int = 1,
+    elevation_range_deg: tuple[float, float] | None = None,
 ) -> Path:
     """``count`` random views within arm's reach (split ``train``) + ``labels.csv``; resumable.
 
     ``in_view`` keeps the whole object in the image (its bounding-box corners project inside);
-    otherwise only its centre is. ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
+    otherwise only its centre is. ``elevation_range_deg`` (low, high) keeps only views seen that
+    far from edge-on (:func:`~hybridpose.objects.view_elevation_deg`), e.g. ``(0, 20)`` to render
+    more of the near edge-on views where a flat object's pose is hardest. ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
     ``lighting.sun_direction_cam`` and ``sun_scale_range`` its intensity factor, so a network
     trained on the data does not learn one shading. ``workers`` > 1 renders in that many processes
     (identical images: each image's noise is seeded by its index). Returns the scene directory.
@@ -180,8 +183,12 @@ def render_random_dataset(
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
     _open_job(out, "random", obj, camera, lighting, sensor, count=count, seed=seed,
               distance_range_m=list(distance_range_m), sun_cone_deg=float(sun_cone_deg),
-              sun_scale_range=[float(lo), float(hi)], in_view=bool(in_view))
-    poses = random_poses(count, camera, distance_range_m, rng=seed, in_view_points=obj.bbox_corners if in_view else None)
+              sun_scale_range=[float(lo), float(hi)], in_view=bool(in_view),
+              # recorded only when set, so that datasets written before the option still resume
+              **({} if elevation_range_deg is None
+                 else {"elevation_range_deg": [float(v) for v in elevation_range_deg]}))
+    poses = random_poses(count, camera, distance_range_m, rng=seed, in_view_points=obj.bbox_corners if in_view else None,
+                         elevation_range_deg=elevation_range_deg, obj=obj)
     # lighting draws use their own stream so that the poses of a seed never change
     sun_rng = np.random.default_rng([seed, 7])
     dirs = (sun_directions_in_cone(lighting.sun_direction_cam, sun_cone_deg, count, sun_rng)

@@ -90,6 +90,16 @@ class ObjectModel:
         return np.asarray(pts, dtype=np.float64)
 
 
+def view_elevation_deg(pose, obj: ObjectModel) -> float:
+    """Angle (°, 0–90) between the line of sight to ``obj``'s box centre and its main plane (the
+    plane of its two longest bounding-box axes, object frame) for the object at ``pose``
+    (``T_cam_obj``, metres): 0° edge-on, 90° face-on. A flat object (the truss) is hardest edge-on."""
+    thin_axis = pose.R[:, int(np.argmin(obj.extents))]
+    centre = pose.R @ obj.center + pose.t
+    sight = centre / np.linalg.norm(centre)
+    return float(np.degrees(np.arcsin(min(1.0, abs(float(thin_axis @ sight))))))
+
+
 def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(8, 3) corners of the axis-aligned box [lo, hi]."""
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], dtype=np.float64)

@@ -20,6 +20,7 @@ from ..datasets.bop import BopScene, find_scenes
 from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text, write_image
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
+from ..objects import view_elevation_deg
 from .predictor import CheckpointRegressor
 
 log = logging.getLogger(__name__)
@@ -33,15 +34,6 @@ FAILED_TRANS_M = 1.0    # …and a 1 m translation error
 GROSS_ERROR_DEG = 30.0
 # Edge-on views (a flat object seen along its plane) hold most of the gross errors: bins fine near 0°.
 ELEVATION_BINS_DEG = np.array([0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 90.0])
-
-
-def view_elevation_deg(pose: Pose, obj) -> float:
-    """Angle (°, 0–90) between the line of sight to the object's box centre and the object's main
-    plane (the plane of its two longest bounding-box axes, object frame): 0° edge-on, 90° face-on."""
-    thin_axis = pose.R[:, int(np.argmin(obj.extents))]
-    centre = pose.R @ obj.center + pose.t
-    sight = centre / np.linalg.norm(centre)
-    return float(np.degrees(np.arcsin(min(1.0, abs(float(thin_axis @ sight))))))
 
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 30,

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import Camera, Pose, quat_wxyz_to_matrix, random_quat, rotvec_to_matrix
+from ..objects import ObjectModel, view_elevation_deg
 from ..registry import register
 
 ARM_REACH_M = (0.3, 1.2)
@@ -22,6 +23,8 @@ def random_poses(
     rng: np.random.Generator | int | None = None,
     in_view_points: np.ndarray | None = None,
     max_tries: int = 200,
+    elevation_range_deg: tuple[float, float] | None = None,
+    obj: ObjectModel | None = None,
 ) -> list[Pose]:
     """Poses within arm's reach with the object centre inside the image (so at least partly in view).
 
@@ -30,35 +33,54 @@ def random_poses(
     bounding-box corners) orientation and centre are redrawn (up to ``max_tries`` per depth) until
     all of them project inside the image: the object is wholly in view, as when the CNN
     initialises a tracker; depths where it cannot fit at all are skipped.
+
+    ``elevation_range_deg`` (low, high), with ``obj``, keeps only views whose elevation
+    (:func:`~hybridpose.objects.view_elevation_deg`: 0° edge-on, 90° face-on) lies in it, the rest
+    of the distribution unchanged: to render more of the views a flat object is hardest in.
     """
     lo, hi = distance_range_m
     if not 0 < lo <= hi:
         raise ValueError(f"distance_range_m: expected 0 < near ≤ far metres, got {distance_range_m}")
     if count < 0:
         raise ValueError(f"count: expected ≥ 0, got {count}")
+    if elevation_range_deg is not None:
+        e_lo, e_hi = elevation_range_deg
+        if not 0 <= e_lo < e_hi <= 90:
+            raise ValueError(f"elevation_range_deg: expected 0 ≤ low < high ≤ 90 degrees, got {elevation_range_deg}")
+        if obj is None:
+            raise ValueError("obj: the object model is needed to measure view elevation (elevation_range_deg given)")
     rng = np.random.default_rng(rng)
-    if in_view_points is None:
+    if in_view_points is None and elevation_range_deg is None:
         z = rng.uniform(lo, hi, count)
         u = rng.uniform(-0.5, camera.width - 0.5, count)
         v = rng.uniform(-0.5, camera.height - 0.5, count)
         q = random_quat(count, rng)
         return [_pose_at_pixel(q[i], u[i], v[i], z[i], camera) for i in range(count)]
-    # depth first, then orientation and centre until the object fits: depth stays ~uniform over
-    # the distances where the object can fit at all
-    pts = np.asarray(in_view_points, dtype=np.float64)
+    # depth first, then orientation and centre until the view is accepted: depth stays ~uniform
+    # over the distances where the object can fit at all
+    pts = None if in_view_points is None else np.asarray(in_view_points, dtype=np.float64)
     poses: list[Pose] = []
     while len(poses) < count:
         z = rng.uniform(lo, hi)
         for _ in range(max_tries):
             pose = _pose_at_pixel(random_quat(None, rng), rng.uniform(-0.5, camera.width - 0.5),
                                   rng.uniform(-0.5, camera.height - 0.5), z, camera)
-            p = (pose @ pts) @ camera.K.T
-            uv = p[:, :2] / p[:, 2:3]
-            if (np.all(p[:, 2] > 0) and np.all(uv >= -0.5) and np.all(uv[:, 0] <= camera.width - 0.5)
-                    and np.all(uv[:, 1] <= camera.height - 0.5)):
-                poses.append(pose)
-                break
+            if pts is not None and not _all_in_image(pose @ pts, camera):
+                continue
+            if elevation_range_deg is not None and not e_lo <= view_elevation_deg(pose, obj) <= e_hi:
+                continue
+            poses.append(pose)
+            break
     return poses
+
+
+def _all_in_image(points_cam: np.ndarray, camera: Camera) -> bool:
+    p = points_cam @ camera.K.T
+    if not np.all(p[:, 2] > 0):
+        return False
+    uv = p[:, :2] / p[:, 2:3]
+    return bool(np.all(uv >= -0.5) and np.all(uv[:, 0] <= camera.width - 0.5)
+                and np.all(uv[:, 1] <= camera.height - 0.5))
 
 
 def _pose_at_pixel(q, u: float, v: float, z: float, camera: Camera) -> Pose:

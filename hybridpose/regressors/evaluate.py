@@ -17,7 +17,6 @@ import torch
 
 from ..core import Frame
 from ..datasets.bop import BopScene, find_scenes
-from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text, write_image
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
 from ..objects import view_elevation_deg

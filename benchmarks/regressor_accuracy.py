@@ -7,8 +7,8 @@ Usage:
 
 Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (full inference path,
 no roi: detection, a network pass (a second where the twin head is unsure), PnP, twin head + edge
-check), with and without the final edge refinement, with always one and always two passes;
-copies its plots to ``benchmarks/results/`` and
+check), with and without the final edge refinement, with always one and always two passes, and
+what a quality gate keeps (accuracy by quality); copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 from _common import BENCH_DIR, environment, update_results_md, write_json
-from hybridpose.regressors.evaluate import PAPER, evaluate_checkpoint
+from hybridpose.regressors.evaluate import PAPER, evaluate_checkpoint, quality_table
 from hybridpose.regressors.predictor import shipped_checkpoint
 
 
@@ -73,6 +73,9 @@ def main() -> None:
                       "90° face-on):", "", "| elevation ° | n | mean rot ° | median rot ° | > 30° |", "|---|---|---|---|---|"]
         lines += [f"| {b['lo_deg']:.0f}–{b['hi_deg']:.0f} | {b['n']} | {b['rot_mean_deg']:.2f} | {b['rot_median_deg']:.2f} | "
                   f"{b['gross_error_share']:.1%} |" for b in s["error_vs_elevation"]]
+        lines += ["", f"`{name}`: measurement quality = PnP inlier share × exp(−RMS reprojection / 2 % of the crop side) × the twin "
+                      "head's probability of the returned twin, so a pose that may be turned end for end scores low. "
+                      + quality_table(s["accuracy_by_quality"])]
     update_results_md("regressor-accuracy", "\n".join(lines))
 
 

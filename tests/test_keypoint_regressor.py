@@ -191,9 +191,23 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert all(0.0 <= r["elevation_deg"] <= 90.0 for r in rep["per_image"])
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "| elevation ° | n | mean rot ° | median rot ° | > 30° |" in md
+    assert s["accuracy_by_quality"][0]["kept_share"] == 1.0 and "| quality ≥ | views kept |" in md
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
     assert (tmp_path / "rep" / "gradcam.png").stat().st_size > 1000
     assert "eval default on 10 images" in capsys.readouterr().out
+
+
+def test_accuracy_by_quality_keeps_what_a_gate_would_trust():
+    from hybridpose.regressors.evaluate import accuracy_by_quality, quality_table
+
+    rows = [{"quality": q, "rot_deg": r, "trans_m": t} for q, r, t in
+            [(0.9, 1.0, 0.01), (0.6, 3.0, 0.03), (0.4, 170.0, 0.2), (0.0, 180.0, 1.0)]]  # the last: a failure
+    g0, g5, g95 = accuracy_by_quality(rows, gates=(0.0, 0.5, 0.95))
+    assert g0["kept_share"] == 1.0 and g0["rot_mean_deg"] == pytest.approx(88.5) and g0["gross_error_share"] == 0.5
+    assert g5["kept_share"] == 0.5 and g5["rot_mean_deg"] == pytest.approx(2.0) and g5["rot_median_deg"] == pytest.approx(2.0)
+    assert g5["trans_mean_m"] == pytest.approx(0.02) and g5["gross_error_share"] == 0.0
+    assert g95 == {"min_quality": 0.95, "kept_share": 0.0}
+    assert "| 0.95 | 0 % | – |" in quality_table([g0, g5, g95])
 
 
 def test_twin_loss_scores_the_best_matching_labelling():

@@ -96,5 +96,37 @@ def test_twin_choice_trusts_a_sure_head_and_asks_the_edges_when_unsure(regressor
     order = [head] + [k for k in range(4) if k != head]
     unsure, sure = np.full(4, 0.2), np.full(4, (1 - TWIN_SURE - 0.05) / 3)
     unsure[head], sure[head] = 0.4, TWIN_SURE + 0.05
-    assert rotation_error_deg(regressor._refine(frame, wrong, order, unsure), truth) < 2.0
-    assert rotation_error_deg(regressor._refine(frame, wrong, order, sure), truth) > 170.0
+    pose, twin = regressor._refine(frame, wrong, order, unsure)
+    assert rotation_error_deg(pose, truth) < 2.0 and twin == 0  # the keypoints' own pose: the truth
+    pose, twin = regressor._refine(frame, wrong, order, sure)
+    assert rotation_error_deg(pose, truth) > 170.0 and twin == head
+
+
+@pytest.mark.parametrize("belief", [0.97, 0.6, 0.3])
+def test_quality_carries_the_twin_heads_belief(truss, belief):
+    """A pose the head is unsure of (maybe turned end for end, which no covariance can say) gets a
+    proportionally lower quality: quality = PnP quality × the head's probability of the returned twin."""
+    import torch
+
+    from hybridpose.geometry import Pose
+
+    camera = Camera.default()
+    truth = Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.03, -0.02, 0.75])
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(truth).rgb, camera, 0.0)
+    qualities = {}
+    for p in (1.0 - 1e-9, belief):
+        reg = create("regressor", "default", object=truss, refine_edges=False, passes=1)
+        net = reg.net
+
+        def forced(x, with_twin=False, net=net, p=p):
+            uv, spread, twin = net(x, with_twin=True)
+            prob = torch.full_like(twin, (1 - p) / (twin.shape[1] - 1))
+            prob[0, int(twin[0].argmax())] = p  # the head's own choice, with the belief we set
+            return uv, spread, torch.log(prob)
+
+        reg.net = forced
+        m = reg.predict(frame)
+        assert m.pose is not None and rotation_error_deg(m.pose, truth) < 5.0
+        qualities[p] = m.quality
+    assert qualities[belief] == pytest.approx(belief * qualities[1.0 - 1e-9], rel=1e-6)

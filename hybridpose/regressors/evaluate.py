@@ -4,7 +4,9 @@ Writes to ``--out``: ``report.json`` and ``report.md`` (the paper's table — me
 mean translation m — beside ours, plus SPEED score, ADD-0.1d recall, failures, ms/image at 1 and 2
 threads), ``error_vs_distance.png`` (mean ± 1σ per distance bin, as in the paper) and
 ``gradcam.png`` (Grad-CAM of the best and worst predictions, as in the paper), and errors per
-bin of view elevation (how far from edge-on the object is seen, :func:`view_elevation_deg`).
+bin of view elevation (how far from edge-on the object is seen, :func:`view_elevation_deg`), and
+accuracy by quality: what a caller that only trusts measurements above a quality keeps, and how
+accurate those are (the fusion layer's gate on re-initialisation).
 """
 from __future__ import annotations
 
@@ -33,6 +35,7 @@ FAILED_TRANS_M = 1.0    # …and a 1 m translation error
 GROSS_ERROR_DEG = 30.0
 # Edge-on views (a flat object seen along its plane) hold most of the gross errors: bins fine near 0°.
 ELEVATION_BINS_DEG = np.array([0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 90.0])
+QUALITY_GATES = (0.0, 0.2, 0.3, 0.4, 0.5)
 
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 30,
@@ -64,7 +67,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         frame = Frame(scene.rgb(im_id), gt.camera, float(im_id), im_id)
         m = reg.predict(frame)
         row = {"image": f"{scene.dir.name}/{im_id:06d}", "distance_m": float(gt.pose.t[2]),
-               "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost}
+               "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost, "quality": m.quality}
         if m.pose is None:
             row.update(rot_deg=FAILED_ROT_DEG, trans_m=FAILED_TRANS_M, speed=np.pi + FAILED_TRANS_M / np.linalg.norm(gt.pose.t),
                        add_m=float("inf"))
@@ -89,6 +92,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     bins = error_vs_distance(rows)
     summary["error_vs_distance"] = bins
     summary["error_vs_elevation"] = error_vs_elevation(rows)
+    summary["accuracy_by_quality"] = accuracy_by_quality(rows)
     plot_error_vs_distance(bins, out / "error_vs_distance.png", reg.model_name)
     order = np.argsort(rot)
     picks = [items[i] for i in order[:gradcam_count]] + [items[i] for i in order[::-1][:gradcam_count]]
@@ -239,6 +243,25 @@ def write_gradcam_sheet(reg, items, labels, path) -> None:
     write_image(path, contact_sheet(tiles, columns=max(1, len(tiles) // 2), tile_width=192, labels=labels))
 
 
+def accuracy_by_quality(rows, gates=QUALITY_GATES) -> list[dict]:
+    """Per gate ``g``: the share of all views whose measurement has quality ≥ ``g`` (``kept_share``;
+    failures, quality 0, are kept only by the gate 0) and, over those kept, mean / median rotation
+    error (°), mean translation error (m) and the share more than ``GROSS_ERROR_DEG`` off. A gate
+    that keeps no view reports only ``kept_share`` = 0."""
+    quality = np.array([r["quality"] for r in rows], dtype=float)
+    rot = np.array([r["rot_deg"] for r in rows], dtype=float)
+    trans = np.array([r["trans_m"] for r in rows], dtype=float)
+    out = []
+    for g in gates:
+        sel = quality >= g
+        row = {"min_quality": float(g), "kept_share": float(sel.mean()) if len(sel) else 0.0}
+        if sel.any():
+            row.update(rot_mean_deg=float(rot[sel].mean()), rot_median_deg=float(np.median(rot[sel])),
+                       trans_mean_m=float(trans[sel].mean()), gross_error_share=float(np.mean(rot[sel] > GROSS_ERROR_DEG)))
+        out.append(row)
+    return out
+
+
 def report_markdown(s: dict) -> str:
     lines = [
         f"# Evaluation of `{s['model']}` on `{s['data']}` ({s['images']} images)",
@@ -264,4 +287,19 @@ def report_markdown(s: dict) -> str:
         for b in s["error_vs_elevation"]:
             lines.append(f"| {b['lo_deg']:.0f}–{b['hi_deg']:.0f} | {b['n']} | {b['rot_mean_deg']:.2f} | "
                          f"{b['rot_median_deg']:.2f} | {b['gross_error_share']:.1%} |")
+    if s.get("accuracy_by_quality"):
+        lines += ["", quality_table(s["accuracy_by_quality"])]
     return "\n".join(lines) + "\n"
+
+
+def quality_table(gates) -> str:
+    """Markdown of :func:`accuracy_by_quality`."""
+    lines = ["Accuracy by quality: the views a caller keeps when it trusts only measurements of quality ≥ the gate.", "",
+             "| quality ≥ | views kept | mean rot ° | median rot ° | mean trans m | > 30° |", "|---|---|---|---|---|---|"]
+    for g in gates:
+        if g["kept_share"] == 0:
+            lines.append(f"| {g['min_quality']:.2f} | 0 % | – | – | – | – |")
+            continue
+        lines.append(f"| {g['min_quality']:.2f} | {g['kept_share']:.1%} | {g['rot_mean_deg']:.2f} | {g['rot_median_deg']:.2f} | "
+                     f"{g['trans_mean_m']:.3f} | {g['gross_error_share']:.1%} |")
+    return "\n".join(lines)

@@ -114,12 +114,11 @@ def test_quality_carries_the_twin_heads_belief(truss, belief):
     truth = Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.03, -0.02, 0.75])
     with Renderer(truss, camera) as r:
         frame = Frame(r.render(truth).rgb, camera, 0.0)
+    reg = create("regressor", "default", object=truss, refine_edges=False, passes=1)
+    net, sure = reg.net, 1.0 - 1e-9
     qualities = {}
-    for p in (1.0 - 1e-9, belief):
-        reg = create("regressor", "default", object=truss, refine_edges=False, passes=1)
-        net = reg.net
-
-        def forced(x, with_twin=False, net=net, p=p):
+    for p in (sure, belief):
+        def forced(x, with_twin=False, p=p):
             uv, spread, twin = net(x, with_twin=True)
             prob = torch.full_like(twin, (1 - p) / (twin.shape[1] - 1))
             prob[0, int(twin[0].argmax())] = p  # the head's own choice, with the belief we set
@@ -129,4 +128,4 @@ def test_quality_carries_the_twin_heads_belief(truss, belief):
         m = reg.predict(frame)
         assert m.pose is not None and rotation_error_deg(m.pose, truth) < 5.0
         qualities[p] = m.quality
-    assert qualities[belief] == pytest.approx(belief * qualities[1.0 - 1e-9], rel=1e-6)
+    assert qualities[belief] == pytest.approx(belief * qualities[sure], rel=1e-6)

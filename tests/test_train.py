@@ -129,3 +129,35 @@ def test_init_from_copies_matching_weights_and_adds_new_layers(data, tmp_path):
         torch.testing.assert_close(got[k], v)
     with pytest.raises(FileNotFoundError):
         train(TrainConfig(**{**tuned.__dict__, "init_from": str(tmp_path / "none.pt")}), progress=False)
+
+
+def test_twin_weight_scales_the_twin_cross_entropy(data, tmp_path):
+    """loss(w) = keypoint loss + w · CE(twin logits, best labelling); checked against the two terms."""
+    from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss
+    from hybridpose.regressors.train import _batch_loss
+
+    torch.manual_seed(0)
+    net = KeypointNet(torch.rand(6, 3).numpy(), width=8, image_size=64, twin_classes=3).eval()
+    batch = {"image": torch.rand(4, 3, 64, 64), "kp2d": torch.rand(4, 3, 6, 2) * 63}
+    with torch.no_grad():
+        uv, spread, twin = net(batch["image"], with_twin=True)
+        kp, best = keypoint_loss(uv, spread, batch["kp2d"], 64, return_best=True)
+        ce = torch.nn.functional.cross_entropy(twin, best)
+        for w in (0.0, 0.1, 2.5):
+            torch.testing.assert_close(_batch_loss(net, batch, "cpu", 10.0, w), kp + w * ce)
+    with pytest.raises(ValueError, match="twin_weight: expected a finite weight ≥ 0, got -1"):
+        TrainConfig(model="default", data=str(data), out=str(tmp_path), twin_weight=-1)
+
+
+def test_cli_options_reach_the_config():
+    import argparse
+
+    from hybridpose.regressors.train import TWIN_CE_WEIGHT, add_train_arguments, config_from_args
+
+    p = argparse.ArgumentParser()
+    add_train_arguments(p)
+    cfg = config_from_args(p.parse_args(["--model", "default", "--data", "d", "--out", "o", "--twin-weight", "1.5",
+                                         "--time-limit", "30"]))
+    assert (cfg.twin_weight, cfg.time_limit_min, cfg.image_size, cfg.lr) == (1.5, 30.0, 128, 1e-3)
+    default = config_from_args(p.parse_args(["--model", "vgg16", "--data", "d", "--out", "o"]))
+    assert (default.twin_weight, default.image_size, default.lr, default.schedule) == (TWIN_CE_WEIGHT, 224, 1e-4, "constant")

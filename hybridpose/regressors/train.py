@@ -35,6 +35,8 @@ from .vgg import load_imagenet_weights
 
 log = logging.getLogger(__name__)
 
+TWIN_CE_WEIGHT = 0.1  # the twin head's cross-entropy beside the keypoint loss (shipped default.pt)
+
 
 SCHEDULES = ("constant", "cosine")
 
@@ -58,6 +60,8 @@ class TrainConfig:
             its bounding-box half-turn twins and keep the best (see ``keypoint_loss``); validation
             errors are then measured to the nearest twin, the regressor's twin check resolves
             which one at inference.
+        twin_weight: keypoint models with a twin head — weight of the head's cross-entropy (which
+            twin the keypoints follow) beside the keypoint loss.
         init_from: start from this checkpoint's weights where names and shapes match (fine-tuning,
             e.g. adding the twin head to a trained model); new layers keep their initialisation.
         amp: bfloat16 autocast for the training forward pass (the big VGG models on a GPU; the
@@ -84,6 +88,7 @@ class TrainConfig:
     device: str = "auto"
     schedule: str = "constant"
     twin_loss: bool = True
+    twin_weight: float = TWIN_CE_WEIGHT
     init_from: str | None = None
     amp: bool = False
     time_limit_min: float | None = None
@@ -99,6 +104,8 @@ class TrainConfig:
             raise ValueError(f"schedule: expected one of {SCHEDULES}, got {self.schedule!r}")
         if self.lr <= 0 or not math.isfinite(self.lr):
             raise ValueError(f"lr: expected a positive learning rate, got {self.lr}")
+        if not (self.twin_weight >= 0 and math.isfinite(self.twin_weight)):
+            raise ValueError(f"twin_weight: expected a finite weight ≥ 0, got {self.twin_weight}")
         if self.time_limit_min is not None and not self.time_limit_min > 0:
             raise ValueError(f"time_limit_min: expected a positive number of minutes, got {self.time_limit_min}")
 
@@ -167,17 +174,14 @@ def _forward(model, batch, device):
     return model(x)
 
 
-TWIN_CE_WEIGHT = 0.1
-
-
-def _batch_loss(model, batch, device, beta: float) -> torch.Tensor:
+def _batch_loss(model, batch, device, beta: float, twin_weight: float = TWIN_CE_WEIGHT) -> torch.Tensor:
     if is_keypoint_model(model):
         net = _unwrap(model)
         labels = batch["kp2d"].to(device)
         if net.twin_head is not None and labels.ndim == 4:
             pred, spread, twin = model(batch["image"].to(device, non_blocking=True), with_twin=True)
             loss, best = keypoint_loss(pred, spread, labels, net.image_size, return_best=True)
-            return loss + TWIN_CE_WEIGHT * torch.nn.functional.cross_entropy(twin, best)
+            return loss + twin_weight * torch.nn.functional.cross_entropy(twin, best)
         pred, spread = model(batch["image"].to(device, non_blocking=True))
         return keypoint_loss(pred, spread, labels, net.image_size)
     t, q = _forward(model, batch, device)
@@ -404,7 +408,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                 if "crop_image" in batch:
                     batch["crop_image"] = augment(batch["crop_image"].to(device))
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.amp):
-                loss = _batch_loss(net, batch, device, cfg.beta)
+                loss = _batch_loss(net, batch, device, cfg.beta, cfg.twin_weight)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"epoch {epoch} batch {b}: loss is {loss.item()}; lower --lr")
             optim.zero_grad(set_to_none=True)
@@ -531,6 +535,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-batches", type=int, default=None, help="cap batches per epoch (smoke runs)")
     p.add_argument("--no-twin-loss", action="store_true",
                    help="keypoint models: score against the true keypoints only (not also the box-symmetric twins)")
+    p.add_argument("--twin-weight", type=float, default=TWIN_CE_WEIGHT,
+                   help=f"keypoint models: weight of the twin head's cross-entropy (default {TWIN_CE_WEIGHT})")
     p.add_argument("--init-from", default=None, help="start from a checkpoint's matching weights (fine-tuning)")
     p.add_argument("--val-fraction", type=float, default=0.2, help="share of the data held out for validation")
     p.add_argument("--amp", action="store_true", help="bfloat16 autocast for training (GPU; big VGG models)")
@@ -549,6 +555,7 @@ def config_from_args(args) -> TrainConfig:
                        patience=args.patience, augment=not args.no_augment, freeze_features=args.freeze_features,
                        imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
                        max_batches=args.max_batches, schedule=schedule, twin_loss=not args.no_twin_loss,
+                       twin_weight=args.twin_weight,
                        init_from=args.init_from, val_fraction=args.val_fraction, amp=args.amp,
                        time_limit_min=args.time_limit)
 

@@ -174,7 +174,7 @@ def _forward(model, batch, device):
     return model(x)
 
 
-def _batch_loss(model, batch, device, beta: float, twin_weight: float = TWIN_CE_WEIGHT) -> torch.Tensor:
+def _batch_loss(model, batch, device, beta: float, twin_weight: float) -> torch.Tensor:
     if is_keypoint_model(model):
         net = _unwrap(model)
         labels = batch["kp2d"].to(device)

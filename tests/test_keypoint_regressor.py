@@ -9,7 +9,7 @@ from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera, Pose, projection_jacobian, random_quat
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.calibration import nees, pnp_covariance
-from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax
+from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax, widen_state_dict
 from hybridpose.regressors.keypoint_pnp import solve_pnp
 from hybridpose.regressors.predictor import CheckpointRegressor, detect_bright_object, twin_scores
 from hybridpose.regressors.train import TrainConfig, train
@@ -298,3 +298,44 @@ def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_chec
     assert not reg._second_pass(None, unsure)
     reg.passes = 2
     assert reg._second_pass(res, sure)
+
+
+def _trained_looking(net: KeypointNet) -> KeypointNet:
+    """Random weights plus batch-norm statistics that are not the identity (a few train-mode passes)."""
+    net.train()
+    with torch.no_grad():
+        for _ in range(3):
+            net(torch.rand(4, 3, net.image_size, net.image_size) * 2.0)
+    return net.eval()
+
+
+@pytest.mark.parametrize("new_width", [12, 16, 20])
+def test_widened_net_computes_what_the_narrow_one_did(truss, new_width):
+    """Net2WiderNet without noise is exact (eval mode), with noise it starts close and its copies differ."""
+    torch.manual_seed(0)
+    narrow = _trained_looking(KeypointNet(truss.keypoints, width=8, image_size=64, twin_classes=4))
+    wide = KeypointNet(truss.keypoints, width=new_width, image_size=64, twin_classes=4).eval()
+    x = torch.rand(3, 3, 64, 64)
+    with torch.no_grad():
+        want = narrow(x, with_twin=True)
+        wide.load_state_dict(widen_state_dict(narrow.state_dict(), wide.state_dict(), noise=0.0))
+        for got, ref in zip(wide(x, with_twin=True), want):
+            torch.testing.assert_close(got, ref, atol=1e-4, rtol=1e-4)
+        wide.load_state_dict(widen_state_dict(narrow.state_dict(), wide.state_dict(), noise=0.002, seed=1))
+        uv, _, _ = wide(x, with_twin=True)
+    assert (uv - want[0]).abs().max() < 0.5                      # pixels, in a 64-pixel crop
+    w = wide.state_dict()["layer1.conv1.weight"]                 # (new_width, new_width, 3, 3)
+    first_copy = w[8]
+    assert not any(torch.allclose(first_copy, w[i]) for i in range(8))
+
+
+def test_widen_state_dict_bad_input(truss):
+    narrow = KeypointNet(truss.keypoints, width=8, image_size=64, twin_classes=4).state_dict()
+    narrower = KeypointNet(truss.keypoints, width=4, image_size=64, twin_classes=4).state_dict()
+    no_head = KeypointNet(truss.keypoints, width=16, image_size=64).state_dict()
+    with pytest.raises(ValueError, match="target: 4 channels where the trained net has 8; it can only widen"):
+        widen_state_dict(narrow, narrower)
+    with pytest.raises(ValueError, match="state: not the same layers as the target net"):
+        widen_state_dict(narrow, no_head)
+    with pytest.raises(ValueError, match="noise: expected a finite fraction ≥ 0, got nan"):
+        widen_state_dict(narrow, narrow, noise=float("nan"))

@@ -131,6 +131,27 @@ def test_init_from_copies_matching_weights_and_adds_new_layers(data, tmp_path):
         train(TrainConfig(**{**tuned.__dict__, "init_from": str(tmp_path / "none.pt")}), progress=False)
 
 
+def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path):
+    """`keypoints` (width 48) from a `default` (width 32) checkpoint: Net2WiderNet, not a fresh start."""
+    from hybridpose.regressors.keypoint_net import widen_state_dict
+    from hybridpose.regressors.train import WIDEN_NOISE
+
+    base = TrainConfig(model="default", data=str(data), out=str(tmp_path / "a"), epochs=1, batch=4, lr=1e-3,
+                       image_size=64, patience=0, twin_loss=False, max_batches=2)
+    train(base, progress=False)
+    src = load_checkpoint(tmp_path / "a" / "last.pt")["model"]
+    wide = TrainConfig(**{**base.__dict__, "model": "keypoints", "out": str(tmp_path / "b"), "twin_loss": True,
+                          "max_batches": 0, "init_from": str(tmp_path / "a" / "last.pt")})
+    train(wide, progress=False)  # no training step: the weights are the widened ones
+    got = load_checkpoint(tmp_path / "b" / "last.pt")["model"]
+    assert got["stem.0.weight"].shape[0] == 48 and got["layer4.1.conv2.weight"].shape[:2] == (384, 384)
+    want = widen_state_dict(src, {k: got[k] for k in src}, noise=WIDEN_NOISE, seed=0)
+    for k, v in want.items():
+        torch.testing.assert_close(got[k], v)
+    torch.testing.assert_close(got["stem.0.weight"][:32], src["stem.0.weight"])
+    assert {k for k in got if k.startswith("twin_head")} == {"twin_head.weight", "twin_head.bias"}
+
+
 def test_twin_weight_scales_the_twin_cross_entropy(data, tmp_path):
     """loss(w) = keypoint loss + w · CE(twin logits, best labelling); checked against the two terms."""
     from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss

@@ -8,6 +8,8 @@ near-symmetric ends of the truss apart) and an FPN-style decoder back to stride 
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import nn
@@ -147,3 +149,65 @@ def keypoint_loss(pred_px: torch.Tensor, spread_px: torch.Tensor, true_px: torch
     per = (err * inside).sum(-1) / count + spread_weight * spread / count      # (B, T)
     best, index = per.min(dim=1)
     return (best.mean(), index) if return_best else best.mean()
+
+
+def widen_state_dict(state: dict, target: dict, noise: float = 0.01, seed: int = 0) -> dict:
+    """A trained :class:`KeypointNet` state dict rewritten for a wider one (Net2WiderNet, Chen et al. 2016).
+
+    Every feature map of ``C`` channels that has ``C' > C`` in ``target`` keeps its ``C`` channels
+    first; each extra channel copies a seeded random old one (the same choice for every tensor of
+    ``C`` channels, so residual and FPN sums still add like to like), and the consumers of a copied
+    channel share its weight among the copies. With ``noise = 0`` the wider net computes exactly
+    what the narrow one did (eval mode: the batch-norm statistics are copied too); ``noise`` (a
+    fraction of each weight tensor's standard deviation, added to the copies' incoming weights only)
+    lets the copies drift apart in training — without it they would stay identical for good (Adam's
+    step does not see how the outgoing weight was shared).
+
+    Written here because no maintained library widens a trained network; it lets the wider
+    ``keypoints`` model start from the shipped ``default`` instead of from scratch (days on a CPU).
+
+    Args:
+        state: the trained net's ``state_dict()``.
+        target: the wider net's ``state_dict()`` (only names and shapes are used); same layers.
+        noise: relative noise on the copied channels' incoming weights (finite, ≥ 0).
+        seed: seeds which old channels are copied and the noise.
+    Returns:
+        a state dict with ``target``'s shapes, loadable into the wider net.
+    """
+    if set(state) != set(target):
+        raise ValueError("state: not the same layers as the target net "
+                         f"(differ: {', '.join(sorted(set(state) ^ set(target))[:4])} …)")
+    if not (noise >= 0 and math.isfinite(noise)):
+        raise ValueError(f"noise: expected a finite fraction ≥ 0, got {noise}")
+    gen = torch.Generator().manual_seed(seed)
+    maps: dict[tuple[int, int], torch.Tensor] = {}
+
+    def mapping(c_old: int, c_new: int) -> torch.Tensor:
+        if c_new < c_old:
+            raise ValueError(f"target: {c_new} channels where the trained net has {c_old}; it can only widen")
+        if (c_old, c_new) not in maps:
+            n = c_new - c_old   # distinct channels copied while there are enough, so no channel is split thrice
+            extra = torch.randperm(c_old, generator=gen)[:n] if n <= c_old else torch.randint(c_old, (n,), generator=gen)
+            maps[c_old, c_new] = torch.cat([torch.arange(c_old), extra])
+        return maps[c_old, c_new]
+
+    out = {}
+    for key, value in state.items():
+        shape = tuple(target[key].shape)
+        v = value.clone()
+        if v.ndim != len(shape):
+            raise ValueError(f"target: {key} has shape {shape}, the trained net {tuple(v.shape)}")
+        if v.ndim >= 1 and shape[0] != v.shape[0]:               # output channels (also BN vectors, biases)
+            g = mapping(v.shape[0], shape[0])
+            copied = torch.arange(len(g)) >= v.shape[0]
+            v = v[g]
+            if v.ndim >= 2 and noise > 0:
+                v[copied] += noise * float(value.std()) * torch.randn(v[copied].shape, generator=gen)
+        if v.ndim >= 2 and shape[1] != v.shape[1]:                # input channels: share among the copies
+            g = mapping(v.shape[1], shape[1])
+            counts = torch.bincount(g, minlength=v.shape[1]).to(v.dtype)
+            v = v[:, g] / counts[g].reshape(1, -1, *([1] * (v.ndim - 2)))
+        if tuple(v.shape) != shape:
+            raise ValueError(f"target: {key} has shape {shape}, cannot widen {tuple(value.shape)} to it")
+        out[key] = v
+    return out

@@ -28,7 +28,7 @@ from ..geometry import Pose
 from ..io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
 from .calibration import calibrate, keypoint_pnp_batch
-from .keypoint_net import keypoint_loss
+from .keypoint_net import keypoint_loss, widen_state_dict
 from .verify import box_half_turns
 from .models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
 from .vgg import load_imagenet_weights
@@ -36,6 +36,9 @@ from .vgg import load_imagenet_weights
 log = logging.getLogger(__name__)
 
 TWIN_CE_WEIGHT = 0.1  # the twin head's cross-entropy beside the keypoint loss (shipped default.pt)
+# noise on the copied channels when --init-from widens a narrower keypoint net: enough to let the
+# copies drift apart, small enough to keep the start's keypoints within ≈ 0.1 px on real crops
+WIDEN_NOISE = 0.002
 
 
 SCHEDULES = ("constant", "cosine")
@@ -476,7 +479,16 @@ def _init_from(model, path) -> None:
     if "model" not in src:
         raise ValueError(f"{path}: not a hybridpose checkpoint (no 'model')")
     own = model.state_dict()
-    take = {k: v for k, v in src["model"].items() if k in own and own[k].shape == v.shape}
+    weights = src["model"]
+    narrower = getattr(model, "kind", None) == "keypoints" and "stem.0.weight" in weights and \
+        weights["stem.0.weight"].shape[0] < own["stem.0.weight"].shape[0]
+    if narrower:   # e.g. the wider `keypoints` net from the shipped `default`: keep what it learned
+        common = [k for k in weights if k in own]   # a head only one of them has stays fresh
+        weights = widen_state_dict({k: weights[k] for k in common}, {k: own[k] for k in common},
+                                   noise=WIDEN_NOISE, seed=0)
+        log.info("widened %s from width %d to %d (Net2WiderNet)", path, src["model"]["stem.0.weight"].shape[0],
+                 own["stem.0.weight"].shape[0])
+    take = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
     if not take:
         raise ValueError(f"{path}: no weight matches the {type(model).__name__} being trained")
     model.load_state_dict(take, strict=False)

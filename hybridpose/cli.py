@@ -223,6 +223,18 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    from .io import atomic_write_json
+    from .regressors.evaluate import compare_reports, comparison_markdown
+
+    c = compare_reports(args.a, args.b, gross_deg=args.gross_deg)
+    text = comparison_markdown(c)
+    if args.out:
+        atomic_write_json(Path(args.out), c)
+    print(text, end="")
+    return 0
+
+
 def cmd_export(args) -> int:
     from .regressors.train import export_checkpoint
 
@@ -307,6 +319,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "auto, the default: the second only where the first one's twin head is unsure)")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.set_defaults(func=cmd_eval)
+
+    c = sub.add_parser("compare", help="paired comparison of two eval reports on the same images "
+                                        "(McNemar on gross errors, bootstrap on mean/median)")
+    c.add_argument("a", help="report.json (or its folder) of model A, from hybridpose eval")
+    c.add_argument("b", help="report.json (or its folder) of model B, same images")
+    c.add_argument("--gross-deg", type=float, default=30.0, help="rotation error that counts as gross, degrees")
+    c.add_argument("--out", default=None, help="also write the comparison as JSON here")
+    c.set_defaults(func=cmd_compare)
 
     x = sub.add_parser("export", help="inference-only copy of a training checkpoint (what the package ships)")
     x.add_argument("--checkpoint", required=True, help="best.pt of a training run")

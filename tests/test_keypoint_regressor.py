@@ -210,6 +210,59 @@ def test_accuracy_by_quality_keeps_what_a_gate_would_trust():
     assert "| 0.95 | 0 % | – |" in quality_table([g0, g5, g95])
 
 
+def _write_report(path, rot_deg, lost=(), model="m"):
+    import json
+
+    rows = [{"image": f"000000/{i:06d}", "lost": i in lost, "rot_deg": 180.0 if i in lost else float(r)}
+            for i, r in enumerate(rot_deg)]
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "report.json").write_text(json.dumps({"summary": {"model": model}, "per_image": rows}))
+    return path
+
+
+def test_compare_reports_pairs_the_views(tmp_path, capsys):
+    """McNemar counts and p against scipy's binomial test; the bootstrap interval holds the true shift."""
+    from scipy.stats import binomtest
+
+    from hybridpose.cli import main
+    from hybridpose.regressors.evaluate import compare_reports
+
+    rng = np.random.default_rng(0)
+    base = rng.gamma(2.0, 0.5, 400)                   # degrees, none gross
+    rot_a, rot_b = base.copy(), base + 0.3            # B: 0.3° worse everywhere...
+    rot_a[[0, 1, 2, 3]] = 170.0                       # ...gross on 4 views A gets wrong
+    rot_b[[3, 4]] = 175.0                             # one shared, one of its own,
+    a = _write_report(tmp_path / "a", rot_a, model="default")
+    b = _write_report(tmp_path / "b", rot_b, lost={5}, model="keypoints")   # and one failure (180°)
+    c = compare_reports(a, b / "report.json")
+    assert (c["gross_only_a"], c["gross_only_b"], c["gross_both"]) == (3, 2, 1)
+    assert c["mcnemar_p"] == pytest.approx(binomtest(2, 5).pvalue)
+    assert c["a"]["model"] == "default" and c["b"]["gross_share"] == pytest.approx(3 / 400)
+    lo, hi = c["rot_median_diff_deg"]["ci95"]
+    assert lo <= 0.3 <= hi and c["rot_median_diff_deg"]["estimate"] == pytest.approx(0.3, abs=0.05)
+    want_mean = (np.where(np.arange(400) == 5, 180.0, rot_b) - rot_a).mean()
+    assert c["rot_mean_diff_deg"]["estimate"] == pytest.approx(want_mean)
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "c.json")]) == 0
+    assert "gross in A only 3, in B only 2, in both 1" in capsys.readouterr().out
+    assert (tmp_path / "c.json").is_file()
+
+
+def test_compare_reports_bad_input(tmp_path):
+    from hybridpose.regressors.evaluate import compare_reports
+
+    a = _write_report(tmp_path / "a", [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="not the same images in the same order"):
+        compare_reports(a, _write_report(tmp_path / "b", [1.0, 2.0]))
+    with pytest.raises(FileNotFoundError, match="no report"):
+        compare_reports(a, tmp_path / "missing")
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "report.json").write_text('{"per_image": [{"image": "x"}]}')
+    with pytest.raises(ValueError, match="not a `hybridpose eval` report.json"):
+        compare_reports(a, tmp_path / "bad")
+    with pytest.raises(ValueError, match="gross_deg: expected a rotation error > 0 degrees"):
+        compare_reports(a, a, gross_deg=0)
+
+
 def test_twin_loss_scores_the_best_matching_labelling():
     pred = torch.zeros(1, 2, 2)
     labels = torch.tensor([[[[10.0, 0.0], [10.0, 0.0]], [[0.0, 0.0], [0.0, 0.0]]]])  # (B, T, N, 2)

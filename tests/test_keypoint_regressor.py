@@ -119,6 +119,34 @@ def test_checkpoint_regressor_returns_a_valid_measurement(tiny_checkpoint, truss
     assert black.lost and black.pose is None
 
 
+def test_size_ratio_compares_the_projected_extent_with_the_box(truss, camera, rng, monkeypatch):
+    """Oracle: cv2.projectPoints of the same points; a pose far behind the box's size is refused."""
+    from hybridpose.regressors import predictor
+
+    pose = _pose(rng, z=0.8)
+    uv = cv2.projectPoints(truss.keypoints, cv2.Rodrigues(pose.R)[0], pose.t, camera.K, None)[0][:, 0]
+    x0, y0 = uv.min(0)
+    w, h = uv.max(0) - uv.min(0)
+    assert predictor.size_ratio(pose, truss.keypoints, camera.K, (x0, y0, w, h)) == pytest.approx(1.0)
+    assert predictor.size_ratio(pose, truss.keypoints, camera.K, (x0, y0, 2 * w, 2 * h)) == pytest.approx(2.0)
+    far = Pose(pose.R, pose.t * 4.0)                    # the PnP depth blow-up: 4× too far, ≈ 4× too small
+    assert predictor.size_ratio(far, truss.keypoints, camera.K, (x0, y0, w, h)) > predictor.SIZE_RATIO_MAX
+    behind = Pose(pose.R, -pose.t)
+    assert predictor.size_ratio(behind, truss.keypoints, camera.K, (x0, y0, w, h)) == float("inf")
+
+
+def test_regressor_refuses_a_pose_that_does_not_fit_the_box(tiny_checkpoint, truss, camera, monkeypatch):
+    from hybridpose.regressors import predictor
+    from hybridpose.render import Renderer
+
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(Pose.from_quat_t([1, 0, 0, 0], [0.0, 0.0, 0.6])).rgb, camera, 0.0)
+    reg = create("regressor", "default", checkpoint=tiny_checkpoint, object=truss)
+    monkeypatch.setattr(predictor, "size_ratio", lambda *a: predictor.SIZE_RATIO_MAX * 1.01)
+    m = reg.predict(frame)
+    assert m.lost and m.pose is None and m.quality == 0.0
+
+
 def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path):
     import trimesh
 

@@ -50,6 +50,10 @@ TWIN_EDGE_WEIGHT = 8.0
 # this (≈ 15 % of views): it buys most of what two passes always would (benchmarks/second_pass.py)
 # for ≈ 1 ms on average instead of 7.
 SECOND_PASS_BELOW = 0.9
+# PnP on near-collinear keypoints (edge-on views) can return the object several times too far away
+# (13 m for a truss at 1 m in the seed-101 test set): a pose whose projected keypoints span more
+# than this factor less (or more) than the box the network was shown is not a measurement
+SIZE_RATIO_MAX = 3.0
 PASSES = (1, 2, "auto")
 
 
@@ -76,6 +80,27 @@ def shipped_checkpoint(name: str = "default") -> Path:
             f"(train one with `hybridpose train --model {name} ...`)"
         )
     return path
+
+
+def size_ratio(pose: Pose, points_m: np.ndarray, K: np.ndarray, box) -> float:
+    """How far the image extent of ``points_m`` under ``pose`` is from ``box``'s: ≥ 1, ∞ if behind the camera.
+
+    Args:
+        pose: T_cam_obj (metres). points_m: (N, 3) object points, metres. K: (3, 3) intrinsics.
+        box: (x, y, w, h) pixels, the region the object was found in (detection or caller's ``roi``).
+    Returns:
+        max(d / d_box, d_box / d) for the diagonals d of the projected points' bounding box and
+        d_box of ``box``.
+    """
+    p = pose @ np.asarray(points_m, dtype=float)
+    if np.any(p[:, 2] <= 1e-6):
+        return float("inf")
+    uv = (p @ K.T)[:, :2] / p[:, 2:3]
+    d = float(np.hypot(*(uv.max(0) - uv.min(0))))
+    d_box = float(np.hypot(box[2], box[3]))
+    if d <= 0 or d_box <= 0:
+        return float("inf")
+    return max(d / d_box, d_box / d)
 
 
 def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, min_area_px: int = 30):
@@ -272,12 +297,10 @@ class CheckpointRegressor(PoseRegressor):
     def _predict_keypoints(self, frame: Frame, roi) -> Measurement:
         image, cam = self._undistorted(frame)
         K = cam.K
-        box = crop_box(roi, CROP_MARGIN) if roi is not None else None
-        if box is None:
-            found = detect_bright_object(image)
-            if found is None:
-                return self._lost(frame)
-            box = crop_box(found, CROP_MARGIN)
+        seen = roi if roi is not None else detect_bright_object(image)
+        if seen is None:
+            return self._lost(frame)
+        box = crop_box(seen, CROP_MARGIN)
         res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box)
         # second pass on the crop centred on the first pose (the crop the network knows best)
         again = (self._box_around(res.pose if res is not None else None, uv, K_crop, K)
@@ -286,7 +309,7 @@ class CheckpointRegressor(PoseRegressor):
             res2, _, _, order2, prob2 = self._keypoint_pass(image, K, again)
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
                 res, order, prob = res2, order2, prob2
-        if res is None:
+        if res is None or size_ratio(res.pose, self.keypoints_m, K, seen) > SIZE_RATIO_MAX:
             return self._lost(frame)
         cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))

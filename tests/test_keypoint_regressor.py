@@ -88,6 +88,21 @@ def test_detect_bright_object_boxes_the_lit_pixels():
     assert detect_bright_object(np.zeros_like(img)) is None
 
 
+def test_detection_grows_from_a_glint_over_the_dim_object_but_not_over_noise():
+    rng = np.random.default_rng(0)
+    img = np.zeros((240, 320, 3), np.uint8)
+    img[60:160, 40:240] = 6                      # grazing sun: the truss barely above black…
+    img[100:110, 200:220] = 80                   # …and one glint
+    noisy = np.clip(img + rng.normal(0, 4, img.shape), 0, 255).astype(np.uint8)   # σ = 4 sensor noise
+    for frame in (img, noisy):
+        x, y, w, h = detect_bright_object(frame)
+        assert abs(x - 40) <= 4 and abs(y - 60) <= 4 and abs(w - 200) <= 8 and abs(h - 100) <= 8
+    lit = np.zeros_like(img)
+    lit[60:160, 40:240] = 6
+    lit[60:160, 40:200] = 150                    # mostly lit: a dim, shadowed end does not grow the box
+    assert detect_bright_object(lit) == (40.0, 60.0, 160.0, 100.0)
+
+
 @pytest.fixture(scope="module")
 def tiny_checkpoint(truss, tmp_path_factory):
     """A `default`-architecture model trained for a few batches (mechanics, not accuracy)."""

@@ -131,7 +131,7 @@ def test_init_from_copies_matching_weights_and_adds_new_layers(data, tmp_path):
         train(TrainConfig(**{**tuned.__dict__, "init_from": str(tmp_path / "none.pt")}), progress=False)
 
 
-def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path):
+def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path, caplog):
     """`keypoints` (width 48) from a `default` (width 32) checkpoint: Net2WiderNet, not a fresh start."""
     from hybridpose.regressors.keypoint_net import widen_state_dict
     from hybridpose.regressors.train import WIDEN_NOISE
@@ -150,6 +150,9 @@ def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path):
         torch.testing.assert_close(got[k], v)
     torch.testing.assert_close(got["stem.0.weight"][:32], src["stem.0.weight"])
     assert {k for k in got if k.startswith("twin_head")} == {"twin_head.weight", "twin_head.bias"}
+    with caplog.at_level("WARNING", logger="hybridpose.regressors.train"):
+        train(TrainConfig(**{**wide.__dict__, "out": str(tmp_path / "c"), "image_size": 96}), progress=False)
+    assert "trained on 64 px crops, this run uses 96 px (--image-size 64 keeps its scale)" in caplog.text
 
 
 def test_twin_weight_scales_the_twin_cross_entropy(data, tmp_path):

@@ -488,6 +488,12 @@ def _init_from(model, path) -> None:
                                    noise=WIDEN_NOISE, seed=0)
         log.info("widened %s from width %d to %d (Net2WiderNet)", path, src["model"]["stem.0.weight"].shape[0],
                  own["stem.0.weight"].shape[0])
+    src_size = (src.get("build") or {}).get("image_size")
+    if src_size and getattr(model, "image_size", src_size) != src_size:
+        # the keypoint nets are fully convolutional, so this runs, but every feature sees a new scale
+        # (one epoch 128 → 160 px cost stage 7 2.8° mean: benchmarks/RESULTS.md)
+        log.warning("%s was trained on %d px crops, this run uses %d px (--image-size %d keeps its scale)",
+                    path, src_size, model.image_size, src_size)
     take = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
     if not take:
         raise ValueError(f"{path}: no weight matches the {type(model).__name__} being trained")

@@ -227,7 +227,10 @@ def cmd_compare(args) -> int:
     from .io import atomic_write_json
     from .regressors.evaluate import compare_reports, comparison_markdown
 
-    c = compare_reports(args.a, args.b, gross_deg=args.gross_deg)
+    if len(args.reports) % 2:
+        raise ValueError("reports: expected pairs, A B [A2 B2 ...] (model A's and model B's report on each test "
+                         f"set), got {len(args.reports)} paths")
+    c = compare_reports(args.reports[0::2], args.reports[1::2], gross_deg=args.gross_deg)
     text = comparison_markdown(c)
     if args.out:
         atomic_write_json(Path(args.out), c)
@@ -322,8 +325,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("compare", help="paired comparison of two eval reports on the same images "
                                         "(McNemar on gross errors, bootstrap on mean/median)")
-    c.add_argument("a", help="report.json (or its folder) of model A, from hybridpose eval")
-    c.add_argument("b", help="report.json (or its folder) of model B, same images")
+    c.add_argument("reports", nargs="+", metavar="A B",
+                   help="report.json (or its folder) of model A, then of model B on the same images; more "
+                        "pairs (A2 B2 …, other test sets) are pooled")
     c.add_argument("--gross-deg", type=float, default=30.0, help="rotation error that counts as gross, degrees")
     c.add_argument("--out", default=None, help="also write the comparison as JSON here")
     c.set_defaults(func=cmd_compare)

@@ -288,6 +288,14 @@ def test_compare_reports_pairs_the_views(tmp_path, capsys):
     assert main(["compare", str(a), str(b), "--out", str(tmp_path / "c.json")]) == 0
     assert "gross in A only 3, in B only 2, in both 1" in capsys.readouterr().out
     assert (tmp_path / "c.json").is_file()
+    # two test sets pooled: the counts add up, the views of both are resampled together
+    a2, b2 = _write_report(tmp_path / "a2", [1.0, 100.0, 2.0]), _write_report(tmp_path / "b2", [1.0, 1.0, 99.0])
+    pooled = compare_reports([a, a2], [b, b2])
+    assert (pooled["images"], pooled["gross_only_a"], pooled["gross_only_b"], pooled["gross_both"]) == (403, 4, 3, 1)
+    assert main(["compare", str(a), str(b), str(a2), str(b2)]) == 0
+    assert "Paired comparison on 403 images" in capsys.readouterr().out
+    assert main(["compare", str(a), str(b), str(a2)]) == 2
+    assert "reports: expected pairs" in capsys.readouterr().err
 
 
 def test_compare_reports_bad_input(tmp_path):
@@ -304,6 +312,8 @@ def test_compare_reports_bad_input(tmp_path):
         compare_reports(a, tmp_path / "bad")
     with pytest.raises(ValueError, match="gross_deg: expected a rotation error > 0 degrees"):
         compare_reports(a, a, gross_deg=0)
+    with pytest.raises(ValueError, match="expected as many reports of A as of B"):
+        compare_reports([a, a], [a])
 
 
 def test_twin_loss_scores_the_best_matching_labelling():

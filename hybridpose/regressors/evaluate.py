@@ -317,7 +317,9 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
     (the same resampled views for both) 95 % interval of B − A.
 
     Args:
-        report_a, report_b: ``report.json`` paths (or the folders holding them) from ``hybridpose eval``.
+        report_a, report_b: ``report.json`` paths (or the folders holding them) from ``hybridpose eval``,
+            or lists of them paired by position (A's and B's reports on several test sets, pooled:
+            the views of different sets are independent samples too).
         gross_deg: rotation error that counts as gross, degrees (> 0).
         resamples, seed: the bootstrap.
     Returns:
@@ -329,10 +331,21 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
 
     if not (gross_deg > 0 and np.isfinite(gross_deg)):
         raise ValueError(f"gross_deg: expected a rotation error > 0 degrees, got {gross_deg}")
-    (path_a, model_a, a), (path_b, model_b, b) = _report_rows(report_a), _report_rows(report_b)
-    if [r["image"] for r in a] != [r["image"] for r in b]:
-        raise ValueError(f"{path_a} and {path_b}: not the same images in the same order "
-                         f"({len(a)} vs {len(b)} rows); evaluate both on one dataset with the same --limit")
+    many_a = list(report_a) if isinstance(report_a, (list, tuple)) else [report_a]
+    many_b = list(report_b) if isinstance(report_b, (list, tuple)) else [report_b]
+    if len(many_a) != len(many_b) or not many_a:
+        raise ValueError(f"report_a, report_b: expected as many reports of A as of B (paired by position), "
+                         f"got {len(many_a)} and {len(many_b)}")
+    a, b, paths_a, paths_b = [], [], [], []
+    for ra, rb in zip(many_a, many_b):
+        (path_a, model_a, rows_a), (path_b, model_b, rows_b) = _report_rows(ra), _report_rows(rb)
+        if [r["image"] for r in rows_a] != [r["image"] for r in rows_b]:
+            raise ValueError(f"{path_a} and {path_b}: not the same images in the same order ({len(rows_a)} vs "
+                             f"{len(rows_b)} rows); evaluate both on one dataset with the same --limit")
+        a, b = a + rows_a, b + rows_b
+        paths_a.append(str(path_a))
+        paths_b.append(str(path_b))
+    path_a, path_b = ", ".join(paths_a), ", ".join(paths_b)
     rot_a = np.array([FAILED_ROT_DEG if r["lost"] else r["rot_deg"] for r in a], dtype=float)
     rot_b = np.array([FAILED_ROT_DEG if r["lost"] else r["rot_deg"] for r in b], dtype=float)
     gross_a, gross_b = rot_a > gross_deg, rot_b > gross_deg

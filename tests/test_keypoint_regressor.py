@@ -97,6 +97,9 @@ def test_detection_grows_from_a_glint_over_the_dim_object_but_not_over_noise():
     for frame in (img, noisy):
         x, y, w, h = detect_bright_object(frame)
         assert abs(x - 40) <= 4 and abs(y - 60) <= 4 and abs(w - 200) <= 8 and abs(h - 100) <= 8
+    for sigma in (10.0, 14.0):                   # clipped noise lifts black: the growth must not spread over it
+        x, y, w, h = detect_bright_object(np.clip(img + rng.normal(0, sigma, img.shape), 0, 255).astype(np.uint8))
+        assert x >= 30 and y >= 50 and x + w <= 250 and y + h <= 170
     lit = np.zeros_like(img)
     lit[60:160, 40:240] = 6
     lit[60:160, 40:200] = 150                    # mostly lit: a dim, shadowed end does not grow the box

@@ -39,6 +39,8 @@ FOV_TOLERANCE = 0.02
 DETECT_THRESHOLD = 12
 DETECT_DIM_THRESHOLD = 3  # grey levels, after smoothing: the dim rest of an object a glint was found on
 DETECT_GROW_RATIO = 2.0   # …used only when it makes the box this much larger (diagonal)
+DETECT_DIM_SIGMAS = 6.0   # …and only above this many σ of the smoothed sensor noise
+SMOOTH_NOISE_GAIN = 0.26  # noise σ after the 5×5 Gaussian (σ = 1.1 px): 1 / (2 √π · 1.1)
 REFINE_SEARCH_PX = 16
 REFINE_MIN_QUALITY = 0.5
 # The twin choice (see _refine). Tuned on test views 0–399, confirmed on 400–999 (benchmarks/RESULTS.md):
@@ -126,14 +128,28 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     if not len(keep):
         return None
     seeds = np.isin(labels, keep)
-    # the 5×5 smoothing keeps sensor noise (σ up to ≈ 8 grey levels) from chaining dim pixels
-    # across the background while a dim beam, a few pixels wide, stays above the threshold
-    dim = ((cv2.GaussianBlur(gray, (5, 5), 0) > DETECT_DIM_THRESHOLD) | seeds).astype(np.uint8)
+    # smoothed (5×5) and above the sensor noise, so that noise cannot chain dim pixels across the
+    # background: with noise the growth falls back to the bright box, what it was before
+    smooth = cv2.GaussianBlur(gray, (5, 5), 0)
+    # above the background (clipped noise lifts black by ≈ 0.4 σ; the median is the background while
+    # the object covers less than half the frame, and above it growing is pointless anyway)
+    dim_threshold = max(DETECT_DIM_THRESHOLD,
+                        float(np.median(smooth)) + DETECT_DIM_SIGMAS * SMOOTH_NOISE_GAIN * noise_sigma(gray))
+    dim = ((smooth > dim_threshold) | seeds).astype(np.uint8)
     _, dim_labels, dim_stats, _ = cv2.connectedComponentsWithStats(dim, connectivity=8)
     box, grown = _union_box(stats[keep]), _union_box(dim_stats[np.unique(dim_labels[seeds])])
     # only a box that grows a lot is a fragment's: growing every box over its dim, shadowed
     # pixels gave crops the network had not learnt (benchmarks/RESULTS.md, session 9)
     return grown if np.hypot(*grown[2:]) > DETECT_GROW_RATIO * np.hypot(*box[2:]) else box
+
+
+def noise_sigma(gray: np.ndarray) -> float:
+    """Standard deviation of an image's noise, grey levels (Immerkær 1996: a Laplacian-difference
+    filter cancels smooth structure; the mean absolute response scales with σ). OpenCV has no
+    noise estimator; this one is six lines and robust on mostly-black space images."""
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    response = cv2.filter2D(gray.astype(np.float32), -1, kernel)[1:-1, 1:-1]
+    return float(np.sqrt(np.pi / 2) * np.abs(response).mean() / 6.0)
 
 
 def _union_box(stats: np.ndarray) -> tuple[float, float, float, float]:

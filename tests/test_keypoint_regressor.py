@@ -145,12 +145,12 @@ def test_size_ratio_compares_the_projected_extent_with_the_box(truss, camera, rn
     uv = cv2.projectPoints(truss.keypoints, cv2.Rodrigues(pose.R)[0], pose.t, camera.K, None)[0][:, 0]
     x0, y0 = uv.min(0)
     w, h = uv.max(0) - uv.min(0)
-    assert predictor.size_ratio(pose, truss.keypoints, camera.K, (x0, y0, w, h)) == pytest.approx(1.0)
-    assert predictor.size_ratio(pose, truss.keypoints, camera.K, (x0, y0, 2 * w, 2 * h)) == pytest.approx(2.0)
+    assert predictor.size_ratio(pose, truss.keypoints, camera, (x0, y0, w, h)) == pytest.approx(1.0)
+    assert predictor.size_ratio(pose, truss.keypoints, camera, (x0, y0, 2 * w, 2 * h)) == pytest.approx(2.0)
     far = Pose(pose.R, pose.t * 4.0)                    # the PnP depth blow-up: 4× too far, ≈ 4× too small
-    assert predictor.size_ratio(far, truss.keypoints, camera.K, (x0, y0, w, h)) > predictor.SIZE_RATIO_MAX
+    assert predictor.size_ratio(far, truss.keypoints, camera, (x0, y0, w, h)) > predictor.SIZE_RATIO_MAX
     behind = Pose(pose.R, -pose.t)
-    assert predictor.size_ratio(behind, truss.keypoints, camera.K, (x0, y0, w, h)) == float("inf")
+    assert predictor.size_ratio(behind, truss.keypoints, camera, (x0, y0, w, h)) == float("inf")
 
 
 def test_regressor_refuses_a_pose_that_does_not_fit_the_box(tiny_checkpoint, truss, camera, monkeypatch):

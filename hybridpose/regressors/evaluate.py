@@ -342,12 +342,14 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
         if [r["image"] for r in rows_a] != [r["image"] for r in rows_b]:
             raise ValueError(f"{path_a} and {path_b}: not the same images in the same order ({len(rows_a)} vs "
                              f"{len(rows_b)} rows); evaluate both on one dataset with the same --limit")
-        a, b = a + rows_a, b + rows_b
+        a += rows_a
+        b += rows_b
         paths_a.append(str(path_a))
         paths_b.append(str(path_b))
     path_a, path_b = ", ".join(paths_a), ", ".join(paths_b)
-    rot_a = np.array([FAILED_ROT_DEG if r["lost"] else r["rot_deg"] for r in a], dtype=float)
-    rot_b = np.array([FAILED_ROT_DEG if r["lost"] else r["rot_deg"] for r in b], dtype=float)
+    # a failure's row already holds FAILED_ROT_DEG (evaluate_checkpoint)
+    rot_a = np.array([r["rot_deg"] for r in a], dtype=float)
+    rot_b = np.array([r["rot_deg"] for r in b], dtype=float)
     gross_a, gross_b = rot_a > gross_deg, rot_b > gross_deg
     only_a, only_b = int(np.sum(gross_a & ~gross_b)), int(np.sum(gross_b & ~gross_a))
     rng = np.random.default_rng(seed)
@@ -360,7 +362,7 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
         return {"estimate": float(estimate), "ci95": [float(lo), float(hi)]}
 
     def side(path, model, rot, gross):
-        return {"report": str(path), "model": model, "rot_mean_deg": float(rot.mean()),
+        return {"report": path, "model": model, "rot_mean_deg": float(rot.mean()),
                 "rot_median_deg": float(np.median(rot)), "gross_share": float(gross.mean())}
 
     return {

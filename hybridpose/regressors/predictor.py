@@ -86,20 +86,21 @@ def shipped_checkpoint(name: str = "default") -> Path:
     return path
 
 
-def size_ratio(pose: Pose, points_m: np.ndarray, K: np.ndarray, box) -> float:
+def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:
     """How far the image extent of ``points_m`` under ``pose`` is from ``box``'s: ≥ 1, ∞ if behind the camera.
 
     Args:
-        pose: T_cam_obj (metres). points_m: (N, 3) object points, metres. K: (3, 3) intrinsics.
-        box: (x, y, w, h) pixels, the region the object was found in (detection or caller's ``roi``).
+        pose: T_cam_obj (metres). points_m: (N, 3) object points, metres. camera: the (undistorted)
+            camera of the image. box: (x, y, w, h) pixels, the region the object was found in
+            (detection or caller's ``roi``).
     Returns:
         max(d / d_box, d_box / d) for the diagonals d of the projected points' bounding box and
         d_box of ``box``.
     """
-    p = pose @ np.asarray(points_m, dtype=float)
-    if np.any(p[:, 2] <= 1e-6):
+    try:
+        uv = camera.project(points_m, pose)
+    except ValueError:  # a point at or behind the camera plane: no pose of a visible object
         return float("inf")
-    uv = (p @ K.T)[:, :2] / p[:, 2:3]
     d = float(np.hypot(*(uv.max(0) - uv.min(0))))
     d_box = float(np.hypot(box[2], box[3]))
     if d <= 0 or d_box <= 0:
@@ -345,7 +346,7 @@ class CheckpointRegressor(PoseRegressor):
             res2, _, _, order2, prob2 = self._keypoint_pass(image, K, again)
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
                 res, order, prob = res2, order2, prob2
-        if res is None or size_ratio(res.pose, self.keypoints_m, K, seen) > SIZE_RATIO_MAX:
+        if res is None or size_ratio(res.pose, self.keypoints_m, cam, seen) > SIZE_RATIO_MAX:
             return self._lost(frame)
         cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))

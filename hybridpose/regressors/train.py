@@ -480,14 +480,13 @@ def _init_from(model, path) -> None:
         raise ValueError(f"{path}: not a hybridpose checkpoint (no 'model')")
     own = model.state_dict()
     weights = src["model"]
-    narrower = getattr(model, "kind", None) == "keypoints" and "stem.0.weight" in weights and \
-        weights["stem.0.weight"].shape[0] < own["stem.0.weight"].shape[0]
-    if narrower:   # e.g. the wider `keypoints` net from the shipped `default`: keep what it learned
-        common = [k for k in weights if k in own]   # a head only one of them has stays fresh
-        weights = widen_state_dict({k: weights[k] for k in common}, {k: own[k] for k in common},
-                                   noise=WIDEN_NOISE, seed=0)
-        log.info("widened %s from width %d to %d (Net2WiderNet)", path, src["model"]["stem.0.weight"].shape[0],
-                 own["stem.0.weight"].shape[0])
+    if getattr(model, "kind", None) == "keypoints" and "stem.0.weight" in weights:
+        width, own_width = weights["stem.0.weight"].shape[0], own["stem.0.weight"].shape[0]
+        if width < own_width:   # e.g. the wider `keypoints` net from the shipped `default`: keep what it learned
+            common = [k for k in weights if k in own]   # a head only one of them has stays fresh
+            weights = widen_state_dict({k: weights[k] for k in common}, {k: own[k] for k in common},
+                                       noise=WIDEN_NOISE, seed=0)
+            log.info("widened %s from width %d to %d (Net2WiderNet)", path, width, own_width)
     src_size = (src.get("build") or {}).get("image_size")
     if src_size and getattr(model, "image_size", src_size) != src_size:
         # the keypoint nets are fully convolutional, so this runs, but every feature sees a new scale

@@ -97,6 +97,7 @@ def test_detection_grows_from_a_glint_over_the_dim_object_but_not_over_noise():
     for frame in (img, noisy):
         x, y, w, h = detect_bright_object(frame)
         assert abs(x - 40) <= 4 and abs(y - 60) <= 4 and abs(w - 200) <= 8 and abs(h - 100) <= 8
+    assert detect_bright_object(img, grow=False) == (200.0, 100.0, 20.0, 10.0)   # the glint alone
     for sigma in (10.0, 14.0):                   # clipped noise lifts black: the growth must not spread over it
         x, y, w, h = detect_bright_object(np.clip(img + rng.normal(0, sigma, img.shape), 0, 255).astype(np.uint8))
         assert x >= 30 and y >= 50 and x + w <= 250 and y + h <= 170

@@ -31,12 +31,14 @@ from hybridpose.trackers.edges import fit_edges, to_gray
 
 TAUS = (0.5, 0.7, 0.8, 0.9, 0.95)
 WEIGHTS = (2.0, 4.0, 8.0, 16.0)
+VERIFIER_WEIGHTS = (0.5, 1.0, 2.0, 4.0)
 
 
-def measure(reg: CheckpointRegressor, data, limit=None) -> dict:
-    """Per view (arrays over views × twins): head probability, CNN error, fit quality, fit error (°)."""
+def measure(reg: CheckpointRegressor, data, limit=None, verifier=None) -> dict:
+    """Per view (arrays over views × twins): head probability, CNN error, fit quality, fit error (°)
+    and, with a ``verifier`` (:class:`TwinVerifier`), its probability of each twin."""
     S = [Pose.identity(), *reg.twins]
-    prob, cnn_err, fit_q, fit_err = [], [], [], []
+    prob, cnn_err, fit_q, fit_err, ver = [], [], [], [], []
     items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids][:limit]
     with torch.no_grad():
         for scene, im_id in items:
@@ -51,6 +53,7 @@ def measure(reg: CheckpointRegressor, data, limit=None) -> dict:
                 cnn_err.append(np.full(len(S), 180.0))
                 fit_q.append(np.zeros(len(S)))
                 fit_err.append(np.full(len(S), 180.0))
+                ver.append(np.full(len(S), 1.0 / len(S)))
                 continue
             keypoints_pose = res.pose @ S[order[0]]  # undo the head's twin
             twins = [keypoints_pose @ s for s in S]
@@ -60,8 +63,12 @@ def measure(reg: CheckpointRegressor, data, limit=None) -> dict:
             cnn_err.append([rotation_error_deg(t, gt.pose) for t in twins])
             fit_q.append([f.quality if f else 0.0 for f in fits])
             fit_err.append([rotation_error_deg(f.pose, gt.pose) if f else 180.0 for f in fits])
-    return {k: np.array(v, dtype=float) for k, v in
-            {"prob": prob, "cnn_err": cnn_err, "fit_q": fit_q, "fit_err": fit_err}.items()}
+            if verifier is not None:  # the strip along the head's choice, as in the predictor
+                ver.append(verifier.probabilities(frame.image, gt.camera.K, twins, strip_pose=twins[order[0]]))
+    m = {"prob": prob, "cnn_err": cnn_err, "fit_q": fit_q, "fit_err": fit_err}
+    if verifier is not None:
+        m["ver"] = ver
+    return {k: np.array(v, dtype=float) for k, v in m.items()}
 
 
 def final_error(m: dict, pick: np.ndarray) -> np.ndarray:
@@ -95,7 +102,24 @@ def rules(m: dict) -> dict:
         for a in WEIGHTS:
             pick, fits = gated(m, tau, a)
             out[f"gated tau={tau} a={a:g}"] = summary(final_error(m, pick), fits)
+    if "ver" in m:
+        out["verifier alone"] = summary(final_error(m, m["ver"].argmax(1)), 0.0)
+        for b in VERIFIER_WEIGHTS:
+            score = np.log(m["prob"] + 1e-6) + b * np.log(m["ver"] + 1e-6)
+            out[f"head x verifier b={b:g}"] = summary(final_error(m, score.argmax(1)), 1.0)
+            for a in (0.0, TWIN_EDGE_WEIGHT):
+                pick, fits = gated_verified(m, TWIN_SURE, a, b)
+                out[f"gated tau={TWIN_SURE} a={a:g} + verifier b={b:g}"] = summary(final_error(m, pick), fits)
     return out
+
+
+def gated_verified(m: dict, tau: float, a: float, b: float) -> tuple[np.ndarray, float]:
+    """The gated rule with the verifier's belief added where the head is unsure:
+    ``log p + a · log quality + b · log p_verifier``."""
+    head = m["prob"].argmax(1)
+    score = twin_scores(m["prob"], m["fit_q"], edge_weight=a, verifier_prob=m["ver"], verifier_weight=b)
+    sure = m["prob"].max(1) >= tau
+    return np.where(sure, head, score.argmax(1)), float(np.mean(np.where(sure, 1, m["prob"].shape[1])))
 
 
 def split(m: dict, rows: slice) -> dict:
@@ -106,12 +130,18 @@ def main() -> None:
     ap = tune_confirm_parser("(tau, a)")
     ap.add_argument("--save", help="also write the per-view measurements to this .npz")
     ap.add_argument("--load", help="replay the rules on measurements saved with --save (no inference)")
+    ap.add_argument("--verifier", help="also score the twins with this twin-verifier checkpoint (train-verifier)")
     args = ap.parse_args()
     reg = CheckpointRegressor(args.checkpoint)
     if args.load:
         m = dict(np.load(args.load))
     else:
-        m = measure(reg, args.data, args.limit)
+        verifier = None
+        if args.verifier:
+            from hybridpose.regressors.twin_verifier import TwinVerifier
+
+            verifier = TwinVerifier(args.verifier, reg.twin_check.view.object)
+        m = measure(reg, args.data, args.limit, verifier)
         if args.save:
             np.savez(args.save, **m)
     tune, confirm = rules(split(m, slice(0, args.tune))), rules(split(m, slice(args.tune, None)))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 from pathlib import Path
@@ -253,6 +254,22 @@ def cmd_train(args) -> int:
     return run(args)
 
 
+def cmd_train_verifier(args) -> int:
+    from .datasets.bop import dataset_object
+    from .regressors.train_verifier import build_pairs, train_verifier
+
+    if args.epochs < 1:  # before minutes of cutting pairs
+        raise ValueError(f"--epochs: expected at least 1, got {args.epochs}")
+    obj = dataset_object(args.data[0], args.object)
+    pairs = build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers)
+    best = train_verifier(pairs, args.out, obj, epochs=args.epochs, batch=args.batch, lr=args.lr, width=args.width,
+                          seed=args.seed, resume=args.resume)
+    hist = json.loads((Path(args.out) / "history.json").read_text())
+    print(f"train-verifier: {len(hist)} epochs, best validation accuracy {max(h['val_acc'] for h in hist):.4f} "
+          f"→ {best}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import registry
     from .render.lighting import BACKGROUNDS
@@ -310,6 +327,20 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("train", help="train a CNN pose regressor on a rendered dataset (checkpoints, --resume)")
     add_train_arguments(t)
     t.set_defaults(func=cmd_train)
+
+    tv = sub.add_parser("train-verifier", help="train the twin verifier (image vs a drawing of each box twin) "
+                                                "that checks the keypoint regressor's end-for-end choice")
+    tv.add_argument("--data", nargs="+", required=True, help="rendered datasets (labels.csv, camera.json)")
+    tv.add_argument("--out", required=True, help="run folder: pairs/ (cut once, resumable), best.pt, last.pt")
+    tv.add_argument("--object", default=None, help="object name or mesh in metres (default: the first dataset's)")
+    tv.add_argument("--epochs", type=int, default=4)
+    tv.add_argument("--batch", type=int, default=64, help="views per step (each with its 4 candidates)")
+    tv.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (warm-up, then cosine)")
+    tv.add_argument("--width", type=int, default=32, help="network width (channels of the first full block)")
+    tv.add_argument("--seed", type=int, default=0)
+    tv.add_argument("--workers", type=int, default=1, help="processes that cut the pairs (the result does not depend on it)")
+    tv.add_argument("--resume", action="store_true", help="continue from out/last.pt")
+    tv.set_defaults(func=cmd_train_verifier)
 
     e = sub.add_parser("eval", help="evaluate a trained regressor: paper table, SPEED, ADD-0.1d, plots, Grad-CAM, ms/img")
     e.add_argument("--checkpoint", required=True, help="best.pt of a training run")

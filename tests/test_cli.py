@@ -64,3 +64,16 @@ def test_user_mesh_in_mm_renders_and_verifies_from_the_dataset_model(tmp_path, t
                  "--count", "3", "--size", "160x120", "--out", str(ds)]) == 0
     assert main(["verify", str(ds), "--out", str(tmp_path / "v.png")]) == 0  # reads models/obj_000001.ply (mm)
     assert "IoU mean 0.9" in capsys.readouterr().out
+
+
+def test_train_verifier_runs_as_typed(tmp_path, capsys):
+    data = tmp_path / "views"
+    assert main(["render", "--object", "truss", "--kind", "random", "--count", "6", "--size", "160x120", "--seed", "2",
+                 "--in-view", "--out", str(data)]) == 0
+    out = tmp_path / "tv"
+    args = ["train-verifier", "--data", str(data), "--out", str(out), "--epochs", "1", "--width", "8", "--batch", "2"]
+    assert main(args) == 0
+    assert "best validation accuracy" in capsys.readouterr().out
+    assert (out / "best.pt").is_file() and (out / "pairs" / "meta.json").is_file()
+    assert main(args[:5] + ["--epochs", "0"]) == 2
+    assert "--epochs: expected at least 1" in capsys.readouterr().err

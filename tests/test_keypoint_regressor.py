@@ -449,3 +449,54 @@ def test_widen_state_dict_bad_input(truss):
         widen_state_dict(narrow, no_head)
     with pytest.raises(ValueError, match="noise: expected a finite fraction ≥ 0, got nan"):
         widen_state_dict(narrow, narrow, noise=float("nan"))
+
+
+def _verifier_checkpoint(path, obj):
+    from hybridpose.regressors.twin_verifier import CHECKPOINT_FORMAT, TwinVerifierNet
+
+    torch.save({"format": CHECKPOINT_FORMAT, "width": 8, "model": TwinVerifierNet(8).state_dict(),
+                "object": obj.name, "diameter_m": float(obj.diameter)}, path)
+    return path
+
+
+def test_twin_scores_add_the_verifier_belief():
+    base = twin_scores([0.6, 0.4], [0.9, 0.9])
+    score = twin_scores([0.6, 0.4], [0.9, 0.9], verifier_prob=[0.1, 0.9], verifier_weight=2.0)
+    np.testing.assert_allclose(score - base, [2 * np.log(0.100001), 2 * np.log(0.900001)])
+    assert base.argmax() == 0 and score.argmax() == 1
+    with pytest.raises(ValueError, match="verifier_prob"):
+        twin_scores([0.6, 0.4], [0.9, 0.9], verifier_prob=[1.0])
+
+
+def test_regressor_asks_the_verifier_only_where_the_head_is_unsure(tiny_checkpoint, truss, camera, tmp_path):
+    from hybridpose.regressors.predictor import TWIN_SURE
+    from hybridpose.render import Renderer
+
+    assert CheckpointRegressor(tiny_checkpoint, verifier=None).verifier is None
+    with pytest.raises(FileNotFoundError, match="twin verifier"):
+        CheckpointRegressor(tiny_checkpoint, verifier=tmp_path / "missing.pt")
+    reg = CheckpointRegressor(tiny_checkpoint, verifier=_verifier_checkpoint(tmp_path / "tv.pt", truss))
+    assert reg.verifier is not None
+    pose = Pose.from_rotvec_t([0.4, 0.3, 0.2], [0.0, 0.0, 0.7])
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(pose).rgb, camera, 0.0)
+    calls = []
+    real = reg.verifier.probabilities
+
+    def spy(image, K, candidates, strip_pose=None):
+        calls.append(candidates)
+        return real(image, K, candidates, strip_pose)
+
+    reg.verifier.probabilities = spy
+    reg._refine(frame, pose, [0, 1, 2, 3], np.array([TWIN_SURE + 0.1, 0.05, 0.03, 0.02]))
+    assert not calls, "a sure head decides alone"
+    reg._refine(frame, pose, [0, 1, 2, 3], np.array([0.4, 0.3, 0.2, 0.1]))
+    assert len(calls) == 1 and len(calls[0]) == 4
+    assert rotation_error_deg(calls[0][0], pose) < 1e-6  # the head's choice first: the strip follows it
+    # a verifier for another object is refused by name
+    other = _verifier_checkpoint(tmp_path / "other.pt", truss)
+    ck = torch.load(other, weights_only=True)
+    ck["diameter_m"] = 2.0
+    torch.save(ck, other)
+    with pytest.raises(ValueError, match="not on 'truss'"):
+        CheckpointRegressor(tiny_checkpoint, verifier=other)

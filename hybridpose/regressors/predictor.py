@@ -50,6 +50,7 @@ REFINE_MIN_QUALITY = 0.5
 # (20 % vs 9 % of views > 30°): wrong-twin fits lock onto the truss's symmetric chords.
 TWIN_SURE = 0.8
 TWIN_EDGE_WEIGHT = 8.0
+VERIFIER_WEIGHT = 1.0
 # passes="auto": the second, re-centred network pass only where the first pass's twin head is below
 # this (≈ 15 % of views): it buys most of what two passes always would (benchmarks/second_pass.py)
 # for ≈ 1 ms on average instead of 7.
@@ -61,19 +62,28 @@ SIZE_RATIO_MAX = 3.0
 PASSES = (1, 2, "auto")
 
 
-def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT) -> np.ndarray:
-    """The twin choice's score ``log p + edge_weight · log quality`` (the higher, the likelier).
+def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
+                verifier_weight: float = VERIFIER_WEIGHT) -> np.ndarray:
+    """The twin choice's score ``log p + edge_weight · log quality [+ verifier_weight · log p_verifier]``
+    (the higher, the likelier).
 
     ``prob``: the twin head's probabilities, ``quality``: the edge fits' quality in [0, 1] (0 where a
-    fit failed); same shape, (..., n_twins), any leading batch shape. The benchmark that tunes the
-    rule calls this too, so the two cannot drift apart.
+    fit failed), ``verifier_prob``: the twin verifier's probabilities (None: not used); same shape,
+    (..., n_twins), any leading batch shape. The benchmark that tunes the rule calls this too, so the
+    two cannot drift apart.
     """
     prob = np.asarray(prob, dtype=float)
     quality = np.asarray(quality, dtype=float)
     if prob.shape != quality.shape:
         raise ValueError(f"prob and quality: expected the same shape (..., n_twins), got {prob.shape} and "
                          f"{quality.shape}")
-    return np.log(prob + 1e-6) + edge_weight * np.log(quality + 1e-3)
+    score = np.log(prob + 1e-6) + edge_weight * np.log(quality + 1e-3)
+    if verifier_prob is not None:
+        verifier_prob = np.asarray(verifier_prob, dtype=float)
+        if verifier_prob.shape != prob.shape:
+            raise ValueError(f"verifier_prob: expected the shape of prob {prob.shape}, got {verifier_prob.shape}")
+        score = score + verifier_weight * np.log(verifier_prob + 1e-6)
+    return score
 
 
 def shipped_checkpoint(name: str = "default") -> Path:
@@ -201,11 +211,16 @@ class CheckpointRegressor(PoseRegressor):
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
             one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
             the edge fit always run on the CPU.
+        verifier: keypoint models with a twin head and ``check_twins`` — a twin-verifier checkpoint
+            (``hybridpose train-verifier``, :mod:`hybridpose.regressors.twin_verifier`) whose belief
+            joins the twin choice where the head is unsure (``log p + TWIN_EDGE_WEIGHT · log quality
+            + VERIFIER_WEIGHT · log p_verifier``); ``"auto"`` (default): the one shipped in the
+            package when it was trained on this object; None: none.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
-                 device="cpu") -> None:
+                 device="cpu", verifier="auto") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -252,11 +267,29 @@ class CheckpointRegressor(PoseRegressor):
 
                 self.twin_check = TwinCheck(obj)
         self.check_twins = bool(check_twins)
+        self.verifier = self._load_verifier(verifier)
         if isinstance(passes, str) and passes.isdigit():
             passes = int(passes)
         if passes not in PASSES or isinstance(passes, bool):
             raise ValueError(f"passes: expected 1 or 2 network passes, or 'auto', got {passes!r}")
         self.passes = passes
+
+    def _load_verifier(self, verifier):
+        if verifier is None or verifier is False or self.twin_check is None or not self.has_twin_head:
+            return None
+        from .twin_verifier import TwinVerifier
+
+        obj = self.twin_check.view.object
+        if isinstance(verifier, str) and verifier == "auto":
+            path = WEIGHTS_DIR / "twin_verifier.pt"
+            if not path.is_file():
+                return None
+            try:
+                return TwinVerifier(path, obj)
+            except ValueError as exc:  # the shipped one is for the built-in truss
+                log.info("shipped twin verifier not used: %s", exc)
+                return None
+        return TwinVerifier(verifier, obj)
 
     # --- checks ----------------------------------------------------------------------------------
     def _check_object(self, obj) -> None:
@@ -396,7 +429,11 @@ class CheckpointRegressor(PoseRegressor):
                 starts = starts[:1]
         fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]
         if prob is not None:
-            score = twin_scores([prob[k] for k in order[:len(fits)]], [f.quality if f else 0.0 for f in fits])
+            # the verifier's strip is cut along the head's choice, as in its training (any twin gives it)
+            ver = (self.verifier.probabilities(frame.image, frame.camera.K, starts)
+                   if self.verifier is not None and len(starts) > 1 else None)
+            score = twin_scores([prob[k] for k in order[:len(fits)]], [f.quality if f else 0.0 for f in fits],
+                                verifier_prob=ver)
             best = int(np.argmax(score))
         else:
             ranked = [(f.samples * f.quality, i) for i, f in enumerate(fits) if f]

@@ -1,0 +1,262 @@
+"""Training of the twin verifier (:mod:`hybridpose.regressors.twin_verifier`).
+
+``hybridpose train-verifier --data DIR [DIR ...] --out runs/twinver`` (1) cuts, once, the image
+strip and the four candidate drawings of every labelled view into ``out/pairs/chunk_NNNNN.npz``
+(atomic, one file per ``CHUNK`` views, resumable: existing chunks are kept) and (2) trains
+:class:`TwinVerifierNet` on them with a softmax over each view's four candidates, checkpointing
+every epoch atomically (``last.pt``, ``--resume``) and keeping the best validation accuracy
+(``best.pt``, the file :class:`TwinVerifier` loads).
+
+The candidates are the ground-truth pose perturbed by one draw of the pose noise a regressor makes
+(``ROT_NOISE_DEG``, ``TRANS_NOISE``) and its three box twins, with that same error: at inference the
+twins are generated from the one estimated pose. Their order is shuffled; the label is the place of
+the true one.
+"""
+from __future__ import annotations
+
+import io
+import json
+import logging
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from ..datasets.labels import read_labels
+from ..geometry import Pose, load_camera
+from ..io import atomic_write_bytes, atomic_write_json
+from .twin_verifier import CHECKPOINT_FORMAT, HypothesisRenderer, TwinVerifierNet, verifier_inputs
+from .verify import box_half_turns
+
+log = logging.getLogger(__name__)
+
+CHUNK = 2000
+ROT_NOISE_DEG = 2.0      # σ of the candidates' shared rotation error (regressor medians 0.5°, tails a few °)
+ROT_NOISE_WIDE_DEG = 8.0  # …drawn instead for WIDE_SHARE of the views
+WIDE_SHARE = 0.1
+TRANS_NOISE = (0.004, 0.004, 0.02)  # σ of the translation error as a fraction of the distance (x, y, depth)
+
+
+def noisy_pose(pose: Pose, rng: np.random.Generator) -> Pose:
+    """``pose`` with a random rotation error (about a random axis through the object origin, angle
+    ~ |N(0, σ)| with σ ``ROT_NOISE_DEG``, or ``ROT_NOISE_WIDE_DEG`` for ``WIDE_SHARE`` of the draws)
+    and a translation error proportional to the distance."""
+    sigma = ROT_NOISE_WIDE_DEG if rng.random() < WIDE_SHARE else ROT_NOISE_DEG
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    dR = Rotation.from_rotvec(np.radians(abs(rng.normal(0, sigma))) * axis).as_matrix()
+    z = float(pose.t[2])
+    t = pose.t + rng.normal(0, 1, 3) * np.asarray(TRANS_NOISE) * z
+    return Pose(pose.R @ dR, t)
+
+
+def _label_sets(dirs) -> list[tuple[Path, list, object]]:
+    out = []
+    for d in dirs:
+        d = Path(d)
+        if not (d / "labels.csv").is_file():
+            raise FileNotFoundError(f"data: {d} has no labels.csv (render one with `hybridpose render`)")
+        labels = read_labels(d / "labels.csv")
+        if not labels:
+            raise ValueError(f"data: {d}/labels.csv lists no images")
+        out.append((d, labels, load_camera(d / "camera.json")))
+    return out
+
+
+def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progress: bool = True,
+                workers: int = 1, chunk: int = CHUNK) -> Path:
+    """Cut strips and drawings of every view in the datasets ``dirs`` into ``out/pairs`` (see module doc).
+
+    Chunks already there are kept (a killed run resumes); each is written atomically. Chunk ``c``'s
+    noise comes from the seed ``(seed, c)``, so the pairs do not depend on ``workers`` (processes).
+    Returns the pairs directory. ``limit``: at most this many views (tests); ``chunk``: views per file.
+    """
+    if chunk < 1 or workers < 1:
+        raise ValueError(f"chunk, workers: expected positive counts, got {chunk}, {workers}")
+    pairs = Path(out) / "pairs"
+    pairs.mkdir(parents=True, exist_ok=True)
+    n_views = sum(len(labels) for _, labels, _ in _label_sets(dirs))
+    if limit is not None:
+        n_views = min(n_views, limit)
+    n_chunks = (n_views + chunk - 1) // chunk
+    todo = [c for c in range(n_chunks) if not (pairs / f"chunk_{c:05d}.npz").is_file()]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_chunks, initial=n_chunks - len(todo), desc="twin-verifier pairs", unit="chunk")
+    jobs = [([str(d) for d in dirs], pairs, obj, seed, c, n_views, chunk) for c in todo]
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(min(workers, len(jobs))) as pool:
+            for _ in pool.imap_unordered(_build_chunk, jobs):
+                if bar is not None:
+                    bar.update(1)
+    else:
+        for job in jobs:
+            _build_chunk(job)
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    atomic_write_json(pairs / "meta.json", {"views": n_views, "chunks": n_chunks, "chunk": chunk, "seed": seed,
+                                            "data": [str(d) for d in dirs], "object": obj.name})
+    return pairs
+
+
+def _build_chunk(job) -> None:
+    dirs, pairs, obj, seed, c, n_views, chunk = job
+    cv2.setNumThreads(1)
+    views = [(d, lab, cam) for d, labels, cam in _label_sets(dirs) for lab in labels][:n_views]
+    renderer, twins = HypothesisRenderer(obj), [Pose.identity(), *box_half_turns(obj)]
+    rng = np.random.default_rng([seed, c])
+    strips, drawings, labels = [], [], []
+    for d, lab, cam in views[c * chunk:(c + 1) * chunk]:
+        gray = cv2.imread(str(d / lab.image), cv2.IMREAD_GRAYSCALE)
+        if gray is None:
+            raise FileNotFoundError(f"data: cannot read image {d / lab.image}")
+        estimate = noisy_pose(lab.pose, rng)
+        order = rng.permutation(len(twins))
+        cands = [estimate @ twins[k] for k in order]
+        strip, drawn = verifier_inputs(gray, cam.K, cands, obj, renderer,
+                                       strip_pose=cands[int(rng.integers(len(cands)))])
+        strips.append(strip)
+        drawings.append(drawn)
+        labels.append(int(np.flatnonzero(order == 0)[0]))
+    buf = io.BytesIO()
+    np.savez(buf, strips=np.stack(strips), drawings=np.stack(drawings), labels=np.array(labels, np.int64))
+    atomic_write_bytes(pairs / f"chunk_{c:05d}.npz", buf.getvalue())
+
+
+def load_pairs(pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(strips (N, H, W), drawings (N, C, H, W), labels (N,)) of one pairs directory or a list of them."""
+    dirs = [pairs] if isinstance(pairs, (str, Path)) else list(pairs)
+    files = []
+    for d in dirs:
+        found = sorted(Path(d).glob("chunk_*.npz"))
+        if not found:
+            raise FileNotFoundError(f"pairs: no chunk_*.npz in {d}")
+        files += found
+    parts = [np.load(f) for f in files]
+    return tuple(np.concatenate([p[k] for p in parts]) for k in ("strips", "drawings", "labels"))
+
+
+def _augment(x: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """Space-imagery photometrics on the image channel (gain, gamma, noise) and a half-turn of the
+    whole pair (a valid view of the object: an in-plane rotation of the camera)."""
+    b = x.shape[0]
+    img = x[:, :, 0]
+    gain = 0.6 + 0.8 * torch.rand(b, 1, 1, 1, generator=gen)
+    gamma = torch.exp((torch.rand(b, 1, 1, 1, generator=gen) - 0.5) * 0.6)
+    noise = torch.randn(img.shape, generator=gen) * (torch.rand(b, 1, 1, 1, generator=gen) * 0.02)
+    x = x.clone()
+    x[:, :, 0] = ((img * gain).clamp(0, 1) ** gamma + noise).clamp(0, 1)
+    turn = torch.rand(b, generator=gen) < 0.5
+    x[turn] = x[turn].flip(-1, -2)
+    return x
+
+
+def _batch(strips, drawings, idx) -> torch.Tensor:
+    s = torch.from_numpy(strips[idx]).float().div_(255.0)               # (B, H, W)
+    d = torch.from_numpy(drawings[idx]).float().div_(255.0)             # (B, C, H, W)
+    return torch.stack([s[:, None].expand_as(d), d], 2)                 # (B, C, 2, H, W)
+
+
+def train_verifier(pairs, out, obj, epochs: int = 4, batch: int = 64, lr: float = 2e-3, width: int = 32,
+                   val_fraction: float = 0.05, seed: int = 0, resume: bool = False, progress: bool = True) -> Path:
+    """Train on ``pairs`` (from :func:`build_pairs`); writes ``out/last.pt`` every epoch, ``out/best.pt``
+    at the best validation accuracy and ``out/history.json``. Returns the path of ``best.pt``."""
+    if epochs < 1 or batch < 1 or lr <= 0 or width < 2:
+        raise ValueError(f"epochs, batch, lr, width: expected ≥ 1, ≥ 1, > 0, ≥ 2, got {epochs}, {batch}, {lr}, {width}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    strips, drawings, labels = load_pairs(pairs)
+    n = len(labels)
+    if n < 2:
+        raise ValueError(f"pairs: need at least 2 views, {pairs} has {n}")
+    torch.manual_seed(seed)
+    perm = np.random.default_rng(seed).permutation(n)
+    n_val = max(1, int(round(val_fraction * n)))
+    val, train = np.sort(perm[:n_val]), perm[n_val:]
+    net = TwinVerifierNet(width)
+    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
+    steps_per_epoch = max(1, len(train) // batch)
+    history, start, best_acc = [], 0, -1.0
+    if resume and (out / "last.pt").is_file():
+        ck = torch.load(out / "last.pt", map_location="cpu", weights_only=False)
+        net.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        history, start, best_acc = ck["history"], ck["epoch"] + 1, ck["best_acc"]
+        log.info("resumed %s at epoch %d", out / "last.pt", start)
+    gen = torch.Generator().manual_seed(seed)
+    y_all = torch.from_numpy(labels)
+    for epoch in range(start, epochs):
+        net.train()
+        order = np.random.default_rng([seed, epoch]).permutation(train)
+        t0, total = time.perf_counter(), 0.0
+        steps = range(steps_per_epoch)
+        if progress:
+            from tqdm import tqdm
+
+            steps = tqdm(steps, desc=f"twin verifier epoch {epoch + 1}/{epochs}", unit="step")
+        for s in steps:
+            idx = order[s * batch:(s + 1) * batch]
+            x = _augment(_batch(strips, drawings, idx), gen)
+            for group in opt.param_groups:
+                group["lr"] = schedule_lr(lr, epoch * steps_per_epoch + s, epochs * steps_per_epoch)
+            loss = torch.nn.functional.cross_entropy(net(x), y_all[idx])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach())
+        acc, val_loss = evaluate_pairs(net, strips, drawings, labels, val)
+        row = {"epoch": epoch, "train_loss": total / steps_per_epoch, "val_loss": val_loss, "val_acc": acc,
+               "seconds": time.perf_counter() - t0}
+        history.append(row)
+        log.info("twin verifier %s", row)
+        payload = {"format": CHECKPOINT_FORMAT, "model": net.state_dict(), "width": width, "object": obj.name,
+                   "diameter_m": float(obj.diameter), "history": history, "pairs": str(pairs)}
+        if acc > best_acc:
+            best_acc = acc
+            _save(out / "best.pt", payload)
+        _save(out / "last.pt", {**payload, "optimizer": opt.state_dict(), "epoch": epoch, "best_acc": best_acc})
+        atomic_write_json(out / "history.json", history)
+    return out / "best.pt"
+
+
+def schedule_lr(peak: float, step: int, total: int, warmup: float = 0.1) -> float:
+    """Linear warm-up over the first ``warmup`` of ``total`` steps, then a cosine to 0. A function of
+    the step (no scheduler state), so a run resumed with more ``--epochs`` follows the longer schedule."""
+    w = max(1, int(warmup * total))
+    if step < w:
+        return peak * (step + 1) / w
+    return 0.5 * peak * (1 + np.cos(np.pi * min(1.0, (step - w) / max(1, total - w))))
+
+
+@torch.no_grad()
+def evaluate_pairs(net, strips, drawings, labels, idx, batch: int = 256) -> tuple[float, float]:
+    """(accuracy, mean cross-entropy) of ``net`` on the views ``idx``."""
+    net.eval()
+    right, loss = 0, 0.0
+    for s in range(0, len(idx), batch):
+        j = idx[s:s + batch]
+        logits = net(_batch(strips, drawings, j))
+        y = torch.from_numpy(labels[j])
+        right += int((logits.argmax(1) == y).sum())
+        loss += float(torch.nn.functional.cross_entropy(logits, y, reduction="sum"))
+    return right / len(idx), loss / len(idx)
+
+
+def _save(path: Path, payload: dict) -> None:
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def main_summary(out) -> str:
+    hist = json.loads((Path(out) / "history.json").read_text())
+    return "\n".join(f"epoch {h['epoch'] + 1}: val acc {h['val_acc']:.4f}, loss {h['val_loss']:.4f}" for h in hist)

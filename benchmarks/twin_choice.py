@@ -1,7 +1,7 @@
 """How the shipped keypoint regressor should choose among the truss's box twins (end-for-end turns).
 
 Usage:
-    python benchmarks/twin_choice.py --data data/truss_test [--checkpoint PATH] [--tune 400]
+    python benchmarks/twin_choice.py --data data/truss_test [--checkpoint PATH] [--tune 400] [--verifier PATH]
 
 For every held-out view: the twin head's probabilities, the rotation error of each twin of the PnP
 pose, and the edge fit (:func:`hybridpose.trackers.edges.fit_edges`) from each twin. Then the
@@ -9,7 +9,9 @@ choice rules are replayed on those numbers: the head alone, the edges alone, and
 ``CheckpointRegressor._refine`` (head alone when p ≥ ``tau``; else the twin with the best
 ``log p + a · log quality``) on a grid of (tau, a). The grid is scored on the first ``--tune`` views
 and the shipped constants (``TWIN_SURE``, ``TWIN_EDGE_WEIGHT``) are then reported on the remaining
-views, which took no part in choosing them. A fit of quality < ``REFINE_MIN_QUALITY`` is not used,
+views, which took no part in choosing them. With ``--verifier`` (a ``hybridpose train-verifier``
+checkpoint) its belief in each twin is measured too and the rules that add ``b · log p_verifier``
+are replayed. A fit of quality < ``REFINE_MIN_QUALITY`` is not used,
 as in the predictor (the twin's unrefined pose counts instead). Writes
 ``results/twin_choice.json`` and the "twin-choice" section of RESULTS.md.
 """
@@ -38,7 +40,7 @@ def measure(reg: CheckpointRegressor, data, limit=None, verifier=None) -> dict:
     """Per view (arrays over views × twins): head probability, CNN error, fit quality, fit error (°)
     and, with a ``verifier`` (:class:`TwinVerifier`), its probability of each twin."""
     S = [Pose.identity(), *reg.twins]
-    prob, cnn_err, fit_q, fit_err, ver = [], [], [], [], []
+    prob, cnn_err, fit_q, fit_err, ver, ver_fit = [], [], [], [], [], []
     items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids][:limit]
     with torch.no_grad():
         for scene, im_id in items:
@@ -54,6 +56,7 @@ def measure(reg: CheckpointRegressor, data, limit=None, verifier=None) -> dict:
                 fit_q.append(np.zeros(len(S)))
                 fit_err.append(np.full(len(S), 180.0))
                 ver.append(np.full(len(S), 1.0 / len(S)))
+                ver_fit.append(np.full(len(S), 1.0 / len(S)))
                 continue
             keypoints_pose = res.pose @ S[order[0]]  # undo the head's twin
             twins = [keypoints_pose @ s for s in S]
@@ -65,9 +68,11 @@ def measure(reg: CheckpointRegressor, data, limit=None, verifier=None) -> dict:
             fit_err.append([rotation_error_deg(f.pose, gt.pose) if f else 180.0 for f in fits])
             if verifier is not None:  # the strip along the head's choice, as in the predictor
                 ver.append(verifier.probabilities(frame.image, gt.camera.K, twins, strip_pose=twins[order[0]]))
+                fitted = [f.pose if f and f.quality >= REFINE_MIN_QUALITY else t for f, t in zip(fits, twins)]
+                ver_fit.append(verifier.probabilities(frame.image, gt.camera.K, fitted, strip_pose=fitted[order[0]]))
     m = {"prob": prob, "cnn_err": cnn_err, "fit_q": fit_q, "fit_err": fit_err}
     if verifier is not None:
-        m["ver"] = ver
+        m["ver"], m["ver_fit"] = ver, ver_fit
     return {k: np.array(v, dtype=float) for k, v in m.items()}
 
 
@@ -104,6 +109,7 @@ def rules(m: dict) -> dict:
             out[f"gated tau={tau} a={a:g}"] = summary(final_error(m, pick), fits)
     if "ver" in m:
         out["verifier alone"] = summary(final_error(m, m["ver"].argmax(1)), 0.0)
+        out["verifier alone, on the edge-fitted twins"] = summary(final_error(m, m["ver_fit"].argmax(1)), 4.0)
         for b in VERIFIER_WEIGHTS:
             score = np.log(m["prob"] + 1e-6) + b * np.log(m["ver"] + 1e-6)
             out[f"head x verifier b={b:g}"] = summary(final_error(m, score.argmax(1)), 1.0)

@@ -215,7 +215,7 @@ def cmd_eval(args) -> int:
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             refine_edges=not args.no_refine, passes=args.passes,
-                            device=args.device)
+                            device=args.device, verifier=None if args.verifier == "none" else args.verifier)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -352,6 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keypoint models: network passes (2 = again on the crop re-centred on the first pose; "
                         "auto, the default: the second only where the first one's twin head is unsure)")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
+    e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
+                                                      "'auto' (the shipped one, if any) or 'none'")
     e.set_defaults(func=cmd_eval)
 
     c = sub.add_parser("compare", help="paired comparison of two eval reports on the same images "

@@ -40,17 +40,18 @@ QUALITY_GATES = (0.0, 0.2, 0.3, 0.4, 0.5)
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 30,
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
-                        device="cpu") -> dict:
+                        device="cpu", verifier="auto") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
     ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in
     rotation (failures included): for a near-symmetric object, mostly the object turned end for end.
     ``device`` is where the network runs (``"cuda"`` for the VGG models on a GPU machine); the
-    ms/image timings are then those of that device with 1 and 2 CPU threads beside it.
+    ms/image timings are then those of that device with 1 and 2 CPU threads beside it. ``verifier``:
+    the twin verifier (:class:`CheckpointRegressor`'s argument: ``"auto"``, a path or None).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device)
+    reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier)
     scenes = [BopScene(p) for p in find_scenes(data)]
     items = [(s, i) for s in scenes for i in s.image_ids]
     if not items:

@@ -469,7 +469,7 @@ def test_twin_scores_add_the_verifier_belief():
 
 
 def test_regressor_asks_the_verifier_only_where_the_head_is_unsure(tiny_checkpoint, truss, camera, tmp_path):
-    from hybridpose.regressors.predictor import TWIN_SURE
+    from hybridpose.regressors.predictor import VERIFIER_SURE
     from hybridpose.render import Renderer
 
     assert CheckpointRegressor(tiny_checkpoint, verifier=None).verifier is None
@@ -488,8 +488,11 @@ def test_regressor_asks_the_verifier_only_where_the_head_is_unsure(tiny_checkpoi
         return real(image, K, candidates, strip_pose)
 
     reg.verifier.probabilities = spy
-    reg._refine(frame, pose, [0, 1, 2, 3], np.array([TWIN_SURE + 0.1, 0.05, 0.03, 0.02]))
+    reg._refine(frame, pose, [0, 1, 2, 3], np.array([VERIFIER_SURE + 0.02, 0.01, 0.01, 0.01]))
     assert not calls, "a sure head decides alone"
+    reg._refine(frame, pose, [0, 1, 2, 3], np.array([VERIFIER_SURE - 0.05, 0.03, 0.01, 0.01]))
+    assert len(calls) == 1, "with a verifier the head must be surer (VERIFIER_SURE) to decide alone"
+    calls.clear()
     reg._refine(frame, pose, [0, 1, 2, 3], np.array([0.4, 0.3, 0.2, 0.1]))
     assert len(calls) == 1 and len(calls[0]) == 4
     assert rotation_error_deg(calls[0][0], pose) < 1e-6  # the head's choice first: the strip follows it

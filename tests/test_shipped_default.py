@@ -129,3 +129,29 @@ def test_quality_carries_the_twin_heads_belief(truss, belief):
         assert m.pose is not None and rotation_error_deg(m.pose, truth) < 5.0
         qualities[p] = m.quality
     assert qualities[belief] == pytest.approx(belief * qualities[sure], rel=1e-6)
+
+
+def test_twin_candidates_are_the_box_twins_the_predictor_starts_from(truss, held_out):
+    """What a twin verifier is shown: the four box twins of the PnP pose, head's most likely first
+    (probabilities descending), the first one the pose the predictor returns without the edge fit,
+    and the nearest twin close to the truth."""
+    from hybridpose.regressors.verify import box_half_turns
+
+    reg = create("regressor", "default", object=truss, refine_edges=False)
+    nearest = []
+    for frame, truth in held_out[:8]:
+        found = reg.twin_candidates(frame)
+        m = reg.predict(frame)
+        assert (found is None) == m.lost
+        if found is None:
+            continue
+        poses, prob = found
+        assert len(poses) == len(prob) == 4 and np.all(np.diff(prob) <= 0) and prob.sum() <= 1 + 1e-6
+        assert rotation_error_deg(poses[0], m.pose) < 1e-6
+        for p in poses[1:]:  # each a box half-turn of the first, in the object frame
+            turn = poses[0].inverse() @ p
+            assert min(rotation_error_deg(turn, S) for S in box_half_turns(truss)) < 1e-6
+        nearest.append(min(rotation_error_deg(p, truth) for p in poses))
+    assert len(nearest) >= 6 and np.median(nearest) < MEDIAN_ROT_DEG
+    with pytest.raises(TypeError, match="frame"):
+        reg.twin_candidates(held_out[0][0].image)

@@ -177,3 +177,39 @@ def test_train_verifier_bad_arguments(tmp_path, truss):
         train_verifier(tmp_path, tmp_path / "out", truss, epochs=0)
     with pytest.raises(FileNotFoundError, match="no chunk"):
         train_verifier(tmp_path, tmp_path / "out", truss, epochs=1)
+
+
+def test_pairs_from_the_regressors_own_estimates(views, truss, tmp_path):
+    """--estimates-from: the candidates are the shipped regressor's box twins of its own pose of each
+    view; the label is the twin nearest the truth, and views with no twin near it are left out."""
+    from hybridpose.regressors.predictor import shipped_checkpoint
+    from hybridpose.regressors.train_verifier import LABEL_MAX_DEG
+
+    pairs = build_pairs([views], tmp_path / "est", truss, seed=2, progress=False, chunk=4,
+                        estimates_from=shipped_checkpoint("default"))
+    meta = json.loads((pairs / "meta.json").read_text())
+    assert meta["estimates_from"].endswith("default.pt") and meta["views"] == 8
+    strips, drawings, labels = load_pairs(pairs)
+    errors = np.concatenate([np.load(f)["rot_err_deg"] for f in sorted(pairs.glob("chunk_*.npz"))])
+    assert 4 <= len(labels) <= 8 and drawings.shape == (len(labels), 4, STRIP_H, STRIP_W)
+    np.testing.assert_array_equal(labels, errors.argmin(1))
+    assert np.all(errors.min(1) <= LABEL_MAX_DEG)
+    # the four candidates are one pose's box twins: two of them ≈ 180° from the nearest
+    assert np.all(np.sort(errors, 1)[:, 1] > 90)
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        build_pairs([views], tmp_path / "bad", truss, progress=False, estimates_from=tmp_path / "missing.pt")
+
+
+def test_fine_tuning_starts_from_the_given_verifier(views, truss, tmp_path):
+    pairs = build_pairs([views], tmp_path / "a", truss, seed=1, progress=False)
+    first = train_verifier(pairs, tmp_path / "a", truss, epochs=1, batch=4, width=8, val_fraction=0.25, progress=False)
+    with pytest.raises(ValueError, match="width 8"):
+        train_verifier(pairs, tmp_path / "b", truss, epochs=1, batch=4, width=16, init_from=first, progress=False)
+    tuned = train_verifier(pairs, tmp_path / "c", truss, epochs=1, batch=4, width=8, lr=1e-12, val_fraction=0.25,
+                           init_from=first, progress=False)
+    a = torch.load(first, weights_only=True)["model"]
+    b = torch.load(tuned, weights_only=True)["model"]
+    # a vanishing learning rate leaves the weights where they started (BatchNorm statistics do move)
+    for k in a:
+        if k.endswith("weight") and a[k].ndim == 4:
+            torch.testing.assert_close(a[k], b[k], atol=1e-6, rtol=0)

@@ -371,12 +371,14 @@ class CheckpointRegressor(PoseRegressor):
             return None
         return crop_box((lo[0], lo[1], hi[0] - lo[0] + 1, hi[1] - lo[1] + 1), CROP_MARGIN)
 
-    def _predict_keypoints(self, frame: Frame, roi) -> Measurement:
-        image, cam = self._undistorted(frame)
+    def _keypoint_estimate(self, image: np.ndarray, cam: Camera, roi):
+        """The network passes and PnP before any twin check or edge fit on an undistorted ``image``:
+        (PnP result turned to the head's twin, twin order, twin probabilities), or None when nothing
+        is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for order and probabilities)."""
         K = cam.K
         seen = roi if roi is not None else detect_bright_object(image)
         if seen is None:
-            return self._lost(frame)
+            return None
         box = crop_box(seen, CROP_MARGIN)
         res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box)
         # second pass on the crop centred on the first pose (the crop the network knows best)
@@ -387,7 +389,41 @@ class CheckpointRegressor(PoseRegressor):
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
                 res, order, prob = res2, order2, prob2
         if res is None or size_ratio(res.pose, self.keypoints_m, cam, seen) > SIZE_RATIO_MAX:
+            return None
+        return res, order, prob
+
+    def twin_candidates(self, frame: Frame, roi=None):
+        """The box twins the twin choice weighs, before any edge fit: (poses T_cam_obj, head
+        probabilities), both in the head's order (most likely first), or None when the object is
+        not found. What a twin verifier is shown at inference, so what it is trained on
+        (``hybridpose train-verifier --estimates-from``). Keypoint models with a twin head only."""
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+        if self.kind != "keypoints" or not self.has_twin_head:
+            raise ValueError(f"{self.path}: twin candidates need a keypoint model with a twin head, "
+                             f"this is {self.model_name!r}" + ("" if self.kind != "keypoints" else " without one"))
+        roi = check_roi(roi, frame)
+        image, cam = self._undistorted(frame)
+        with torch.no_grad():
+            est = self._keypoint_estimate(image, cam, roi)
+        if est is None:
+            return None
+        res, order, prob = est
+        return self._twin_starts(res.pose, order), np.asarray([prob[k] for k in order])
+
+    def _twin_starts(self, pose: Pose, order) -> list[Pose]:
+        """Every box twin of ``pose`` (which is twin ``order[0]`` of the keypoints' pose P), in
+        ``order``: twin k of P is pose @ S[order[0]] @ S[k]."""
+        S = [Pose.identity(), *(self.twins or self.twin_check.twins)]
+        first = S[order[0]]
+        return [pose] + [pose @ first @ S[k] for k in order[1:]]
+
+    def _predict_keypoints(self, frame: Frame, roi) -> Measurement:
+        image, cam = self._undistorted(frame)
+        est = self._keypoint_estimate(image, cam, roi)
+        if est is None:
             return self._lost(frame)
+        res, order, prob = est
         cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
         quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * self.image_size)))
@@ -424,10 +460,8 @@ class CheckpointRegressor(PoseRegressor):
         gray = to_gray(frame.image)
         if not self.check_twins:
             starts = [pose]
-        else:  # ``pose`` is twin order[0] of the keypoints' pose P; twin k of P is pose @ S0 @ Sk
-            S = [Pose.identity(), *(self.twins or self.twin_check.twins)]
-            first = S[order[0]]
-            starts = [pose] + [pose @ first @ S[k] for k in order[1:]]
+        else:
+            starts = self._twin_starts(pose, order)
             if prob is not None and prob[order[0]] >= (TWIN_SURE if self.verifier is None else VERIFIER_SURE):
                 starts = starts[:1]
         fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]

@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from ..geometry import Pose
+from ..geometry.raster import fill_triangles, front_faces_far_first
 from ..objects import ObjectModel
 
 log = logging.getLogger(__name__)
@@ -82,21 +83,11 @@ class HypothesisRenderer:
     def draw(self, pose: Pose, K: np.ndarray, A: np.ndarray, size=(STRIP_W, STRIP_H)) -> np.ndarray:
         """(H, W) uint8: 0 background, faces shaded by how squarely they face the camera."""
         w, h = size
-        out = np.zeros((h, w), np.uint8)
-        tri = self.triangles @ pose.R.T + pose.t
-        normals = self.normals @ pose.R.T
-        view = tri.mean(1)
-        cos = -np.einsum("ij,ij->i", normals, view) / np.linalg.norm(view, axis=1)
-        keep = np.flatnonzero((cos > 0) & np.all(tri[:, :, 2] > 1e-3, axis=1))
-        keep = keep[np.argsort(-tri[keep, :, 2].max(1))]               # far first
-        p = tri[keep] @ K.T
-        uv = p[..., :2] / p[..., 2:3]
-        st = uv @ A[:, :2].T + A[:, 2]
-        pts = np.round(st * 16).astype(np.int32)
-        grey = np.round(255 * (SHADE_MIN + (1 - SHADE_MIN) * cos[keep])).astype(int)
-        for poly, g in zip(pts, grey):
-            cv2.fillConvexPoly(out, poly, int(g), lineType=cv2.LINE_8, shift=4)
-        return out
+        tri, facing, order = front_faces_far_first(self.triangles, self.normals, pose)
+        p = tri[order] @ K.T
+        st = (p[..., :2] / p[..., 2:3]) @ A[:, :2].T + A[:, 2]
+        grey = np.round(255 * (SHADE_MIN + (1 - SHADE_MIN) * facing[order])).astype(int)
+        return fill_triangles(np.zeros((h, w), np.uint8), st, grey)
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..geometry import Camera, Pose
+from ..geometry.raster import fill_triangles, front_faces_far_first
 from ..objects import ObjectModel
 from ..objects.base import SHARP_EDGE_ANGLE_DEG
 
@@ -92,20 +92,10 @@ class ModelView:
         """(h, w) uint16 facet id + 1 of the surface seen at each pixel (0 = background), at
         ``scale`` × the camera's resolution."""
         w, h = max(1, int(round(camera.width * scale))), max(1, int(round(camera.height * scale)))
-        ids = np.zeros((h, w), np.uint16)
-        tri_cam = self.triangles @ pose.R.T + pose.t               # (F, 3, 3)
-        normals_cam = self.face_normals @ pose.R.T
-        front = np.einsum("ij,ij->i", normals_cam, tri_cam.mean(1)) < 0
-        front &= np.all(tri_cam[:, :, 2] > 1e-3, axis=1)
-        order = np.flatnonzero(front)
-        order = order[np.argsort(-tri_cam[order, :, 2].max(1))]  # far first
-        K = camera.K
-        p = tri_cam[order] @ K.T
+        tri_cam, _, order = front_faces_far_first(self.triangles, self.face_normals, pose)
+        p = tri_cam[order] @ camera.K.T
         uv = (p[..., :2] / p[..., 2:3] + 0.5) * scale - 0.5        # pixel centres at integers
-        pts = np.round(uv * 16).astype(np.int32)                   # 4 fractional bits
-        for poly, f in zip(pts, self.facet_of[order]):
-            cv2.fillConvexPoly(ids, poly, int(f), lineType=cv2.LINE_8, shift=4)
-        return ids
+        return fill_triangles(np.zeros((h, w), np.uint16), uv, self.facet_of[order])
 
     def lift(self, pose: Pose, camera: Camera, uv: np.ndarray, ids: np.ndarray | None = None,
              scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

@@ -503,3 +503,12 @@ def test_regressor_asks_the_verifier_only_where_the_head_is_unsure(tiny_checkpoi
     torch.save(ck, other)
     with pytest.raises(ValueError, match="not on 'truss'"):
         CheckpointRegressor(tiny_checkpoint, verifier=other)
+
+
+def test_twin_candidates_need_a_twin_head(tiny_checkpoint, camera):
+    reg = CheckpointRegressor(tiny_checkpoint, verifier=None)
+    frame = Frame(np.zeros((camera.height, camera.width, 3), np.uint8), camera, 0.0)
+    assert reg.twin_candidates(frame) is None  # nothing lit: nothing found
+    reg.has_twin_head = False
+    with pytest.raises(ValueError, match="twin head"):
+        reg.twin_candidates(frame)

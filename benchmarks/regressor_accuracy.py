@@ -31,12 +31,17 @@ def main() -> None:
     args = ap.parse_args()
     pairs = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
     results = {}
-    runs = ([(n, p, True, "auto") for n, p in pairs] + [(f"{n}, no edge refinement", p, False, "auto") for n, p in pairs]
-            + [(f"{n}, 1 pass", p, True, 1) for n, p in pairs] + [(f"{n}, 2 passes", p, True, 2) for n, p in pairs])
-    for name, path, refine, passes in runs:
+    # the shipped twin verifier ("auto") in every row but the one that shows what it adds
+    runs = ([(n, p, True, "auto", "auto") for n, p in pairs]
+            + [(f"{n}, no twin verifier", p, True, "auto", None) for n, p in pairs]
+            + [(f"{n}, no edge refinement", p, False, "auto", "auto") for n, p in pairs]
+            + [(f"{n}, 1 pass", p, True, 1, "auto") for n, p in pairs]
+            + [(f"{n}, 2 passes", p, True, 2, "auto") for n, p in pairs])
+    for name, path, refine, passes, verifier in runs:
         tmp = Path(tempfile.mkdtemp())
-        s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit, refine_edges=refine, passes=passes)
-        if refine and passes == "auto":  # the plots of the default inference path
+        s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit, refine_edges=refine, passes=passes,
+                                verifier=verifier)
+        if refine and passes == "auto" and verifier:  # the plots of the default inference path
             for png in ("error_vs_distance.png", "gradcam.png"):
                 if (tmp / png).exists():
                     shutil.copy(tmp / png, BENCH_DIR / "results" / f"regressor_{name}_{png}")

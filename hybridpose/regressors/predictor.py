@@ -399,9 +399,7 @@ class CheckpointRegressor(PoseRegressor):
         (``hybridpose train-verifier --estimates-from``). Keypoint models with a twin head only."""
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
-        if self.kind != "keypoints" or not self.has_twin_head:
-            raise ValueError(f"{self.path}: twin candidates need a keypoint model with a twin head, "
-                             f"this is {self.model_name!r}" + ("" if self.kind != "keypoints" else " without one"))
+        self.require_twin_head()
         roi = check_roi(roi, frame)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
@@ -410,6 +408,12 @@ class CheckpointRegressor(PoseRegressor):
             return None
         res, order, prob = est
         return self._twin_starts(res.pose, order), np.asarray([prob[k] for k in order])
+
+    def require_twin_head(self) -> None:
+        """Raise ValueError (naming the checkpoint) unless this is a keypoint model with a twin head."""
+        if self.kind != "keypoints" or not self.has_twin_head:
+            raise ValueError(f"{self.path}: twin candidates need a keypoint model with a twin head, "
+                             f"this is {self.model_name!r}" + ("" if self.kind != "keypoints" else " without one"))
 
     def _twin_starts(self, pose: Pose, order) -> list[Pose]:
         """Every box twin of ``pose`` (which is twin ``order[0]`` of the keypoints' pose P), in

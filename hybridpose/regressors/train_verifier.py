@@ -135,9 +135,7 @@ def _estimator(checkpoint: str):
         from .predictor import CheckpointRegressor
 
         reg = CheckpointRegressor(checkpoint, threads=1, check_twins=False, refine_edges=False, verifier=None)
-        if reg.kind != "keypoints" or not reg.has_twin_head:
-            raise ValueError(f"estimates_from: {checkpoint} holds a {reg.model_name!r} model; the candidates need a "
-                             "keypoint model with a twin head (hybridpose train --model keypoints)")
+        reg.require_twin_head()
         _ESTIMATORS[checkpoint] = reg
     return _ESTIMATORS[checkpoint]
 
@@ -146,18 +144,13 @@ def _candidates(d: Path, lab, cam, rng, twins, estimates_from):
     """(grey image, candidate poses, strip pose, index of the true one, candidates' rotation errors °)
     of one view, or None when the estimator loses it or none of its twins is within ``LABEL_MAX_DEG``."""
     if estimates_from is None:
-        gray = cv2.imread(str(d / lab.image), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            raise FileNotFoundError(f"data: cannot read image {d / lab.image}")
+        gray = _read_image(d / lab.image, cv2.IMREAD_GRAYSCALE)
         estimate = noisy_pose(lab.pose, rng)
         order = rng.permutation(len(twins))
         cands = [estimate @ twins[k] for k in order]
         errors = np.array([rotation_error_deg(p, lab.pose) for p in cands])
         return gray, cands, cands[int(rng.integers(len(cands)))], int(np.flatnonzero(order == 0)[0]), errors
-    bgr = cv2.imread(str(d / lab.image), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise FileNotFoundError(f"data: cannot read image {d / lab.image}")
-    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    rgb = cv2.cvtColor(_read_image(d / lab.image, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     found = _estimator(estimates_from).twin_candidates(Frame(rgb, cam, 0.0))
     if found is None:
         return None
@@ -169,6 +162,13 @@ def _candidates(d: Path, lab, cam, rng, twins, estimates_from):
         return None
     # the strip along the head's choice, as the predictor cuts it
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), cands, starts[0], int(errors.argmin()), errors
+
+
+def _read_image(path: Path, flags: int) -> np.ndarray:
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise FileNotFoundError(f"data: cannot read image {path}")
+    return image
 
 
 def _build_chunk(job) -> None:

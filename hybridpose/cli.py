@@ -262,7 +262,7 @@ def cmd_train_verifier(args) -> int:
         raise ValueError(f"--epochs: expected at least 1, got {args.epochs}")
     obj = dataset_object(args.data[0], args.object)
     pairs = build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers,
-                        estimates_from=args.estimates_from)
+                        estimates_from=args.estimates_from, label_max_deg=args.label_max_deg)
     best = train_verifier(pairs, args.out, obj, epochs=args.epochs, batch=args.batch, lr=args.lr, width=args.width,
                           seed=args.seed, resume=args.resume, init_from=args.init_from)
     hist = json.loads((Path(args.out) / "history.json").read_text())
@@ -344,6 +344,9 @@ def build_parser() -> argparse.ArgumentParser:
     tv.add_argument("--estimates-from", default=None, metavar="CHECKPOINT",
                     help="candidates from this keypoint regressor's own poses of the views (what the verifier sees "
                          "at inference) instead of noise on the ground truth")
+    tv.add_argument("--label-max-deg", type=float, default=20.0, metavar="DEG",
+                    help="with --estimates-from: leave out views whose nearest twin is further off than this "
+                         "(degrees; wider teaches the views with poor keypoints too)")
     tv.add_argument("--init-from", default=None, metavar="CHECKPOINT",
                     help="start from this twin-verifier checkpoint's weights (fine-tuning; same --width)")
     tv.set_defaults(func=cmd_train_verifier)

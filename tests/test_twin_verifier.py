@@ -200,6 +200,25 @@ def test_pairs_from_the_regressors_own_estimates(views, truss, tmp_path):
         build_pairs([views], tmp_path / "bad", truss, progress=False, estimates_from=tmp_path / "missing.pt")
 
 
+def test_label_max_deg_chooses_which_estimates_teach(views, truss, tmp_path):
+    """--label-max-deg: every view the regressor finds is kept at 180°; a tight bound keeps only the
+    views whose nearest twin lies within it, and says so in meta.json."""
+    from hybridpose.regressors.predictor import shipped_checkpoint
+
+    ckpt = shipped_checkpoint("default")
+    wide = build_pairs([views], tmp_path / "wide", truss, seed=2, progress=False, estimates_from=ckpt,
+                       label_max_deg=180.0)
+    errors = np.concatenate([np.load(f)["rot_err_deg"] for f in sorted(wide.glob("chunk_*.npz"))])
+    bound = float(np.median(errors.min(1)))
+    tight = build_pairs([views], tmp_path / "tight", truss, seed=2, progress=False, estimates_from=ckpt,
+                        label_max_deg=bound)
+    kept = np.concatenate([np.load(f)["rot_err_deg"] for f in sorted(tight.glob("chunk_*.npz"))])
+    assert len(kept) == int(np.sum(errors.min(1) <= bound)) < len(errors)
+    assert json.loads((tight / "meta.json").read_text())["label_max_deg"] == bound
+    with pytest.raises(ValueError, match="label_max_deg"):
+        build_pairs([views], tmp_path / "bad", truss, progress=False, estimates_from=ckpt, label_max_deg=0)
+
+
 def test_fine_tuning_starts_from_the_given_verifier(views, truss, tmp_path):
     pairs = build_pairs([views], tmp_path / "a", truss, seed=1, progress=False)
     first = train_verifier(pairs, tmp_path / "a", truss, epochs=1, batch=4, width=8, val_fraction=0.25, progress=False)

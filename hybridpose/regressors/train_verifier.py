@@ -14,7 +14,8 @@ the twins are generated from the one estimated pose), or, with ``estimates_from=
 keypoint regressor's own PnP pose of the view (:meth:`CheckpointRegressor.twin_candidates`), with
 its real errors. Their order is shuffled; the label is the place of the true one (the twin nearest
 the ground truth; views where even that one is more than ``LABEL_MAX_DEG`` off teach nothing about
-the twin choice and are left out).
+the twin choice and are left out; ``--label-max-deg`` widens this to teach the views whose keypoints
+are poor too, where the nearest twin is still the one to pick).
 """
 from __future__ import annotations
 
@@ -48,6 +49,8 @@ CHUNK = 2000
 ROT_NOISE_MIX = ((0.5, 2.0), (0.35, 6.0), (0.15, 12.0))
 TRANS_NOISE = (0.004, 0.004, 0.02)  # σ of the translation error as a fraction of the distance (x, y, depth)
 # with regressor estimates: a view whose nearest twin is further off than this has no right twin to learn
+# (the default; runs 1–3 used it, so the views with poor keypoints, where a wrong twin costs most, were
+# never shown: ``label_max_deg`` widens it)
 LABEL_MAX_DEG = 20.0
 
 
@@ -79,17 +82,21 @@ def _label_sets(dirs) -> list[tuple[Path, list, object]]:
 
 
 def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progress: bool = True,
-                workers: int = 1, chunk: int = CHUNK, estimates_from=None) -> Path:
+                workers: int = 1, chunk: int = CHUNK, estimates_from=None,
+                label_max_deg: float = LABEL_MAX_DEG) -> Path:
     """Cut strips and drawings of every view in the datasets ``dirs`` into ``out/pairs`` (see module doc).
 
     Chunks already there are kept (a killed run resumes); each is written atomically. Chunk ``c``'s
     noise comes from the seed ``(seed, c)``, so the pairs do not depend on ``workers`` (processes).
     Returns the pairs directory. ``limit``: at most this many views (tests); ``chunk``: views per file;
     ``estimates_from``: a keypoint-regressor checkpoint with a twin head whose own estimates give the
-    candidates (instead of noise on the ground truth; ≈ 15 ms more per view).
+    candidates (instead of noise on the ground truth; ≈ 15 ms more per view); ``label_max_deg``: with
+    ``estimates_from``, views whose nearest twin is further off (degrees) are left out.
     """
     if chunk < 1 or workers < 1:
         raise ValueError(f"chunk, workers: expected positive counts, got {chunk}, {workers}")
+    if not 0 < label_max_deg <= 180:
+        raise ValueError(f"label_max_deg: expected degrees in (0, 180], got {label_max_deg}")
     if estimates_from is not None:
         estimates_from = str(estimates_from)
         _estimator(estimates_from)  # a bad checkpoint fails here, not in every worker
@@ -104,7 +111,7 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
         from tqdm import tqdm
 
         bar = tqdm(total=n_chunks, initial=n_chunks - len(todo), desc="twin-verifier pairs", unit="chunk")
-    jobs = [(views[c * chunk:(c + 1) * chunk], pairs, obj, seed, c, estimates_from) for c in todo]
+    jobs = [(views[c * chunk:(c + 1) * chunk], pairs, obj, seed, c, estimates_from, label_max_deg) for c in todo]
     if workers > 1 and len(jobs) > 1:
         import multiprocessing as mp
 
@@ -121,7 +128,7 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
         bar.close()
     atomic_write_json(pairs / "meta.json", {"views": n_views, "chunks": n_chunks, "chunk": chunk, "seed": seed,
                                             "data": [str(d) for d in dirs], "object": obj.name,
-                                            "estimates_from": estimates_from})
+                                            "estimates_from": estimates_from, "label_max_deg": label_max_deg})
     return pairs
 
 
@@ -140,9 +147,9 @@ def _estimator(checkpoint: str):
     return _ESTIMATORS[checkpoint]
 
 
-def _candidates(d: Path, lab, cam, rng, twins, estimates_from):
+def _candidates(d: Path, lab, cam, rng, twins, estimates_from, label_max_deg: float = LABEL_MAX_DEG):
     """(grey image, candidate poses, strip pose, index of the true one, candidates' rotation errors °)
-    of one view, or None when the estimator loses it or none of its twins is within ``LABEL_MAX_DEG``."""
+    of one view, or None when the estimator loses it or none of its twins is within ``label_max_deg``."""
     if estimates_from is None:
         gray = _read_image(d / lab.image, cv2.IMREAD_GRAYSCALE)
         estimate = noisy_pose(lab.pose, rng)
@@ -158,7 +165,7 @@ def _candidates(d: Path, lab, cam, rng, twins, estimates_from):
     order = rng.permutation(len(starts))
     cands = [starts[k] for k in order]
     errors = np.array([rotation_error_deg(p, lab.pose) for p in cands])
-    if errors.min() > LABEL_MAX_DEG:
+    if errors.min() > label_max_deg:
         return None
     # the strip along the head's choice, as the predictor cuts it
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), cands, starts[0], int(errors.argmin()), errors
@@ -172,13 +179,13 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
 
 
 def _build_chunk(job) -> None:
-    views, pairs, obj, seed, c, estimates_from = job
+    views, pairs, obj, seed, c, estimates_from, label_max_deg = job
     cv2.setNumThreads(1)
     renderer, twins = HypothesisRenderer(obj), [Pose.identity(), *box_half_turns(obj)]
     rng = np.random.default_rng([seed, c])
     strips, drawings, labels, errors = [], [], [], []
     for d, lab, cam in views:
-        view = _candidates(d, lab, cam, rng, twins, estimates_from)
+        view = _candidates(d, lab, cam, rng, twins, estimates_from, label_max_deg)
         if view is None:
             continue
         gray, cands, strip_pose, label, err = view

@@ -261,8 +261,10 @@ def cmd_train_verifier(args) -> int:
     if args.epochs < 1:  # before minutes of cutting pairs
         raise ValueError(f"--epochs: expected at least 1, got {args.epochs}")
     obj = dataset_object(args.data[0], args.object)
+    # unset: build_pairs' own default (LABEL_MAX_DEG), so the bound is written down in one place
+    bound = {} if args.label_max_deg is None else {"label_max_deg": args.label_max_deg}
     pairs = build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers,
-                        estimates_from=args.estimates_from, label_max_deg=args.label_max_deg)
+                        estimates_from=args.estimates_from, **bound)
     best = train_verifier(pairs, args.out, obj, epochs=args.epochs, batch=args.batch, lr=args.lr, width=args.width,
                           seed=args.seed, resume=args.resume, init_from=args.init_from)
     hist = json.loads((Path(args.out) / "history.json").read_text())
@@ -344,9 +346,10 @@ def build_parser() -> argparse.ArgumentParser:
     tv.add_argument("--estimates-from", default=None, metavar="CHECKPOINT",
                     help="candidates from this keypoint regressor's own poses of the views (what the verifier sees "
                          "at inference) instead of noise on the ground truth")
-    tv.add_argument("--label-max-deg", type=float, default=20.0, metavar="DEG",
+    tv.add_argument("--label-max-deg", type=float, default=None, metavar="DEG",
                     help="with --estimates-from: leave out views whose nearest twin is further off than this "
-                         "(degrees; wider teaches the views with poor keypoints too)")
+                         "(degrees; default train_verifier.LABEL_MAX_DEG, 20; wider teaches the views with "
+                         "poor keypoints too)")
     tv.add_argument("--init-from", default=None, metavar="CHECKPOINT",
                     help="start from this twin-verifier checkpoint's weights (fine-tuning; same --width)")
     tv.set_defaults(func=cmd_train_verifier)

@@ -179,6 +179,11 @@ def test_train_verifier_bad_arguments(tmp_path, truss):
         train_verifier(tmp_path, tmp_path / "out", truss, epochs=1)
 
 
+def _chunk_errors(pairs) -> np.ndarray:
+    """(N, 4) candidates' rotation errors (°) stored in a pairs directory's chunks, in chunk order."""
+    return np.concatenate([np.load(f)["rot_err_deg"] for f in sorted(pairs.glob("chunk_*.npz"))])
+
+
 def test_pairs_from_the_regressors_own_estimates(views, truss, tmp_path):
     """--estimates-from: the candidates are the shipped regressor's box twins of its own pose of each
     view; the label is the twin nearest the truth, and views with no twin near it are left out."""
@@ -190,7 +195,7 @@ def test_pairs_from_the_regressors_own_estimates(views, truss, tmp_path):
     meta = json.loads((pairs / "meta.json").read_text())
     assert meta["estimates_from"].endswith("default.pt") and meta["views"] == 8
     strips, drawings, labels = load_pairs(pairs)
-    errors = np.concatenate([np.load(f)["rot_err_deg"] for f in sorted(pairs.glob("chunk_*.npz"))])
+    errors = _chunk_errors(pairs)
     assert 4 <= len(labels) <= 8 and drawings.shape == (len(labels), 4, STRIP_H, STRIP_W)
     np.testing.assert_array_equal(labels, errors.argmin(1))
     assert np.all(errors.min(1) <= LABEL_MAX_DEG)
@@ -208,11 +213,11 @@ def test_label_max_deg_chooses_which_estimates_teach(views, truss, tmp_path):
     ckpt = shipped_checkpoint("default")
     wide = build_pairs([views], tmp_path / "wide", truss, seed=2, progress=False, estimates_from=ckpt,
                        label_max_deg=180.0)
-    errors = np.concatenate([np.load(f)["rot_err_deg"] for f in sorted(wide.glob("chunk_*.npz"))])
+    errors = _chunk_errors(wide)
     bound = float(np.median(errors.min(1)))
     tight = build_pairs([views], tmp_path / "tight", truss, seed=2, progress=False, estimates_from=ckpt,
                         label_max_deg=bound)
-    kept = np.concatenate([np.load(f)["rot_err_deg"] for f in sorted(tight.glob("chunk_*.npz"))])
+    kept = _chunk_errors(tight)
     assert len(kept) == int(np.sum(errors.min(1) <= bound)) < len(errors)
     assert json.loads((tight / "meta.json").read_text())["label_max_deg"] == bound
     with pytest.raises(ValueError, match="label_max_deg"):

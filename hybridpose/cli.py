@@ -214,7 +214,7 @@ def cmd_eval(args) -> int:
     from .regressors.evaluate import evaluate_checkpoint
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
-                            refine_edges=not args.no_refine, passes=args.passes,
+                            refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
@@ -363,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--passes", choices=("1", "2", "auto"), default="auto",
                    help="keypoint models: network passes (2 = again on the crop re-centred on the first pose; "
                         "auto, the default: the second only where the first one's twin head is unsure)")
+    e.add_argument("--turns", choices=("auto", "always", "off"), default="auto",
+                   help="keypoint models: also try the first crop turned in-plane by ±20°/±40° (auto, the default: "
+                        "only where the first pass's PnP keeps < 90 %% of the keypoints)")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")

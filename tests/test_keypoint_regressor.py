@@ -193,6 +193,9 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
     for bad_passes in (3, "two", True):
         with pytest.raises(ValueError, match="passes: expected 1 or 2 network passes, or 'auto'"):
             CheckpointRegressor(tiny_checkpoint, passes=bad_passes)
+    for bad_turns in ("on", None, 20):
+        with pytest.raises(ValueError, match="turns: expected one of auto, always, off"):
+            CheckpointRegressor(tiny_checkpoint, turns=bad_turns)
     with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'gpu0'"):
         CheckpointRegressor(tiny_checkpoint, device="gpu0")
     with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'meta'"):
@@ -226,9 +229,10 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
 
     data = tiny_checkpoint.parent.parent / "ds"
     assert main(["eval", "--checkpoint", str(tiny_checkpoint), "--data", str(data), "--out", str(tmp_path / "rep"),
-                 "--limit", "10"]) == 0
+                 "--limit", "10", "--turns", "always"]) == 0
     rep = json.loads((tmp_path / "rep" / "report.json").read_text())
     s = rep["summary"]
+    assert s["turns"] == "always"
     assert s["images"] == 10 and len(rep["per_image"]) == 10
     assert {"rot_mean_deg", "rot_median_deg", "trans_mean_m", "speed_score", "add_0.1d_recall", "failures"} <= set(s)
     rot = [r["rot_deg"] for r in rep["per_image"]]
@@ -408,6 +412,80 @@ def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_chec
     assert not reg._second_pass(None, unsure)
     reg.passes = 2
     assert reg._second_pass(res, sure)
+
+
+def test_auto_turns_only_where_the_first_pnp_drops_keypoints(tiny_checkpoint):
+    from types import SimpleNamespace
+
+    from hybridpose.regressors.predictor import TURNS_BELOW_INLIERS
+
+    reg = CheckpointRegressor(tiny_checkpoint)
+    assert reg.turns == "auto"
+    consistent = SimpleNamespace(inlier_ratio=1.0)
+    split = SimpleNamespace(inlier_ratio=TURNS_BELOW_INLIERS - 0.05)
+    assert not reg._turn_crop(consistent) and reg._turn_crop(split) and reg._turn_crop(None)
+    reg.turns = "off"
+    assert not reg._turn_crop(None)
+    reg.turns = "always"
+    assert reg._turn_crop(consistent)
+
+
+class _BrightestPixelNet(torch.nn.Module):
+    """Stands in for the keypoint network: every keypoint at the brightest pixel of each crop it gets."""
+
+    def __init__(self, num_keypoints: int, twin_classes: int) -> None:
+        super().__init__()
+        self.n, self.t, self.seen = num_keypoints, twin_classes, []
+
+    def forward(self, x, with_twin=False):
+        self.seen.append(x.shape[0])
+        b, _, h, w = x.shape
+        idx = x.sum(1).reshape(b, -1).argmax(1)
+        uv = torch.stack([idx % w, idx // w], -1).float()[:, None].expand(b, self.n, 2)
+        return uv, torch.ones(b, self.n), torch.zeros(b, self.t)
+
+
+def test_turned_crops_map_their_keypoints_back_to_the_crop(tiny_checkpoint):
+    """A dot seen in crops turned by ±20°/±40° must come back where it is in the unturned crop (the
+    turn's direction and centre convention checked against a known answer)."""
+    reg = CheckpointRegressor(tiny_checkpoint)
+    reg.net = _BrightestPixelNet(len(reg.keypoints_m), len(reg.twins) + 1)
+    S = reg.image_size
+    crop = np.zeros((S, S, 3), np.uint8)
+    dot = (44, 21)  # (x, y) crop pixels, off centre so that a wrong turn direction or centre shows
+    crop[dot[1], dot[0]] = 255
+    crop = cv2.GaussianBlur(crop, (5, 5), 1.0)  # a turned dot stays the brightest pixel near its place
+    K_crop = np.array([[100.0, 0, S / 2], [0, 100.0, S / 2], [0, 0, 1]])
+    passes = reg._solve_turned(crop, K_crop, (0.0, 20.0, -20.0, 40.0, -40.0))
+    assert reg.net.seen == [5], "one batch for all turns"
+    for res, uv, order, prob in passes:
+        assert res is None  # all keypoints on one pixel: no pose
+        np.testing.assert_allclose(uv, np.tile(dot, (len(uv), 1)), atol=1.0)
+        assert prob.shape == (len(reg.twins) + 1,) and order[0] == 0
+
+
+def test_turned_pass_wins_only_with_more_keypoints_kept(tiny_checkpoint, monkeypatch):
+    from types import SimpleNamespace
+
+    from hybridpose.regressors.predictor import TURNS_DEG
+
+    reg = CheckpointRegressor(tiny_checkpoint)
+    ratio = {0.0: 0.6, **{a: 0.5 for a in TURNS_DEG}, TURNS_DEG[2]: 0.8}
+    uv0 = np.zeros((len(reg.keypoints_m), 2))
+
+    def fake(crop, K_crop, angles):
+        return [(SimpleNamespace(inlier_ratio=ratio[a], rms_px=1.0, angle=a), uv0, [0, 1, 2, 3], None) for a in angles]
+
+    monkeypatch.setattr(reg, "_solve_turned", fake)
+    image, K = np.zeros((480, 640, 3), np.uint8), Camera.default().K
+    res, *_ = reg._keypoint_pass(image, K, (320.0, 240.0, 200.0), turns=True)
+    assert res.angle == TURNS_DEG[2]
+    ratio[0.0] = 0.95  # the first pass keeps enough keypoints: no turns tried
+    res, *_ = reg._keypoint_pass(image, K, (320.0, 240.0, 200.0), turns=True)
+    assert res.angle == 0.0
+    ratio[0.0] = 0.6
+    res, *_ = reg._keypoint_pass(image, K, (320.0, 240.0, 200.0), turns=False)
+    assert res.angle == 0.0
 
 
 def _trained_looking(net: KeypointNet) -> KeypointNet:

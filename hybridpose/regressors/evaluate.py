@@ -38,20 +38,22 @@ ELEVATION_BINS_DEG = np.array([0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 90.0])
 QUALITY_GATES = (0.0, 0.2, 0.3, 0.4, 0.5)
 
 
-def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 30,
+def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 100,
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
-                        device="cpu", verifier="auto") -> dict:
+                        device="cpu", verifier="auto", turns="auto") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
     ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in
     rotation (failures included): for a near-symmetric object, mostly the object turned end for end.
     ``device`` is where the network runs (``"cuda"`` for the VGG models on a GPU machine); the
     ms/image timings are then those of that device with 1 and 2 CPU threads beside it. ``verifier``:
-    the twin verifier (:class:`CheckpointRegressor`'s argument: ``"auto"``, a path or None).
+    the twin verifier (:class:`CheckpointRegressor`'s argument: ``"auto"``, a path or None);
+    ``turns``: the test-time crop turns (its argument too: ``"auto"``, ``"always"``, ``"off"``).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier)
+    reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier,
+                              turns=turns)
     scenes = [BopScene(p) for p in find_scenes(data)]
     items = [(s, i) for s in scenes for i in s.image_ids]
     if not items:
@@ -82,7 +84,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     trans = np.array([r["trans_m"] for r in rows])
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
-        "refine_edges": reg.refine_edges and reg.twin_check is not None, "passes": reg.passes,
+        "refine_edges": reg.refine_edges and reg.twin_check is not None, "passes": reg.passes, "turns": reg.turns,
         "device": str(reg.device),
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "gross_error_share": float(np.mean(rot > GROSS_ERROR_DEG)), "speed_score": float(np.mean([r["speed"] for r in rows])),
@@ -106,7 +108,9 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
 
 
 def time_inference(reg: CheckpointRegressor, items, threads=(1, 2)) -> dict:
-    """Median ms per image of ``predict`` (the whole path: detection, passes, PnP) per thread count."""
+    """Mean ms per image of ``predict`` (the whole path: detection, passes, PnP, edge fits) per thread
+    count. The mean, not the median: the extra passes, turns and fits run only on the hard views, and
+    a median over mostly easy views would hide what they cost a stream of frames."""
     before = torch.get_num_threads()
     out = {}
     try:
@@ -119,7 +123,7 @@ def time_inference(reg: CheckpointRegressor, items, threads=(1, 2)) -> dict:
                 t0 = time.perf_counter()
                 reg.predict(f)
                 ms.append(1000 * (time.perf_counter() - t0))
-            out[f"{n}_thread{'s' if n > 1 else ''}"] = float(np.median(ms))
+            out[f"{n}_thread{'s' if n > 1 else ''}"] = float(np.mean(ms))
     finally:
         torch.set_num_threads(before)
     return out

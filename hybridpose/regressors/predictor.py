@@ -63,6 +63,14 @@ SECOND_PASS_BELOW = 0.9
 # than this factor less (or more) than the box the network was shown is not a measurement
 SIZE_RATIO_MAX = 3.0
 PASSES = (1, 2, "auto")
+# turns="auto": where the first pass's PnP keeps fewer than TURNS_BELOW_INLIERS of the keypoints, the
+# network also sees its crop turned in-plane by TURNS_DEG (one batch) and the pass whose PnP keeps the
+# most keypoints (then the lowest RMS) wins. The failures are keypoints in near edge-on views that a
+# slightly turned crop gets right; larger turns (90°, 180°) move the sunlit side where the network
+# never saw it and are worse alone (benchmarks/RESULTS.md, "Crop turns").
+TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
+TURNS_BELOW_INLIERS = 0.9
+TURNS = ("auto", "always", "off")
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -211,6 +219,10 @@ class CheckpointRegressor(PoseRegressor):
             first pose; the one whose PnP keeps more inliers wins) or ``"auto"`` (default: the
             second pass only where the first one's twin head is below ``SECOND_PASS_BELOW``, or
             its PnP failed; models without a twin head then always make two).
+        turns: keypoint models — test-time in-plane turns of the first crop (``TURNS_DEG``, one
+            batch; the pass whose PnP keeps the most keypoints wins): ``"auto"`` (default) only
+            where the first pass's PnP keeps fewer than ``TURNS_BELOW_INLIERS`` of them or fails,
+            ``"always"``, or ``"off"``.
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
             one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
             the edge fit always run on the CPU.
@@ -223,7 +235,7 @@ class CheckpointRegressor(PoseRegressor):
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
-                 device="cpu", verifier="auto") -> None:
+                 device="cpu", verifier="auto", turns: str = "auto") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -276,6 +288,9 @@ class CheckpointRegressor(PoseRegressor):
         if passes not in PASSES or isinstance(passes, bool):
             raise ValueError(f"passes: expected 1 or 2 network passes, or 'auto', got {passes!r}")
         self.passes = passes
+        if turns not in TURNS:
+            raise ValueError(f"turns: expected one of {', '.join(TURNS)}, got {turns!r}")
+        self.turns = turns
 
     def _load_verifier(self, verifier):
         if verifier is None or verifier is False or self.twin_check is None or not self.has_twin_head:
@@ -334,24 +349,49 @@ class CheckpointRegressor(PoseRegressor):
     def _crop(self, image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float):
         return crop_image(image, K, cx, cy, side, (self.image_size, self.image_size))
 
-    def _keypoint_pass(self, image, K, box):
+    def _keypoint_pass(self, image, K, box, turns: bool = False):
         """One network pass on ``box``: (PnP result in the head's most likely twin, keypoints (N, 2)
         in crop pixels, crop K, twin order, twin probabilities). The order lists the symmetry
         indices (0 = the keypoints' own pose, k = ``twins[k-1]``) most likely first by the twin head
         (fixed 0, 1, 2, 3 without one); the result's pose is already turned to the first. The
-        probabilities (T,), indexed like the symmetries, are the head's softmax (None without one)."""
+        probabilities (T,), indexed like the symmetries, are the head's softmax (None without one).
+        With ``turns`` the crop turned by ``TURNS_DEG`` is tried too where :meth:`_turn_crop` says
+        so, and the pass whose PnP keeps the most keypoints (then the lowest RMS) is returned."""
         crop, K_crop = self._crop(image, K, *box)
-        uv, _, twin = self.net(self._tensor(crop), with_twin=True)
-        uv = uv[0].float().cpu().numpy().astype(np.float64)
-        res = solve_pnp(uv, self.keypoints_m, K_crop,
-                        threshold_px=PNP_THRESHOLD * self.image_size)
-        order, prob = list(range(len(self.twins) + 1)), None
-        if self.has_twin_head:
-            prob = torch.softmax(twin[0].float(), 0).cpu().numpy()
-            order = [int(k) for k in np.argsort(-prob, kind="stable")]
-            if res is not None and order[0] > 0:  # undo the twin the keypoints follow (half-turns are their own inverses)
-                res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
+        best = self._solve_turned(crop, K_crop, (0.0,))[0]
+        if turns and self._turn_crop(best[0]):
+            best = min([best, *self._solve_turned(crop, K_crop, TURNS_DEG)], key=_pass_rank)
+        res, uv, order, prob = best
         return res, uv, K_crop, order, prob
+
+    def _turn_crop(self, res) -> bool:
+        if self.turns == "auto":
+            return res is None or res.inlier_ratio < TURNS_BELOW_INLIERS
+        return self.turns == "always"
+
+    def _solve_turned(self, crop: np.ndarray, K_crop: np.ndarray, angles_deg) -> list:
+        """Network passes on ``crop`` turned in-plane by each of ``angles_deg`` (about its centre, one
+        batch), keypoints mapped back to the unturned crop, then PnP: [(result or None, keypoints
+        (N, 2) in crop pixels, twin order, twin probabilities)] per angle."""
+        centre = ((self.image_size - 1) / 2.0,) * 2
+        turns = [np.vstack([cv2.getRotationMatrix2D(centre, float(a), 1.0), [0.0, 0.0, 1.0]]) for a in angles_deg]
+        crops = [crop if a == 0 else cv2.warpAffine(crop, A[:2], crop.shape[1::-1], flags=cv2.INTER_LINEAR,
+                                                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                 for a, A in zip(angles_deg, turns)]
+        uv_all, _, twin = self.net(torch.cat([self._tensor(c) for c in crops]), with_twin=True)
+        out = []
+        for i, A in enumerate(turns):
+            back = np.linalg.inv(A)
+            uv = uv_all[i].float().cpu().numpy().astype(np.float64) @ back[:2, :2].T + back[:2, 2]
+            res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size)
+            order, prob = list(range(len(self.twins) + 1)), None
+            if self.has_twin_head:
+                prob = torch.softmax(twin[i].float(), 0).cpu().numpy()
+                order = [int(k) for k in np.argsort(-prob, kind="stable")]
+                if res is not None and order[0] > 0:  # undo the twin the keypoints follow (half-turns are their own inverses)
+                    res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
+            out.append((res, uv, order, prob))
+        return out
 
     def _second_pass(self, res, prob) -> bool:
         if self.passes == "auto":
@@ -380,7 +420,7 @@ class CheckpointRegressor(PoseRegressor):
         if seen is None:
             return None
         box = crop_box(seen, CROP_MARGIN)
-        res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box)
+        res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box, turns=True)
         # second pass on the crop centred on the first pose (the crop the network knows best)
         again = (self._box_around(res.pose if res is not None else None, uv, K_crop, K)
                  if self._second_pass(res, prob) else None)
@@ -524,6 +564,13 @@ class CheckpointRegressor(PoseRegressor):
     def _lost(self, frame: Frame) -> Measurement:
         return Measurement(pose=None, covariance=LOST_COVARIANCE, quality=0.0, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp, lost=True)
+
+
+def _pass_rank(candidate) -> tuple:
+    """Sort key of a network pass (:meth:`CheckpointRegressor._solve_turned`): a PnP pose first, then
+    the most keypoints kept, then the lowest RMS reprojection error."""
+    res = candidate[0]
+    return (1, 0.0, 0.0) if res is None else (0, -res.inlier_ratio, res.rms_px)
 
 
 def _factory(name: str):

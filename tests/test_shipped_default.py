@@ -46,16 +46,17 @@ def test_shipped_checkpoint_is_small_and_describes_itself():
     assert "optimizer" not in ck  # inference weights only
 
 
-@pytest.mark.parametrize("passes", [1, 2, "auto"])
-def test_shipped_default_finds_the_truss_without_a_prior(regressor, held_out, passes):
+@pytest.mark.parametrize("passes, turns", [(1, "auto"), (2, "auto"), ("auto", "auto"), ("auto", "off"),
+                                          ("auto", "always")])
+def test_shipped_default_finds_the_truss_without_a_prior(regressor, held_out, passes, turns):
     rot, trans = [], []
-    regressor.passes = passes
+    regressor.passes, regressor.turns = passes, turns
     for frame, truth in held_out:
         m = regressor.predict(frame)
         assert m.source == "regressor:default"
         rot.append(rotation_error_deg(m.pose, truth) if m.pose is not None else 180.0)
         trans.append(translation_error_m(m.pose, truth) if m.pose is not None else 1.0)
-    regressor.passes = "auto"
+    regressor.passes, regressor.turns = "auto", "auto"
     assert np.median(rot) < MEDIAN_ROT_DEG, f"median rotation error {np.median(rot):.2f}°"
     assert np.median(trans) < MEDIAN_TRANS_M, f"median translation error {np.median(trans):.3f} m"
 

@@ -117,6 +117,15 @@ def test_train_verifier_builds_pairs_resumes_and_loads(views, truss, tmp_path, c
     stamp = chunk.stat().st_mtime_ns
     build_pairs([views], out, truss, seed=1, progress=False)
     assert chunk.stat().st_mtime_ns == stamp
+    # …but not when they were cut another way: kept chunks would mix two jobs
+    with pytest.raises(ValueError, match=r"cut with other settings \(differs in: chunk, chunks, seed\)"):
+        build_pairs([views], out, truss, seed=2, chunk=4, progress=False)
+    assert chunk.stat().st_mtime_ns == stamp
+    record = (pairs / "meta.json").read_bytes()
+    (pairs / "meta.json").unlink()
+    with pytest.raises(ValueError, match="no record of how they were cut"):
+        build_pairs([views], out, truss, seed=1, progress=False)
+    (pairs / "meta.json").write_bytes(record)
     best = train_verifier(pairs, out, truss, epochs=1, batch=4, width=8, val_fraction=0.25, progress=False)
     hist = json.loads((out / "history.json").read_text())
     assert len(hist) == 1 and 0 <= hist[0]["val_acc"] <= 1

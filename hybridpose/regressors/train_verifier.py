@@ -33,7 +33,7 @@ from ..core import Frame
 from ..datasets.labels import read_labels
 from ..geometry import Pose, load_camera
 from ..metrics import rotation_error_deg
-from ..io import atomic_write_bytes, atomic_write_json
+from ..io import atomic_write_bytes, atomic_write_json, read_json
 from .train import save_checkpoint
 from .twin_verifier import (CHECKPOINT_FORMAT, STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifierNet,
                             verifier_inputs)
@@ -86,7 +86,9 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
                 label_max_deg: float = LABEL_MAX_DEG) -> Path:
     """Cut strips and drawings of every view in the datasets ``dirs`` into ``out/pairs`` (see module doc).
 
-    Chunks already there are kept (a killed run resumes); each is written atomically. Chunk ``c``'s
+    Chunks already there are kept (a killed run resumes) when ``out/pairs/meta.json`` records the same
+    settings; pairs cut with other settings are refused (ValueError), not mixed. Each chunk is written
+    atomically. Chunk ``c``'s
     noise comes from the seed ``(seed, c)``, so the pairs do not depend on ``workers`` (processes).
     Returns the pairs directory. ``limit``: at most this many views (tests); ``chunk``: views per file;
     ``estimates_from``: a keypoint-regressor checkpoint with a twin head whose own estimates give the
@@ -105,6 +107,9 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
     views = [(d, lab, cam) for d, labels, cam in _label_sets(dirs) for lab in labels][:limit]
     n_views = len(views)
     n_chunks = (n_views + chunk - 1) // chunk
+    settings = {"views": n_views, "chunks": n_chunks, "chunk": chunk, "seed": seed, "data": [str(d) for d in dirs],
+                "object": obj.name, "estimates_from": estimates_from, "label_max_deg": label_max_deg}
+    _open_pairs(pairs, settings, out)
     todo = [c for c in range(n_chunks) if not (pairs / f"chunk_{c:05d}.npz").is_file()]
     bar = None
     if progress:
@@ -126,10 +131,25 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
                 bar.update(1)
     if bar is not None:
         bar.close()
-    atomic_write_json(pairs / "meta.json", {"views": n_views, "chunks": n_chunks, "chunk": chunk, "seed": seed,
-                                            "data": [str(d) for d in dirs], "object": obj.name,
-                                            "estimates_from": estimates_from, "label_max_deg": label_max_deg})
     return pairs
+
+
+def _open_pairs(pairs: Path, settings: dict, out) -> None:
+    """Record the cutting settings in ``pairs/meta.json`` before any chunk is cut, or refuse when the
+    chunks there were cut with others (a resume must be the same job: kept chunks would otherwise
+    be mixed with new ones and the record would describe neither)."""
+    meta = pairs / "meta.json"
+    if meta.is_file():
+        old = read_json(meta)
+        diff = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+        if diff:
+            raise ValueError(f"out: {out} already holds twin-verifier pairs cut with other settings (differs in: "
+                             f"{', '.join(diff)}); choose another --out or delete {pairs}")
+        return
+    if any(pairs.glob("chunk_*.npz")):
+        raise ValueError(f"out: {pairs} holds pairs with no record of how they were cut (meta.json); "
+                         f"choose another --out or delete {pairs}")
+    atomic_write_json(meta, settings)
 
 
 _ESTIMATORS: dict = {}

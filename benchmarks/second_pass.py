@@ -40,7 +40,7 @@ def measure(checkpoint, data, limit=None) -> dict:
             box = detect_bright_object(frame.image)
             p = 0.0
             if box is not None:
-                res, _, _, _, prob = one._keypoint_pass(frame.image, gt.camera.K, crop_box(box, CROP_MARGIN))
+                res, _, _, _, prob = one._keypoint_pass(frame.image, gt.camera.K, crop_box(box, CROP_MARGIN), turns=True)
                 p = float(prob.max()) if res is not None and prob is not None else 0.0
             conf.append(p)
             for reg, errs in ((one, err1), (two, err2)):

@@ -49,7 +49,8 @@ def measure(reg: CheckpointRegressor, data, limit=None, verifier=None) -> dict:
             box = detect_bright_object(frame.image)
             res = None
             if box is not None:
-                res, _, _, order, p = reg._keypoint_pass(frame.image, gt.camera.K, crop_box(box, CROP_MARGIN))
+                res, _, _, order, p = reg._keypoint_pass(frame.image, gt.camera.K, crop_box(box, CROP_MARGIN),
+                                                          turns=True)  # the first pass as shipped
             if res is None:  # a failure for every rule alike
                 prob.append(np.full(len(S), 1.0 / len(S)))
                 cnn_err.append(np.full(len(S), 180.0))

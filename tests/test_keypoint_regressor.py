@@ -583,6 +583,37 @@ def test_regressor_asks_the_verifier_only_where_the_head_is_unsure(tiny_checkpoi
         CheckpointRegressor(tiny_checkpoint, verifier=other)
 
 
+def test_verifier_choice_before_fitting_fits_only_the_chosen_twin(tiny_checkpoint, truss, camera, tmp_path,
+                                                                 monkeypatch):
+    """VERIFIER_EDGE_WEIGHT = 0: the edge fits would not change the choice, so head × verifier choose
+    first and only that twin is edge-fitted (one fit, not four)."""
+    import hybridpose.regressors.predictor as predictor
+    import hybridpose.trackers.edges as edges
+    from hybridpose.render import Renderer
+
+    reg = CheckpointRegressor(tiny_checkpoint, verifier=_verifier_checkpoint(tmp_path / "tv.pt", truss))
+    pose = Pose.from_rotvec_t([0.4, 0.3, 0.2], [0.0, 0.0, 0.7])
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(pose).rgb, camera, 0.0)
+    order, head = [0, 1, 2, 3], np.array([0.4, 0.3, 0.2, 0.1])  # unsure
+    reg.verifier.probabilities = lambda image, K, candidates, strip_pose=None: np.array([0.01, 0.01, 0.97, 0.01])
+    fitted = []
+    real_fit = edges.fit_edges
+
+    def spy(view, frame, start, **kw):
+        fitted.append(start)
+        return real_fit(view, frame, start, **kw)
+
+    monkeypatch.setattr(edges, "fit_edges", spy)
+    reg._refine(frame, pose, order, head)
+    assert len(fitted) == 4, "edges weighed in the choice: every twin is fitted"
+    fitted.clear()
+    monkeypatch.setattr(predictor, "VERIFIER_EDGE_WEIGHT", 0.0)
+    got, twin = reg._refine(frame, pose, order, head)
+    assert twin == 2 and len(fitted) == 1  # log 0.2 + log 0.97 beats log 0.4 + log 0.01
+    assert rotation_error_deg(fitted[0], reg._twin_starts(pose, order)[2]) < 1e-6
+
+
 def test_twin_candidates_need_a_twin_head(tiny_checkpoint, camera):
     reg = CheckpointRegressor(tiny_checkpoint, verifier=None)
     frame = Frame(np.zeros((camera.height, camera.width, 3), np.uint8), camera, 0.0)

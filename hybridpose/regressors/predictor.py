@@ -56,6 +56,11 @@ VERIFIER_WEIGHT = 1.0
 # with a twin verifier the head counts as sure only from this probability (chosen on the seed-101 test
 # set; benchmarks/RESULTS.md, "Twin verifier")
 VERIFIER_SURE = 0.95
+# with a twin verifier, the weight of the edge fits' quality in the twin choice: 0 chooses by head ×
+# verifier before any fit, and only the chosen twin is edge-fitted (one fit instead of four, ≈ 1.7 ms
+# a view on average). Not the default: with it (and VERIFIER_WEIGHT 0.5) 98 views of 5000 were > 30°
+# off against 95 with the edges weighed in (benchmarks/RESULTS.md, "Twin choice with the crop turns").
+VERIFIER_EDGE_WEIGHT = TWIN_EDGE_WEIGHT
 # passes="auto": the second, re-centred network pass only where the first pass's twin head is below
 # this (≈ 15 % of views): it buys most of what two passes always would (benchmarks/second_pass.py)
 # for ≈ 1 ms on average instead of 7.
@@ -498,11 +503,14 @@ class CheckpointRegressor(PoseRegressor):
         """Edge fit from the CNN pose and, with ``check_twins``, from its box twins: (pose, the
         symmetry index of the twin it settled on, as in ``order``).
 
-        With a twin head (``prob``): when the head is sure (p ≥ ``TWIN_SURE``) only its twin is
-        fitted; else every twin is, and the one with the best ``log p + TWIN_EDGE_WEIGHT · log
-        quality`` wins. Without one, the fit most model edges agree with (inliers × quality) wins.
-        A winning fit below ``REFINE_MIN_QUALITY`` is not used (the unrefined pose of its twin with a
-        head, the CNN pose without).
+        With a twin head (``prob``): when the head is sure (p ≥ ``TWIN_SURE``, ``VERIFIER_SURE``
+        with a verifier) only its twin is fitted; else every twin is, and the one with the best
+        ``log p + TWIN_EDGE_WEIGHT · log quality`` wins (with a verifier: ``log p +
+        VERIFIER_EDGE_WEIGHT · log quality + VERIFIER_WEIGHT · log p_verifier``, and where
+        ``VERIFIER_EDGE_WEIGHT`` is 0 the twin is chosen before fitting and only it is fitted).
+        Without one, the fit most model edges agree with (inliers × quality) wins. A winning fit
+        below ``REFINE_MIN_QUALITY`` is not used (the unrefined pose of its twin with a head, the CNN
+        pose without).
         """
         from ..trackers.edges import fit_edges, to_gray
 
@@ -514,12 +522,18 @@ class CheckpointRegressor(PoseRegressor):
             starts = self._twin_starts(pose, order)
             if prob is not None and prob[order[0]] >= (TWIN_SURE if self.verifier is None else VERIFIER_SURE):
                 starts = starts[:1]
+        twin_of = list(order[:len(starts)])  # symmetry index of each start
+        head_prob = None if prob is None else [prob[k] for k in twin_of]
+        # the verifier's strip is cut along the head's choice, as in its training (any twin gives it)
+        ver = (self.verifier.probabilities(frame.image, frame.camera.K, starts)
+               if prob is not None and self.verifier is not None and len(starts) > 1 else None)
+        edge_weight = TWIN_EDGE_WEIGHT if ver is None else VERIFIER_EDGE_WEIGHT
+        if ver is not None and edge_weight == 0:  # the fits would not change the choice: fit the chosen twin only
+            k = int(np.argmax(twin_scores(head_prob, np.ones(len(starts)), edge_weight=0.0, verifier_prob=ver)))
+            starts, twin_of, head_prob, ver = [starts[k]], [twin_of[k]], [head_prob[k]], None
         fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]
         if prob is not None:
-            # the verifier's strip is cut along the head's choice, as in its training (any twin gives it)
-            ver = (self.verifier.probabilities(frame.image, frame.camera.K, starts)
-                   if self.verifier is not None and len(starts) > 1 else None)
-            score = twin_scores([prob[k] for k in order[:len(fits)]], [f.quality if f else 0.0 for f in fits],
+            score = twin_scores(head_prob, [f.quality if f else 0.0 for f in fits], edge_weight=edge_weight,
                                 verifier_prob=ver)
             best = int(np.argmax(score))
         else:
@@ -527,9 +541,9 @@ class CheckpointRegressor(PoseRegressor):
             best = max(ranked)[1] if ranked else 0
         fit = fits[best]
         if fit is not None and fit.quality >= REFINE_MIN_QUALITY:
-            return fit.pose, order[best]
+            return fit.pose, twin_of[best]
         # a poor fit: the twin the head and edges chose, unrefined; without a head, the CNN's own pose
-        return (starts[best], order[best]) if prob is not None else (pose, order[0])
+        return (starts[best], twin_of[best]) if prob is not None else (pose, order[0])
 
     def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
         cam = frame.camera

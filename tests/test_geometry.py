@@ -93,6 +93,16 @@ def test_se3_exp_log_match_gtsam(rng):
             np.testing.assert_allclose(se3_log(R, t), gtsam.Pose3.Logmap(ref), atol=1e-8)
 
 
+def test_se3_exp_batched_matches_one_at_a_time(rng):
+    """The one-vector fast path and the batched path are the same function."""
+    xis = np.concatenate([rng.normal(size=(50, 6)), 1e-6 * rng.normal(size=(10, 6)), np.zeros((1, 6))])
+    R, t = se3_exp(xis)
+    for k, xi in enumerate(xis):
+        R1, t1 = se3_exp(xi)
+        np.testing.assert_allclose(R1, R[k], atol=1e-14)
+        np.testing.assert_allclose(t1, t[k], atol=1e-14)
+
+
 def test_pose_algebra(rng):
     for _ in range(200):
         a = Pose.from_quat_t(random_quat(None, rng), rng.normal(size=3))

@@ -61,6 +61,19 @@ def test_projection_jacobian_matches_central_differences(rng, camera):
         assert np.allclose(J[:, :, k], num, atol=1e-4 * np.abs(num).max() + 1e-6)
 
 
+def test_line_jacobian_is_the_projection_jacobian_along_the_normals(rng, camera):
+    from hybridpose.geometry import line_jacobian
+
+    pose = _pose(rng)
+    pts = rng.uniform(-0.2, 0.2, (25, 3))
+    normals = rng.normal(size=(25, 2))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    uv, J = projection_jacobian(pose, pts, camera.K)
+    uv_line, J_line = line_jacobian(pose, pts, camera.K, normals)
+    np.testing.assert_allclose(uv_line, uv, atol=1e-9)
+    np.testing.assert_allclose(J_line, np.einsum("si,sij->sj", normals, J), rtol=1e-10, atol=1e-9)
+
+
 def test_solve_pnp_recovers_the_pose_and_rejects_outliers(truss, rng, camera):
     pose = _pose(rng)
     uv = camera.project(truss.keypoints, pose) + rng.normal(0, 0.3, (len(truss.keypoints), 2))
@@ -621,3 +634,21 @@ def test_twin_candidates_need_a_twin_head(tiny_checkpoint, camera):
     reg.has_twin_head = False
     with pytest.raises(ValueError, match="twin head"):
         reg.twin_candidates(frame)
+
+
+def test_folding_batch_norm_keeps_the_outputs(truss):
+    from hybridpose.regressors.models import fold_batch_norm
+
+    torch.manual_seed(0)
+    net = _trained_looking(KeypointNet(truss.keypoints, width=8, image_size=64, twin_classes=4))
+    x = torch.rand(3, 3, 64, 64)
+    with torch.no_grad():
+        uv, spread, twin = net(x, with_twin=True)
+        folded = fold_batch_norm(net)
+        assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
+        uv_f, spread_f, twin_f = folded(x, with_twin=True)
+    torch.testing.assert_close(uv_f, uv, atol=1e-3, rtol=0)
+    torch.testing.assert_close(spread_f, spread, atol=1e-3, rtol=0)
+    torch.testing.assert_close(twin_f, twin, atol=1e-4, rtol=1e-4)
+    with pytest.raises(ValueError, match="eval mode"):
+        fold_batch_norm(KeypointNet(truss.keypoints, width=8, image_size=64).train())

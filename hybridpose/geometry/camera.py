@@ -210,6 +210,33 @@ def save_camera(camera: Camera, path) -> None:
     Path(path).write_text(json.dumps(camera.to_dict(), indent=2))
 
 
+def line_jacobian(pose: Pose, points_m: np.ndarray, K: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Projections (S, 2) and the Jacobian (S, 6) of each one's component along its image
+    ``normals`` (S, 2) w.r.t. the right perturbation ``ξ = [ω, v]``: the rows of the moving-edge
+    (point-to-line) least squares, ``n · ∂p/∂ξ`` of :func:`projection_jacobian` without forming the
+    (S, 2, 6) tensor. With ``b = Rᵀ (∂π/∂X_c)ᵀ n`` the row is ``[X × b, b]`` (since
+    ``−bᵀ [X]× = (X × b)ᵀ``); object points ``points_m`` (S, 3) in metres, K (3, 3), no distortion."""
+    R = pose.R
+    Xc = points_m @ R.T + pose.t
+    inv_z = 1.0 / Xc[:, 2]
+    fx, fy = K[0, 0], K[1, 1]
+    u, v = fx * Xc[:, 0] * inv_z, fy * Xc[:, 1] * inv_z
+    uv = np.empty((len(Xc), 2))
+    uv[:, 0], uv[:, 1] = u + K[0, 2], v + K[1, 2]
+    nu, nv = normals[:, 0] * inv_z, normals[:, 1] * inv_z
+    a = np.empty((len(Xc), 3))                                      # (∂π/∂X_c)ᵀ n, camera frame
+    a[:, 0], a[:, 1], a[:, 2] = fx * nu, fy * nv, -(nu * u + nv * v)
+    b = a @ R                                                       # in the object frame
+    J = np.empty((len(Xc), 6))
+    X = points_m
+    # X × b by components (np.cross costs more than the rest of this function on ~400 rows)
+    J[:, 0] = X[:, 1] * b[:, 2] - X[:, 2] * b[:, 1]
+    J[:, 1] = X[:, 2] * b[:, 0] - X[:, 0] * b[:, 2]
+    J[:, 2] = X[:, 0] * b[:, 1] - X[:, 1] * b[:, 0]
+    J[:, 3:] = b
+    return uv, J
+
+
 def projection_jacobian(pose: Pose, points_m: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Projections (S, 2) and their Jacobian (S, 2, 6) w.r.t. the right perturbation
     ``ξ = [ω, v]`` in ``pose.retract(ξ)``: ``∂p/∂ξ = [−R [X]×, R]`` chained with the pinhole

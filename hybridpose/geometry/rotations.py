@@ -16,15 +16,13 @@ _SMALL = 1e-8
 def skew(v: np.ndarray) -> np.ndarray:
     """(..., 3) → (..., 3, 3) cross-product matrix, ``skew(a) @ b == cross(a, b)``."""
     v = np.asarray(v, dtype=np.float64)
-    z = np.zeros(v.shape[:-1])
-    return np.stack(
-        [
-            np.stack([z, -v[..., 2], v[..., 1]], -1),
-            np.stack([v[..., 2], z, -v[..., 0]], -1),
-            np.stack([-v[..., 1], v[..., 0], z], -1),
-        ],
-        -2,
-    )
+    # filled in place: three np.stack calls cost more than the math on the small arrays of the
+    # trackers' inner loops
+    W = np.zeros(v.shape + (3,))
+    W[..., 0, 1], W[..., 0, 2] = -v[..., 2], v[..., 1]
+    W[..., 1, 0], W[..., 1, 2] = v[..., 2], -v[..., 0]
+    W[..., 2, 0], W[..., 2, 1] = -v[..., 1], v[..., 0]
+    return W
 
 
 def quat_canonical(q: np.ndarray) -> np.ndarray:

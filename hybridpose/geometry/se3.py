@@ -4,6 +4,8 @@ Matches ``gtsam.Pose3.Expmap``/``Logmap``: ``Exp(ξ) = (exp(ω), V(ω)·v)``.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .rotations import matrix_to_rotvec, rotvec_to_matrix, skew
@@ -31,9 +33,29 @@ def se3_exp(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(..., 6) tangent ``[ω, v]`` → rotation (..., 3, 3) and translation (..., 3) in metres."""
     xi = np.asarray(xi, dtype=np.float64)
     omega, v = xi[..., :3], xi[..., 3:]
+    if xi.shape == (6,):
+        return _se3_exp_one(omega, v)
     R = rotvec_to_matrix(omega)
     t = np.einsum("...ij,...j->...i", so3_left_jacobian(omega), v)
     return R, t
+
+
+def _se3_exp_one(omega: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`se3_exp` of one tangent vector with scalar coefficients: the same series and closed
+    forms as the batched path, at a fifth of its cost (it is every Gauss–Newton step of the trackers)."""
+    theta = math.sqrt(float(omega @ omega))
+    t2 = theta * theta
+    if theta < 1e-4:
+        a, b_rot = 1 - t2 / 6 + t2 * t2 / 120, 0.5 - t2 / 24 + t2 * t2 / 720
+        b_left, c = 0.5 - t2 / 24, 1.0 / 6 - t2 / 120
+    else:
+        s, co = math.sin(theta), math.cos(theta)
+        a, b_rot = s / theta, (1 - co) / t2
+        b_left, c = b_rot, (theta - s) / (t2 * theta)
+    W = skew(omega)
+    W2 = W @ W
+    eye = np.eye(3)
+    return eye + a * W + b_rot * W2, (eye + b_left * W + c * W2) @ v
 
 
 def se3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:

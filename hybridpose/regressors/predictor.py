@@ -29,7 +29,7 @@ from ..registry import register
 from .base import PoseRegressor, check_roi
 from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance
 from .keypoint_pnp import solve_pnp
-from .models import available_models, build_model, model_kind, torch_device
+from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
 
 log = logging.getLogger(__name__)
 
@@ -265,7 +265,7 @@ class CheckpointRegressor(PoseRegressor):
         self.device = torch_device(device)
         # channels-last convolutions are ≈ 15 % faster on the CPU at batch 1 (same weights, same math)
         self.memory_format = torch.channels_last if self.device.type == "cpu" else torch.contiguous_format
-        self.net.eval().to(self.device, memory_format=self.memory_format)
+        fold_batch_norm(self.net.eval()).to(self.device, memory_format=self.memory_format)
         # the keypoints' 3D coordinates for PnP, once (the network's buffer may live on the GPU)
         self.keypoints_m = (self.net.keypoints_m.cpu().numpy().astype(np.float64)
                             if hasattr(self.net, "keypoints_m") else None)

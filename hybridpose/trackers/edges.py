@@ -27,7 +27,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..geometry import projection_jacobian, se3_exp
+from ..geometry import line_jacobian, se3_exp
 from .model_view import EdgeSamples, ModelView
 
 TUKEY_C = 4.685
@@ -120,12 +120,11 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
         n, X, m = samples.normals[valid], samples.points_m[valid], target[valid]
         rt = _RT(pose.R.copy(), pose.t.copy())  # plain arrays in the inner loop: a Pose validates itself
         for _ in range(inner):
-            uv, J = projection_jacobian(rt, X, K)
+            uv, Jn = line_jacobian(rt, X, K, n)                     # Jn: (S, 6)
             r = np.einsum("si,si->s", n, uv - m)                   # signed point-to-line distance, px
-            Jn = np.einsum("si,sij->sj", n, J)                      # (S, 6)
             # MAD scale, capped by the search range: when an occluder's edges outnumber the model's
             # the MAD would grow and let them in
-            scale = float(np.clip(1.4826 * np.median(np.abs(r)), 0.5, max(1.0, rng_px / 4)))
+            scale = min(max(1.4826 * float(np.median(np.abs(r))), 0.5), max(1.0, rng_px / 4))
             w = _tukey(r, scale)
             if w.sum() < 6:
                 return None
@@ -139,9 +138,8 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
         if np.linalg.norm(pose.t - start.t) > max_step_m:
             return None
         rng_px = max(4, rng_px // 2)
-    uv, J = projection_jacobian(pose, X, K)
+    uv, Jn = line_jacobian(pose, X, K, n)
     r = np.einsum("si,si->s", n, uv - m)
-    Jn = np.einsum("si,sij->sj", n, J)
     inl = np.abs(r) < inlier_px
     if inl.sum() < 6:
         return None

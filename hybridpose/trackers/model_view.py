@@ -73,6 +73,7 @@ class ModelView:
         self.directions = (b - a) / length[e_idx, None]           # (P, 3) unit edge directions
         self.faces = faces[e_idx]                                 # (P, 2) adjacent triangles
         self.face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
+        self._normal_dot_point = np.einsum("pkj,pj->pk", self.face_normals[faces[e_idx]], self.points)  # (P, 2)
         self.triangles = verts[np.asarray(mesh.faces)]            # (F, 3, 3)
         # coplanar triangles form one facet: a pixel showing any of them shows "that face"
         facet_of = np.arange(len(mesh.faces)) + len(mesh.facets)
@@ -140,8 +141,9 @@ class ModelView:
         part (facet-id test), inside the image by ``margin_px``; evenly thinned to ``max_samples``."""
         R, t = pose.R, pose.t
         X = self.points @ R.T + t
-        n_cam = self.face_normals[self.faces] @ R.T                # (P, 2, 3)
-        facing = np.einsum("pkj,pj->pk", n_cam, X) < 0            # (P, 2)
+        # a face looks at the camera where n_cam · X_cam < 0, i.e. n · (p + Rᵀt) < 0 in the object
+        # frame: n · p is fixed per sample, so only one dot per face is left to do per pose
+        facing = (self._normal_dot_point + (self.face_normals @ (R.T @ t))[self.faces]) < 0   # (P, 2)
         keep = facing.any(1) & (X[:, 2] > 1e-3)
         K = camera.K
         uv = np.full((len(X), 2), -1e9)
@@ -156,12 +158,11 @@ class ModelView:
             h, w = ids.shape
             c = np.round((uv[idx] + 0.5) * ID_SCALE - 0.5).astype(int)
             own = self.facet_of[self.faces[idx]] * facing[idx]     # (S, 2): 0 where back-facing
-            seen = np.zeros(len(idx), bool)
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    f = ids[np.clip(c[:, 1] + dy, 0, h - 1), np.clip(c[:, 0] + dx, 0, w - 1)]
-                    seen |= (f == own[:, 0]) | (f == own[:, 1])
-            idx = idx[seen]
+            step = np.array([-1, 0, 1])                              # the 3×3 neighbourhood, one gather
+            rows = np.clip(c[:, 1, None, None] + step[None, :, None], 0, h - 1)
+            cols = np.clip(c[:, 0, None, None] + step[None, None, :], 0, w - 1)
+            f = ids[rows, cols].reshape(len(idx), 9)
+            idx = idx[((f == own[:, :1]) | (f == own[:, 1:])).any(1)]
         if max_samples is not None and len(idx) > max_samples:
             idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
         return self.samples_at(pose, camera, idx)

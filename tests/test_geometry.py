@@ -123,6 +123,23 @@ def test_pose_is_immutable():
         p.t[0] = 1.0
     with pytest.raises(Exception):
         p.R = np.eye(3)
+    composed = Pose.from_rotvec_t([0.1, 0.2, 0.3], [0.0, 0.0, 1.0]) @ p
+    for pose in (composed, composed.inverse()):
+        with pytest.raises(ValueError):
+            pose.R[0, 0] = 2.0
+        with pytest.raises(ValueError):
+            pose.t[0] = 2.0
+
+
+def test_long_compositions_stay_rotations(rng):
+    """Composition skips the re-orthonormalisation: 20 000 steps (a tracker's pose @ delta over a
+    long run) must stay a rotation far inside the checks' tolerance."""
+    pose = Pose.identity()
+    steps = [Pose.exp(np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.01, 3)]) for _ in range(50)]
+    for k in range(20000):
+        pose = pose @ steps[k % 50]
+    assert np.abs(pose.R.T @ pose.R - np.eye(3)).max() < 1e-10
+    Pose(pose.R, pose.t)  # passes the checks of a pose from outside
 
 
 @settings(max_examples=200, deadline=None)

@@ -652,3 +652,23 @@ def test_folding_batch_norm_keeps_the_outputs(truss):
     torch.testing.assert_close(twin_f, twin, atol=1e-4, rtol=1e-4)
     with pytest.raises(ValueError, match="eval mode"):
         fold_batch_norm(KeypointNet(truss.keypoints, width=8, image_size=64).train())
+
+
+def test_components_in_the_masks_box_are_the_full_frames(rng):
+    """Labelling only the box around a mask's pixels must find what labelling the frame finds."""
+    from hybridpose.regressors.predictor import _components
+
+    for _ in range(20):
+        mask = np.zeros((120, 160), np.uint8)
+        for _ in range(rng.integers(1, 6)):
+            x, y = rng.integers(0, 150), rng.integers(0, 110)
+            mask[y:y + rng.integers(1, 15), x:x + rng.integers(1, 15)] = 1
+        include = (int(rng.integers(0, 100)), int(rng.integers(0, 80)), 30, 20)
+        labels, stats, (x, y, w, h) = _components(mask, include=include)
+        n, ref_labels, ref_stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        assert x <= include[0] and y <= include[1] and x + w >= include[0] + 30 and y + h >= include[1] + 20
+        assert len(stats) == n
+        order = np.lexsort(stats[1:, :4].T[::-1]), np.lexsort(ref_stats[1:, :4].T[::-1])
+        np.testing.assert_array_equal(stats[1:][order[0]], ref_stats[1:][order[1]])
+        assert np.array_equal(labels > 0, ref_labels[y:y + h, x:x + w] > 0)
+    assert _components(np.zeros((10, 10), np.uint8)) is None

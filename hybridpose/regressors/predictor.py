@@ -154,13 +154,18 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
     gray = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
     bright = (gray > threshold).astype(np.uint8)
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=8)
+    found = _components(bright)
+    if found is None:
+        return None
+    labels, stats, (bx, by, bw, bh) = found
     keep = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] * 4 >= min_area_px)
     if not len(keep):
         return None
     if not grow:
         return _union_box(stats[keep])
-    seeds = np.isin(labels, keep)
+    is_kept = np.zeros(len(stats), bool)
+    is_kept[keep] = True
+    seeds = is_kept[labels]                                    # (bh, bw): the bright mask's box
     # smoothed (5×5) and above the sensor noise, so that noise cannot chain dim pixels across the
     # background: with noise the growth falls back to the bright box, what it was before
     smooth = cv2.GaussianBlur(gray, (5, 5), 0)
@@ -168,12 +173,32 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     # the object covers less than half the frame, and above it growing is pointless anyway)
     dim_threshold = max(DETECT_DIM_THRESHOLD,
                         float(np.median(smooth)) + DETECT_DIM_SIGMAS * SMOOTH_NOISE_GAIN * noise_sigma(gray))
-    dim = ((smooth > dim_threshold) | seeds).astype(np.uint8)
-    _, dim_labels, dim_stats, _ = cv2.connectedComponentsWithStats(dim, connectivity=8)
-    box, grown = _union_box(stats[keep]), _union_box(dim_stats[np.unique(dim_labels[seeds])])
+    dim = (smooth > dim_threshold).astype(np.uint8)
+    dim[by:by + bh, bx:bx + bw] |= seeds
+    dim_labels, dim_stats, (dx, dy, _, _) = _components(dim, include=(bx, by, bw, bh))
+    seed_labels = dim_labels[by - dy:by - dy + bh, bx - dx:bx - dx + bw][seeds]
+    box, grown = _union_box(stats[keep]), _union_box(dim_stats[np.unique(seed_labels)])
     # only a box that grows a lot is a fragment's: growing every box over its dim, shadowed
     # pixels gave crops the network had not learnt (benchmarks/RESULTS.md, session 9)
     return grown if np.hypot(*grown[2:]) > DETECT_GROW_RATIO * np.hypot(*box[2:]) else box
+
+
+def _components(mask: np.ndarray, include=None):
+    """8-connected components of a uint8 ``mask``, labelled within the box around its non-zero
+    pixels only (the same components; on a space image that box is a fifth of the frame on average,
+    and labelling is most of the detection's cost), grown to hold the box ``include`` (x, y, w, h)
+    if given: (labels (h, w) int32 of that box, stats as ``cv2.connectedComponentsWithStats`` in
+    ``mask``'s coordinates (row 0: the box's background), box (x, y, w, h)), or None for an empty mask."""
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0 or h == 0:
+        return None
+    if include is not None:
+        x0, y0 = min(x, include[0]), min(y, include[1])
+        x, y, w, h = x0, y0, max(x + w, include[0] + include[2]) - x0, max(y + h, include[1] + include[3]) - y0
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask[y:y + h, x:x + w], connectivity=8)
+    stats[:, cv2.CC_STAT_LEFT] += x
+    stats[:, cv2.CC_STAT_TOP] += y
+    return labels, stats, (x, y, w, h)
 
 
 def noise_sigma(gray: np.ndarray) -> float:

@@ -7,8 +7,8 @@ Usage:
 
 Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (full inference path,
 no roi: detection, a network pass (the crop turned by ±20°/±40° too where PnP drops keypoints, a
-second pass where the twin head is unsure), PnP, twin head + verifier + edge check), without the crop
-turns, without the twin verifier, without the final edge refinement, with always one and always two passes, and
+second pass where the twin head is unsure), PnP dropping the worst keypoint, twin head + verifier +
+edge check), without the crop turns, with RANSAC for PnP's outliers, without the twin verifier, without the final edge refinement, with always one and always two passes, and
 what a quality gate keeps (accuracy by quality); copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
@@ -34,17 +34,19 @@ def main() -> None:
     results = {}
     # the shipped twin verifier ("auto") in every row but the one that shows what it adds
     # and the test-time crop turns ("auto") in every row but the one without them
-    runs = ([(n, p, True, "auto", "auto", "auto") for n, p in pairs]
-            + [(f"{n}, no crop turns", p, True, "auto", "auto", "off") for n, p in pairs]
-            + [(f"{n}, no twin verifier", p, True, "auto", None, "auto") for n, p in pairs]
-            + [(f"{n}, no edge refinement", p, False, "auto", "auto", "auto") for n, p in pairs]
-            + [(f"{n}, 1 pass", p, True, 1, "auto", "auto") for n, p in pairs]
-            + [(f"{n}, 2 passes", p, True, 2, "auto", "auto") for n, p in pairs])
-    for name, path, refine, passes, verifier, turns in runs:
+    # and PnP dropping the worst keypoint ("drop-worst") in every row but the one with RANSAC
+    runs = ([(n, p, True, "auto", "auto", "auto", "drop-worst") for n, p in pairs]
+            + [(f"{n}, no crop turns", p, True, "auto", "auto", "off", "drop-worst") for n, p in pairs]
+            + [(f"{n}, PnP outliers by RANSAC", p, True, "auto", "auto", "auto", "ransac") for n, p in pairs]
+            + [(f"{n}, no twin verifier", p, True, "auto", None, "auto", "drop-worst") for n, p in pairs]
+            + [(f"{n}, no edge refinement", p, False, "auto", "auto", "auto", "drop-worst") for n, p in pairs]
+            + [(f"{n}, 1 pass", p, True, 1, "auto", "auto", "drop-worst") for n, p in pairs]
+            + [(f"{n}, 2 passes", p, True, 2, "auto", "auto", "drop-worst") for n, p in pairs])
+    for name, path, refine, passes, verifier, turns, pnp_outliers in runs:
         tmp = Path(tempfile.mkdtemp())
         s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit, refine_edges=refine, passes=passes,
-                                verifier=verifier, turns=turns)
-        if refine and passes == "auto" and verifier and turns == "auto":  # the plots of the default inference path
+                                verifier=verifier, turns=turns, pnp_outliers=pnp_outliers)
+        if name in dict(pairs):  # the plots of the default inference path
             for png in ("error_vs_distance.png", "gradcam.png"):
                 if (tmp / png).exists():
                     shutil.copy(tmp / png, BENCH_DIR / "results" / f"regressor_{name}_{png}")

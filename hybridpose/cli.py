@@ -215,6 +215,7 @@ def cmd_eval(args) -> int:
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
+                            pnp_outliers=args.pnp_outliers,
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
@@ -366,6 +367,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--turns", choices=("auto", "always", "off"), default="auto",
                    help="keypoint models: also try the first crop turned in-plane by ±20°/±40° (auto, the default: "
                         "only where the first pass's PnP keeps < 90 %% of the keypoints)")
+    e.add_argument("--pnp-outliers", choices=("drop-worst", "ransac"), default="drop-worst",
+                   help="keypoint models: PnP leaves the worst keypoint out until the rest agree (drop-worst, the "
+                        "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")

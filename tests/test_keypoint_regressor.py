@@ -61,6 +61,24 @@ def test_projection_jacobian_matches_central_differences(rng, camera):
         assert np.allclose(J[:, :, k], num, atol=1e-4 * np.abs(num).max() + 1e-6)
 
 
+def test_drop_worst_fit_leaves_out_the_outliers_and_hands_hard_cases_to_ransac(truss, rng, camera):
+    from hybridpose.regressors.keypoint_pnp import _drop_worst_fit
+
+    pose = _pose(rng)
+    uv = camera.project(truss.keypoints, pose) + rng.normal(0, 0.3, (len(truss.keypoints), 2))
+    pts3 = np.ascontiguousarray(truss.keypoints, dtype=np.float64).reshape(-1, 1, 3)
+    clean = _drop_worst_fit(pts3, uv.reshape(-1, 1, 2), camera.K, 3.0, 5)
+    assert clean is not None and clean[0].all(), "no outlier: one fit on all points"
+    off = uv.copy()
+    off[[1, 4, 9]] += [[60.0, -45.0], [-50.0, 30.0], [35.0, 55.0]]
+    kept, rvec, tvec = _drop_worst_fit(pts3, off.reshape(-1, 1, 2), camera.K, 3.0, 5)
+    assert not kept[[1, 4, 9]].any() and kept.sum() == len(uv) - 3
+    assert np.linalg.norm(np.ravel(tvec) - pose.t) < 0.01
+    scrambled = uv.copy()
+    scrambled[: len(uv) // 2 + 1] = rng.uniform(0, 640, (len(uv) // 2 + 1, 2))
+    assert _drop_worst_fit(pts3, scrambled.reshape(-1, 1, 2), camera.K, 3.0, 5) is None, "most points off: RANSAC's job"
+
+
 def test_line_jacobian_is_the_projection_jacobian_along_the_normals(rng, camera):
     from hybridpose.geometry import line_jacobian
 
@@ -209,6 +227,10 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
     for bad_turns in ("on", None, 20):
         with pytest.raises(ValueError, match="turns: expected one of auto, always, off"):
             CheckpointRegressor(tiny_checkpoint, turns=bad_turns)
+    with pytest.raises(ValueError, match="pnp_outliers: expected one of drop-worst, ransac, got 'lmeds'"):
+        CheckpointRegressor(tiny_checkpoint, pnp_outliers="lmeds")
+    with pytest.raises(ValueError, match="outliers: expected one of drop-worst, ransac"):
+        solve_pnp(np.zeros((12, 2)), np.zeros((12, 3)), np.eye(3), outliers="all")
     with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'gpu0'"):
         CheckpointRegressor(tiny_checkpoint, device="gpu0")
     with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'meta'"):
@@ -242,10 +264,10 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
 
     data = tiny_checkpoint.parent.parent / "ds"
     assert main(["eval", "--checkpoint", str(tiny_checkpoint), "--data", str(data), "--out", str(tmp_path / "rep"),
-                 "--limit", "10", "--turns", "always"]) == 0
+                 "--limit", "10", "--turns", "always", "--pnp-outliers", "ransac"]) == 0
     rep = json.loads((tmp_path / "rep" / "report.json").read_text())
     s = rep["summary"]
-    assert s["turns"] == "always"
+    assert s["turns"] == "always" and s["pnp_outliers"] == "ransac"
     assert s["images"] == 10 and len(rep["per_image"]) == 10
     assert {"rot_mean_deg", "rot_median_deg", "trans_mean_m", "speed_score", "add_0.1d_recall", "failures"} <= set(s)
     rot = [r["rot_deg"] for r in rep["per_image"]]
@@ -259,6 +281,15 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
     assert (tmp_path / "rep" / "gradcam.png").stat().st_size > 1000
     assert "eval default on 10 images" in capsys.readouterr().out
+
+
+def test_eval_without_gradcam_writes_no_sheet(tiny_checkpoint, tmp_path):
+    from hybridpose.regressors.evaluate import evaluate_checkpoint
+
+    data = tiny_checkpoint.parent.parent / "ds"
+    s = evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=3, timing_images=2, gradcam_count=0)
+    assert s["images"] == 3 and (tmp_path / "rep" / "report.json").is_file()
+    assert not (tmp_path / "rep" / "gradcam.png").exists()
 
 
 def test_accuracy_by_quality_keeps_what_a_gate_would_trust():

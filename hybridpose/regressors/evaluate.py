@@ -40,7 +40,7 @@ QUALITY_GATES = (0.0, 0.2, 0.3, 0.4, 0.5)
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 100,
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
-                        device="cpu", verifier="auto", turns="auto") -> dict:
+                        device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
     ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in
@@ -48,12 +48,13 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     ``device`` is where the network runs (``"cuda"`` for the VGG models on a GPU machine); the
     ms/image timings are then those of that device with 1 and 2 CPU threads beside it. ``verifier``:
     the twin verifier (:class:`CheckpointRegressor`'s argument: ``"auto"``, a path or None);
-    ``turns``: the test-time crop turns (its argument too: ``"auto"``, ``"always"``, ``"off"``).
+    ``turns``: the test-time crop turns (its argument too: ``"auto"``, ``"always"``, ``"off"``);
+    ``pnp_outliers``: ``"drop-worst"`` or ``"ransac"`` (ditto).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier,
-                              turns=turns)
+                              turns=turns, pnp_outliers=pnp_outliers)
     scenes = [BopScene(p) for p in find_scenes(data)]
     items = [(s, i) for s in scenes for i in s.image_ids]
     if not items:
@@ -85,6 +86,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
         "refine_edges": reg.refine_edges and reg.twin_check is not None, "passes": reg.passes, "turns": reg.turns,
+        "pnp_outliers": reg.pnp_outliers,
         "device": str(reg.device),
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "gross_error_share": float(np.mean(rot > GROSS_ERROR_DEG)), "speed_score": float(np.mean([r["speed"] for r in rows])),
@@ -101,7 +103,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     picks = [items[i] for i in order[:gradcam_count]] + [items[i] for i in order[::-1][:gradcam_count]]
     labels = [f"best {rows[i]['rot_deg']:.1f}°" for i in order[:gradcam_count]] + \
              [f"worst {rows[i]['rot_deg']:.1f}°" for i in order[::-1][:gradcam_count]]
-    write_gradcam_sheet(reg, picks, labels, out / "gradcam.png")
+    if gradcam_count > 0:
+        write_gradcam_sheet(reg, picks, labels, out / "gradcam.png")
     atomic_write_json(out / "report.json", {"summary": summary, "per_image": rows})
     atomic_write_text(out / "report.md", report_markdown(summary))
     return summary

@@ -28,7 +28,7 @@ from ..geometry import Camera, Pose
 from ..registry import register
 from .base import PoseRegressor, check_roi
 from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance
-from .keypoint_pnp import solve_pnp
+from .keypoint_pnp import OUTLIER_STRATEGIES, solve_pnp
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
 
 log = logging.getLogger(__name__)
@@ -255,6 +255,8 @@ class CheckpointRegressor(PoseRegressor):
             batch; the pass whose PnP keeps the most keypoints wins): ``"auto"`` (default) only
             where the first pass's PnP keeps fewer than ``TURNS_BELOW_INLIERS`` of them or fails,
             ``"always"``, or ``"off"``.
+        pnp_outliers: keypoint models — how PnP sets outlying keypoints aside (:func:`solve_pnp`'s
+            ``outliers``): ``"drop-worst"`` (default) or ``"ransac"`` (the path before session 14).
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
             one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
             the edge fit always run on the CPU.
@@ -267,7 +269,7 @@ class CheckpointRegressor(PoseRegressor):
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
-                 device="cpu", verifier="auto", turns: str = "auto") -> None:
+                 device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -325,6 +327,9 @@ class CheckpointRegressor(PoseRegressor):
         if turns not in TURNS:
             raise ValueError(f"turns: expected one of {', '.join(TURNS)}, got {turns!r}")
         self.turns = turns
+        if pnp_outliers not in OUTLIER_STRATEGIES:
+            raise ValueError(f"pnp_outliers: expected one of {', '.join(OUTLIER_STRATEGIES)}, got {pnp_outliers!r}")
+        self.pnp_outliers = pnp_outliers
 
     def _load_verifier(self, verifier):
         if verifier is None or verifier is False or self.twin_check is None or not self.has_twin_head:
@@ -419,7 +424,8 @@ class CheckpointRegressor(PoseRegressor):
         for i, A in enumerate(turns):
             back = np.linalg.inv(A)
             uv = uv_all[i].float().cpu().numpy().astype(np.float64) @ back[:2, :2].T + back[:2, 2]
-            res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size)
+            res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size,
+                            outliers=self.pnp_outliers)
             order, prob = list(range(len(self.twins) + 1)), None
             if self.has_twin_head:
                 prob = torch.softmax(twin[i].float(), 0).cpu().numpy()

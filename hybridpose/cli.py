@@ -366,7 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "auto, the default: the second only where the first one's twin head is unsure)")
     e.add_argument("--turns", choices=("auto", "always", "off"), default="auto",
                    help="keypoint models: also try the first crop turned in-plane by ±20°/±40° (auto, the default: "
-                        "only where the first pass's PnP keeps < 90 %% of the keypoints)")
+                        "only where the first pass's PnP keeps < 80 %% of the keypoints)")
     e.add_argument("--pnp-outliers", choices=("drop-worst", "ransac"), default="drop-worst",
                    help="keypoint models: PnP leaves the worst keypoint out until the rest agree (drop-worst, the "
                         "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")

@@ -74,9 +74,11 @@ PASSES = (1, 2, "auto")
 # network also sees its crop turned in-plane by TURNS_DEG (one batch) and the pass whose PnP keeps the
 # most keypoints (then the lowest RMS) wins. The failures are keypoints in near edge-on views that a
 # slightly turned crop gets right; larger turns (90°, 180°) move the sunlit side where the network
-# never saw it and are worse alone (benchmarks/RESULTS.md, "Crop turns").
+# never saw it and are worse alone (benchmarks/RESULTS.md, "Crop turns"). 0.8 (≤ 9 of 12 kept: 21 %
+# of the views) rather than 0.9 (≤ 10: 36 %) since PnP drops the worst keypoint: 3 ms less per view,
+# and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (session 14, pre-registered rule).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
-TURNS_BELOW_INLIERS = 0.9
+TURNS_BELOW_INLIERS = 0.8
 TURNS = ("auto", "always", "off")
 
 

@@ -61,7 +61,7 @@ def main() -> None:
         f"`{args.data}`: {next(iter(results.values()))['images']} rendered 640×480 views, truss wholly in view, 0.4–1.2 m, "
         "random orientation, sun direction within 40° of the default and intensity ×0.7–1.3 (seed 100; the training "
         f"sets use other seeds, `hybridpose/regressors/weights/README.md`). Full inference path, no roi. Failures count as 180° / 1 m; *> 30°*: share of views off by more "
-        f"than 30° in rotation (mostly the truss turned end for end). *ms/img*: mean time of the whole `predict` over the "
+        f"than 30° in rotation (mostly the truss turned end for end). *ms/img*: lowest of 3 runs of the mean time of the whole `predict` over the "
         f"first 100 views (the extra passes, turns and fits run only on hard views: a median would hide them), torch on "
         f"1 or 2 threads. git {env['git']}, {env['cpus']} CPU cores.",
         "",

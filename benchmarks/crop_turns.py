@@ -34,7 +34,7 @@ from hybridpose.regressors.predictor import (CROP_MARGIN, TURNS_BELOW_INLIERS, T
 ANGLES_DEG = (0.0, 20.0, -20.0, 40.0, -40.0, 90.0, -90.0, 180.0)
 SETS = {"0, ±20": (0.0, 20.0, -20.0), "0, ±20, ±40": (0.0, *TURNS_DEG), "0, ±90, 180": (0.0, 90.0, -90.0, 180.0),
         "all eight": ANGLES_DEG}
-GATES = (0.8, TURNS_BELOW_INLIERS, 1.0, None)  # turns where the unturned pass keeps < this share; None: always
+GATES = tuple(sorted({0.8, 0.9, TURNS_BELOW_INLIERS, 1.0})) + (None,)  # turns where the unturned pass keeps < this share; None: always
 
 
 def measure(reg: CheckpointRegressor, data_dirs, limit=None) -> dict:

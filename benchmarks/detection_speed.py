@@ -43,7 +43,7 @@ def main() -> None:
         "",
         f"`{args.data}`, first {len(images)} views (640×480), one thread, median of {args.repeats} interleaved runs, "
         f"git {result['env']['git']}. The dim-object growth (session 9) labels a second, smoothed mask on every "
-        "frame without a `roi`; the regressor's whole `predict` is ≈ 30 ms (table above).",
+        "frame without a `roi`; the regressor's whole `predict` is ≈ 18 ms (table above).",
         "",
         "| detection | ms / frame | boxes changed |",
         "|---|---|---|",

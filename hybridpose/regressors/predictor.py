@@ -149,7 +149,7 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     box around the glint alone gave the network a fragment (a 14 × 20 px box on a truss 1 m away,
     PnP then put it at 13 m). Dim pixels not connected to a bright one are ignored, so sensor noise
     does not grow the box. Not for an Earth background — pass the ``roi`` there (the hybrid passes
-    the tracker's predicted box). ``grow=False``: the bright pixels' box only (≈ 1.9 ms less on
+    the tracker's predicted box). ``grow=False``: the bright pixels' box only (≈ 0.45 ms less on
     640 × 480, ``benchmarks/detection_speed.py``).
     """
     # at half resolution (4× fewer pixels to label; a 1.2 m-away beam is still 3–4 px wide)

@@ -279,6 +279,11 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert "| elevation ° | n | mean rot ° | median rot ° | > 30° |" in md
     assert s["accuracy_by_quality"][0]["kept_share"] == 1.0 and "| quality ≥ | views kept |" in md
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
+    c = s["covariance_check"]
+    posed = [r for r in rep["per_image"] if "nees" in r]
+    assert c["views"] == len(posed) and all(r["nees_twin"] <= r["nees"] for r in posed)
+    if posed:
+        assert 0.0 <= c["inside_share"] <= c["inside_share_twin"] <= 1.0 and "Covariance check:" in md
     assert (tmp_path / "rep" / "gradcam.png").stat().st_size > 1000
     assert "eval default on 10 images" in capsys.readouterr().out
 
@@ -290,6 +295,28 @@ def test_eval_without_gradcam_writes_no_sheet(tiny_checkpoint, tmp_path):
     s = evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=3, timing_images=2, gradcam_count=0)
     assert s["images"] == 3 and (tmp_path / "rep" / "report.json").is_file()
     assert not (tmp_path / "rep" / "gradcam.png").exists()
+
+
+def test_covariance_check_counts_errors_inside_the_ellipsoid():
+    from scipy.stats import chi2
+
+    from hybridpose.core import Measurement
+    from hybridpose.regressors.evaluate import covariance_check, covariance_nees
+
+    truth = Pose.from_rotvec_t([0.1, 0.2, -0.3], [0.05, 0.0, 0.8])
+    half_turn = Pose.from_rotvec_t([0.0, 0.0, np.pi], [0.0, 0.0, 0.0])
+    cov = np.diag([1e-4] * 3 + [1e-6] * 3)  # σ = 0.57°, 1 mm
+    xi = np.array([0.01, 0, 0, 0, 0, 0])     # 0.57° about x: NEES 1
+    near = covariance_nees(Measurement(pose=truth.retract(xi), covariance=cov, quality=1.0, source="t", timestamp=0.0), truth, [half_turn])
+    assert near["nees"] == pytest.approx(1.0, rel=1e-6) and near["nees_twin"] == pytest.approx(1.0, rel=1e-6)
+    flipped = covariance_nees(Measurement(pose=(truth @ half_turn).retract(xi), covariance=cov, quality=1.0, source="t", timestamp=0.0),
+                              truth, [half_turn])
+    assert flipped["nees"] > 1e4 and flipped["nees_twin"] == pytest.approx(1.0, rel=1e-6)
+    bound = chi2.ppf(0.9, 6)
+    rows = [{"nees": 1.0, "nees_twin": 1.0}, {"nees": 2 * bound, "nees_twin": 1.0}, {"nees": 2 * bound, "nees_twin": 2 * bound},
+            {"rot_deg": 180.0}]  # the last: a failure, no pose
+    c = covariance_check(rows)
+    assert c == {"coverage": 0.9, "views": 3, "inside_share": pytest.approx(1 / 3), "inside_share_twin": pytest.approx(2 / 3)}
 
 
 def test_accuracy_by_quality_keeps_what_a_gate_would_trust():

@@ -16,12 +16,15 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.stats import chi2
 
 from ..core import Frame
 from ..datasets.bop import BopScene, find_scenes
+from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text, write_image
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
 from ..objects import view_elevation_deg
+from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .predictor import CheckpointRegressor
 
 log = logging.getLogger(__name__)
@@ -77,7 +80,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
                        add_m=float("inf"))
         else:
             row.update(rot_deg=rotation_error_deg(m.pose, gt.pose), trans_m=translation_error_m(m.pose, gt.pose),
-                       speed=speed_score(m.pose, gt.pose), add_m=add(m.pose, gt.pose, points))
+                       speed=speed_score(m.pose, gt.pose), add_m=add(m.pose, gt.pose, points),
+                       **covariance_nees(m, gt.pose, reg.twins))
         rows.append(row)
         if progress:
             progress(k + 1, len(items))
@@ -98,6 +102,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     summary["error_vs_distance"] = bins
     summary["error_vs_elevation"] = error_vs_elevation(rows)
     summary["accuracy_by_quality"] = accuracy_by_quality(rows)
+    summary["covariance_check"] = covariance_check(rows)
     plot_error_vs_distance(bins, out / "error_vs_distance.png", reg.model_name)
     order = np.argsort(rot)
     picks = [items[i] for i in order[:gradcam_count]] + [items[i] for i in order[::-1][:gradcam_count]]
@@ -108,6 +113,30 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     atomic_write_json(out / "report.json", {"summary": summary, "per_image": rows})
     atomic_write_text(out / "report.md", report_markdown(summary))
     return summary
+
+
+def covariance_nees(m, truth: Pose, twins=()) -> dict:
+    """NEES ``ξᵀ Σ⁻¹ ξ`` of a measurement's error ``ξ = m.pose.local(truth)`` under its covariance:
+    ``nees`` to the true pose and ``nees_twin`` to the nearest of its box ``twins`` (what a keypoint
+    model's calibrated covariance promises to cover: the twin is the quality's business)."""
+    from .calibration import nees
+
+    cov = np.asarray(m.covariance, dtype=float)
+    values = [nees(m.pose.local(truth @ S), cov) for S in (Pose.identity(), *twins)]
+    return {"nees": float(values[0]), "nees_twin": float(min(values))}
+
+
+def covariance_check(rows, coverage: float = COVARIANCE_COVERAGE) -> dict:
+    """Share of the views with a pose whose error lies inside the ``coverage`` χ²₆ ellipsoid of the
+    reported covariance — about ``coverage`` when it is calibrated, well below when over-confident
+    (what the fusion layer must not be fed): to the true pose and to the nearest box twin."""
+    bound = float(chi2.ppf(coverage, 6))
+    got = [r for r in rows if "nees" in r]
+    if not got:
+        return {"coverage": coverage, "views": 0}
+    return {"coverage": coverage, "views": len(got),
+            "inside_share": float(np.mean([r["nees"] <= bound for r in got])),
+            "inside_share_twin": float(np.mean([r["nees_twin"] <= bound for r in got]))}
 
 
 def time_inference(reg: CheckpointRegressor, items, threads=(1, 2), repeats: int = 3) -> dict:
@@ -302,6 +331,12 @@ def report_markdown(s: dict) -> str:
                          f"{b['rot_median_deg']:.2f} | {b['gross_error_share']:.1%} |")
     if s.get("accuracy_by_quality"):
         lines += ["", quality_table(s["accuracy_by_quality"])]
+    c = s.get("covariance_check") or {}
+    if c.get("views"):
+        lines += ["", f"Covariance check: of the {c['views']} views with a pose, {c['inside_share']:.1%} lie inside the "
+                      f"{c['coverage']:.0%} χ²₆ ellipsoid of the reported covariance around the true pose, "
+                      f"{c['inside_share_twin']:.1%} around the nearest box twin (calibrated: ≈ {c['coverage']:.0%}; "
+                      "far below: over-confident)."]
     return "\n".join(lines) + "\n"
 
 

@@ -240,6 +240,17 @@ def cmd_compare(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    from .regressors.evaluate import calibrate_checkpoint
+
+    cal = calibrate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("calibrate"),
+                               coverage=args.coverage)
+    fp = cal["full_path"]
+    print(f"calibrate: {fp['poses']} poses on {args.data}: {fp['inside_share_before']:.0%} were inside the "
+          f"{fp['coverage']:.0%} ellipsoid; covariance ×{fp['factor']:.3f} → {args.out}")
+    return 0
+
+
 def cmd_export(args) -> int:
     from .regressors.train import export_checkpoint
 
@@ -354,6 +365,16 @@ def build_parser() -> argparse.ArgumentParser:
     tv.add_argument("--init-from", default=None, metavar="CHECKPOINT",
                     help="start from this twin-verifier checkpoint's weights (fine-tuning; same --width)")
     tv.set_defaults(func=cmd_train_verifier)
+
+    cal = sub.add_parser("calibrate", help="re-scale a regressor checkpoint's covariance on its whole inference path "
+                                           "(held-out rendered views), so the fusion layer gets honest uncertainties")
+    cal.add_argument("--checkpoint", required=True, help="checkpoint to re-scale (best.pt or an export)")
+    cal.add_argument("--data", required=True, help="held-out BOP dataset, another seed than training and test sets")
+    cal.add_argument("--out", required=True, help="where to write the re-scaled checkpoint (may be --checkpoint)")
+    cal.add_argument("--limit", type=int, default=None, help="use the first N images only")
+    cal.add_argument("--coverage", type=float, default=0.9, help="share of the errors inside the ellipsoid of that "
+                                                                  "probability (default 0.9)")
+    cal.set_defaults(func=cmd_calibrate)
 
     e = sub.add_parser("eval", help="evaluate a trained regressor: paper table, SPEED, ADD-0.1d, plots, Grad-CAM, ms/img")
     e.add_argument("--checkpoint", required=True, help="best.pt of a training run")

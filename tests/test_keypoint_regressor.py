@@ -319,6 +319,17 @@ def test_covariance_check_counts_errors_inside_the_ellipsoid():
     assert c == {"coverage": 0.9, "views": 3, "inside_share": pytest.approx(1 / 3), "inside_share_twin": pytest.approx(2 / 3)}
 
 
+def test_calibrate_refuses_bad_coverage_and_too_few_poses(tiny_checkpoint, tmp_path):
+    from hybridpose.regressors.evaluate import MIN_CALIBRATION_POSES, calibrate_checkpoint
+
+    data = tiny_checkpoint.parent.parent / "ds"
+    with pytest.raises(ValueError, match="coverage: expected a probability"):
+        calibrate_checkpoint(tiny_checkpoint, data, tmp_path / "x.pt", coverage=1.0)
+    with pytest.raises(ValueError, match=f"calibrating needs at least {MIN_CALIBRATION_POSES}"):
+        calibrate_checkpoint(tiny_checkpoint, data, tmp_path / "x.pt", limit=3)
+    assert not (tmp_path / "x.pt").exists()
+
+
 def test_accuracy_by_quality_keeps_what_a_gate_would_trust():
     from hybridpose.regressors.evaluate import accuracy_by_quality, quality_table
 

@@ -179,3 +179,28 @@ def test_the_twin_verifier_ships_and_is_used_by_default(regressor, truss):
     twins = [truth @ S for S in (Pose.identity(), *regressor.twins)]
     p = regressor.verifier.probabilities(image, camera.K, twins)
     assert int(np.argmax(p)) == 0 and p[0] > 0.5
+
+
+def test_calibrating_the_shipped_default_on_its_full_path(truss, tmp_path, capsys):
+    """`hybridpose calibrate` re-scales the covariance so that 90 % of the full path's errors (to the
+    nearest box twin) on held-out views lie inside the 90 % ellipsoid; eval then reports that share."""
+    from hybridpose.cli import main
+    from hybridpose.datasets import render_random_dataset
+    from hybridpose.regressors.evaluate import evaluate_checkpoint
+    from hybridpose.regressors.train import load_checkpoint
+
+    data = tmp_path / "calib"
+    render_random_dataset(data, truss, Camera.default(), count=24, seed=HELD_OUT_SEED + 1, in_view=True,
+                          sun_cone_deg=40.0, sun_scale_range=(0.7, 1.3))
+    out = tmp_path / "calibrated.pt"
+    assert main(["calibrate", "--checkpoint", str(shipped_checkpoint("default")), "--data", str(data),
+                 "--out", str(out)]) == 0
+    assert "covariance ×" in capsys.readouterr().out
+    before = load_checkpoint(shipped_checkpoint("default"))["calibration"]
+    after = load_checkpoint(out)["calibration"]
+    fp = after["full_path"]
+    assert fp["poses"] >= 20 and after["scale"] == pytest.approx(before["scale"] * fp["factor"])
+    assert 0.05 < fp["factor"] < 20, "the full path's spread is of the training calibration's order"
+    c = evaluate_checkpoint(out, data, tmp_path / "rep", timing_images=1, gradcam_count=0)["covariance_check"]
+    assert c["views"] == fp["poses"]
+    assert c["inside_share_twin"] == pytest.approx(0.9, abs=1.0 / fp["poses"] + 1e-9)

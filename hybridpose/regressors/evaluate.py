@@ -25,8 +25,8 @@ from ..io import atomic_write_json, atomic_write_text, write_image
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
 from ..objects import view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
-from .calibration import SIGMA_FLOOR_PX
-from .predictor import UNCALIBRATED_SCALE, CheckpointRegressor
+from .calibration import nees
+from .predictor import CheckpointRegressor, uncalibrated_record
 
 log = logging.getLogger(__name__)
 
@@ -120,8 +120,6 @@ def covariance_nees(m, truth: Pose, twins=()) -> dict:
     """NEES ``ξᵀ Σ⁻¹ ξ`` of a measurement's error ``ξ = m.pose.local(truth)`` under its covariance:
     ``nees`` to the true pose and ``nees_twin`` to the nearest of its box ``twins`` (what a keypoint
     model's calibrated covariance promises to cover: the twin is the quality's business)."""
-    from .calibration import nees
-
     cov = np.asarray(m.covariance, dtype=float)
     values = [nees(m.pose.local(truth @ S), cov) for S in (Pose.identity(), *twins)]
     return {"nees": float(values[0]), "nees_twin": float(min(values))}
@@ -170,9 +168,7 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     ck = load_checkpoint(checkpoint)
     reg = CheckpointRegressor(checkpoint, **options)
     # a checkpoint whose training calibration failed starts from the inflated default the predictor uses
-    cal = ck.get("calibration") or (
-        {"kind": "pnp", "scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX} if reg.kind == "keypoints"
-        else {"kind": "fixed", "covariance": (UNCALIBRATED_SCALE * np.diag([0.01] * 6)).tolist()})
+    cal = ck.get("calibration") or uncalibrated_record(reg.kind)
     items = [(sc, i) for sc in (BopScene(p) for p in find_scenes(data)) for i in sc.image_ids][:limit]
     values = []
     for k, (scene, im_id) in enumerate(items):

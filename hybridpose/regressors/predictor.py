@@ -74,7 +74,7 @@ PASSES = (1, 2, "auto")
 # network also sees its crop turned in-plane by TURNS_DEG (one batch) and the pass whose PnP keeps the
 # most keypoints (then the lowest RMS) wins. The failures are keypoints in near edge-on views that a
 # slightly turned crop gets right; larger turns (90°, 180°) move the sunlit side where the network
-# never saw it and are worse alone (benchmarks/RESULTS.md, "Crop turns"). 0.8 (≤ 9 of 12 kept: 21 %
+# never saw it and are worse alone (benchmarks/RESULTS.md, "Crop turns"). 0.8 (≤ 9 of 12 kept: 19 %
 # of the views) rather than 0.9 (≤ 10: 36 %) since PnP drops the worst keypoint: 3 ms less per view,
 # and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (session 14, pre-registered rule).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
@@ -104,6 +104,15 @@ def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_p
             raise ValueError(f"verifier_prob: expected the shape of prob {prob.shape}, got {verifier_prob.shape}")
         score = score + verifier_weight * np.log(verifier_prob + 1e-6)
     return score
+
+
+def uncalibrated_record(kind: str) -> dict:
+    """The calibration a checkpoint without one is used with (and :func:`~hybridpose.regressors.
+    evaluate.calibrate_checkpoint` starts from): PnP covariances inflated ``UNCALIBRATED_SCALE``×
+    for keypoint models, a fixed diagonal of variances 0.01 rad² / m² × ``UNCALIBRATED_SCALE`` for direct ones."""
+    if kind == "keypoints":
+        return {"kind": "pnp", "scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
+    return {"kind": "fixed", "covariance": (UNCALIBRATED_SCALE * np.diag([0.01] * 6)).tolist()}
 
 
 def shipped_checkpoint(name: str = "default") -> Path:
@@ -512,7 +521,7 @@ class CheckpointRegressor(PoseRegressor):
         if est is None:
             return self._lost(frame)
         res, order, prob = est
-        cal = self.calibration or {"scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
+        cal = self.calibration or uncalibrated_record(self.kind)
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
         quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * self.image_size)))
         pose, twin = res.pose, order[0]
@@ -607,7 +616,7 @@ class CheckpointRegressor(PoseRegressor):
             return self._lost(frame)
         pose = Pose.from_quat_t(q / np.linalg.norm(q), t)
         cal = self.calibration
-        cov = np.asarray(cal["covariance"]) if cal and "covariance" in cal else UNCALIBRATED_SCALE * np.diag([0.01] * 3 + [0.01] * 3)
+        cov = np.asarray((cal if cal and "covariance" in cal else uncalibrated_record(self.kind))["covariance"])
         # a direct regressor has no per-image residual: quality only says whether the pose is plausible
         uv = cam.K @ (t / t[2])
         inside = 0 <= uv[0] < cam.width and 0 <= uv[1] < cam.height

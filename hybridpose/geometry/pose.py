@@ -41,10 +41,8 @@ class Pose:
         float rounding, so the checks and the SVD re-orthonormalisation (≈ 30 µs, a dozen times per
         regressor call) are skipped. Not for data from outside."""
         pose = object.__new__(cls)
-        R, t = np.array(R, dtype=np.float64), np.array(t, dtype=np.float64)
-        R.flags.writeable = t.flags.writeable = False
-        object.__setattr__(pose, "R", R)
-        object.__setattr__(pose, "t", t)
+        object.__setattr__(pose, "R", _frozen(R))
+        object.__setattr__(pose, "t", _frozen(t))
         return pose
 
     # --- constructors -------------------------------------------------------------------------

@@ -73,7 +73,7 @@ class ModelView:
         self.directions = (b - a) / length[e_idx, None]           # (P, 3) unit edge directions
         self.faces = faces[e_idx]                                 # (P, 2) adjacent triangles
         self.face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
-        self._normal_dot_point = np.einsum("pkj,pj->pk", self.face_normals[faces[e_idx]], self.points)  # (P, 2)
+        self._normal_dot_point = np.einsum("pkj,pj->pk", self.face_normals[self.faces], self.points)  # (P, 2)
         self.triangles = verts[np.asarray(mesh.faces)]            # (F, 3, 3)
         # coplanar triangles form one facet: a pixel showing any of them shows "that face"
         facet_of = np.arange(len(mesh.faces)) + len(mesh.facets)

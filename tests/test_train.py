@@ -43,6 +43,7 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
     assert set(best) >= {"val_loss", "rot_mean_deg", "rot_median_deg", "trans_mean_m"}
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
     assert [r["epoch"] for r in hist] == [0, 1]
+    assert [r["train_images"] for r in hist] == [16, 16]       # 20 views, 4 held out for validation
     assert (tmp_path / "run" / "metrics.csv").read_text().startswith("epoch,train_loss,val_loss")
     ck = load_checkpoint(tmp_path / "run" / "last.pt")
     assert ck["epoch"] == 1 and ck["config"]["model"] == "tiny"
@@ -56,6 +57,15 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
     for k in a["model"]:
         torch.testing.assert_close(a["model"][k], b["model"][k])
     assert not list((tmp_path / "run").glob("*.tmp"))
+
+
+def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):
+    """A run resumed by a version whose rows carry a new column still writes its CSV (blank where absent)."""
+    from hybridpose.regressors.train import _write_metrics
+
+    _write_metrics(tmp_path, [{"epoch": 0, "val_loss": 2.0}, {"epoch": 1, "val_loss": 1.5, "train_images": 16}])
+    assert (tmp_path / "metrics.csv").read_text().splitlines() == ["epoch,val_loss,train_images", "0,2.0,", "1,1.5,16"]
+    assert json.loads((tmp_path / "history.json").read_text())[1]["train_images"] == 16
 
 
 def test_early_stop(data, tmp_path, tiny):

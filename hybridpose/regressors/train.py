@@ -425,7 +425,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                 break
             continue
         row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta, twins),
-               "lr": lr_used, "epoch_s": time.perf_counter() - t0}
+               "lr": lr_used, "epoch_s": time.perf_counter() - t0, "train_images": n}
         history.append(row)
         improved = row["val_loss"] < best
         best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)
@@ -525,7 +525,9 @@ def _calibrate_checkpoint(path: Path, model, val_loader, device, twins=()) -> No
 
 def _write_metrics(out: Path, history: list[dict]) -> None:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(history[0]), lineterminator="\n")
+    # the union of the rows' columns: a run resumed across versions may add one
+    w = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for row in history for k in row)), restval="",
+                       lineterminator="\n")
     w.writeheader()
     w.writerows(history)
     atomic_write_text(out / "metrics.csv", buf.getvalue())

@@ -116,3 +116,23 @@ def test_imagenet_first_fc_goes_to_main_stream_columns_of_branched(tmp_path):
     load_imagenet_weights(p, tmp_path / "w.pth")
     torch.testing.assert_close(p.rotation.classifier[0].weight[:, :25088], src.classifier[0].weight)
     torch.testing.assert_close(p.translation.classifier[0].weight, src.classifier[0].weight)
+
+
+@pytest.mark.parametrize("name", ["vgg16", "branched-vgg19", "parallel-vgg19"])
+def test_gradcam_of_every_direct_model(name, tmp_path):
+    """`hybridpose eval`'s Grad-CAM sheet works for each direct model (the branched one runs slices
+    of its features, which once left a hook on the whole Sequential unfired)."""
+    from hybridpose.core import Camera, Frame
+    from hybridpose.regressors.evaluate import gradcam
+    from hybridpose.regressors.predictor import CheckpointRegressor
+    from hybridpose.regressors.train import save_checkpoint
+
+    torch.manual_seed(0)
+    build = {} if name == "vgg16" else {"image_size": 64}
+    save_checkpoint(tmp_path / "ck.pt", {"config": {"model": name, "image_size": 64}, "build": build,
+                                         "model": build_model(name, **build).state_dict()})
+    reg = CheckpointRegressor(tmp_path / "ck.pt")
+    image = np.random.default_rng(0).integers(0, 255, (96, 128, 3), dtype=np.uint8)
+    img, cam = gradcam(reg, Frame(image, Camera.default().scaled("128x96"), 0.0))
+    assert img.shape == (64, 64, 3) and cam.shape == (64, 64)
+    assert np.isfinite(cam).all() and 0.0 <= cam.min() and cam.max() <= 1.0

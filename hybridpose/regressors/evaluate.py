@@ -294,7 +294,9 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
     from .predictor import CROP_MARGIN, detect_bright_object
 
     net = reg.net
-    layer = net.layer4 if reg.kind == "keypoints" else (net.features if hasattr(net, "features") else net.translation.features)
+    # direct models: the last module of the VGG features (its final max-pool), not the features
+    # Sequential itself — the branched model runs slices of it, which a hook on the whole never sees
+    layer = net.layer4 if reg.kind == "keypoints" else (net.features if hasattr(net, "features") else net.translation.features)[-1]
     feats = {}
     h1 = layer.register_forward_hook(lambda m, i, o: feats.__setitem__("a", o))
     h2 = layer.register_full_backward_hook(lambda m, gi, go: feats.__setitem__("g", go[0]))

@@ -46,7 +46,10 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
     assert [r["train_images"] for r in hist] == [16, 16]       # 20 views, 4 held out for validation
     assert (tmp_path / "run" / "metrics.csv").read_text().startswith("epoch,train_loss,val_loss")
     ck = load_checkpoint(tmp_path / "run" / "last.pt")
-    assert ck["epoch"] == 1 and ck["config"]["model"] == "tiny"
+    assert ck["epoch"] == 1 and ck["config"]["model"] == "tiny" and "optimizer" in ck
+    best_ck = load_checkpoint(tmp_path / "run" / "best.pt")      # weights for eval/export, no resume state
+    assert not {"optimizer", "scheduler", "torch_rng", "loader_rng"} & set(best_ck)
+    assert {"config", "model", "build", "calibration", "history"} <= set(best_ck)
     # resume continues where it stopped, and matches an uninterrupted run exactly
     train(TrainConfig(**{**cfg.__dict__, "epochs": 3}), resume=True, progress=False)
     straight = TrainConfig(**{**cfg.__dict__, "epochs": 3, "out": str(tmp_path / "straight")})

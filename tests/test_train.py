@@ -124,7 +124,9 @@ def test_ddp_two_cpu_processes_with_gloo(data, tmp_path):
     assert "DDP: rank 0 of 2" in res.stderr and "DDP: rank 1 of 2" in res.stderr
     ck = load_checkpoint(out / "last.pt")
     assert ck["epoch"] == 1 and not any(k.startswith("module.") for k in ck["model"])
-    assert [r["epoch"] for r in json.loads((out / "history.json").read_text())] == [0, 1]
+    hist = json.loads((out / "history.json").read_text())
+    assert [r["epoch"] for r in hist] == [0, 1]
+    assert [r["train_images"] for r in hist] == [16, 16]     # both ranks' shards of the 16 training views
 
 
 def test_init_from_copies_matching_weights_and_adds_new_layers(data, tmp_path):

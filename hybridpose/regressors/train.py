@@ -423,6 +423,13 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             total, n = total + loss.item() * len(batch["index"]), n + len(batch["index"])
         if sched is not None:
             sched.step()
+        if world > 1:
+            # Every rank trained on its own shard: the epoch's loss and image count are the sums.
+            import torch.distributed as dist
+
+            sums = torch.tensor([total, float(n)], dtype=torch.float64, device=device)
+            dist.all_reduce(sums)
+            total, n = sums[0].item(), int(sums[1].item())
         if not main_process:
             if _stop_signal(None):
                 break

@@ -301,7 +301,7 @@ def test_covariance_check_counts_errors_inside_the_ellipsoid():
     from scipy.stats import chi2
 
     from hybridpose.core import Measurement
-    from hybridpose.regressors.evaluate import covariance_check, covariance_nees
+    from hybridpose.regressors.evaluate import covariance_check, covariance_lines, covariance_nees, over_confident
 
     truth = Pose.from_rotvec_t([0.1, 0.2, -0.3], [0.05, 0.0, 0.8])
     half_turn = Pose.from_rotvec_t([0.0, 0.0, np.pi], [0.0, 0.0, 0.0])
@@ -317,6 +317,12 @@ def test_covariance_check_counts_errors_inside_the_ellipsoid():
             {"rot_deg": 180.0}]  # the last: a failure, no pose
     c = covariance_check(rows)
     assert c == {"coverage": 0.9, "views": 3, "inside_share": pytest.approx(1 / 3), "inside_share_twin": pytest.approx(2 / 3)}
+    # 2/3 inside a 90 % ellipsoid: the report says over-confident and how to re-scale
+    assert over_confident(c) and not over_confident({**c, "inside_share_twin": 0.85}) and not over_confident({"views": 0})
+    md = "\n".join(covariance_lines(c, "runs/x/best.pt"))
+    assert "Over-confident covariance" in md and "hybridpose calibrate --checkpoint runs/x/best.pt" in md
+    assert "Over-confident" not in "\n".join(covariance_lines({**c, "inside_share_twin": 0.9}))
+    assert covariance_lines({"coverage": 0.9, "views": 0}) == []
 
 
 def test_calibrate_refuses_bad_coverage_and_too_few_poses(tiny_checkpoint, tmp_path):

@@ -104,6 +104,10 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     summary["error_vs_elevation"] = error_vs_elevation(rows)
     summary["accuracy_by_quality"] = accuracy_by_quality(rows)
     summary["covariance_check"] = covariance_check(rows)
+    if over_confident(summary["covariance_check"]):
+        log.warning("%s: only %.0f %% of the errors lie inside the %.0f %% covariance ellipsoid (over-confident); "
+                    "`hybridpose calibrate` re-scales it on held-out views", checkpoint,
+                    100 * summary["covariance_check"]["inside_share_twin"], 100 * summary["covariance_check"]["coverage"])
     plot_error_vs_distance(bins, out / "error_vs_distance.png", reg.model_name)
     order = np.argsort(rot)
     picks = [items[i] for i in order[:gradcam_count]] + [items[i] for i in order[::-1][:gradcam_count]]
@@ -136,6 +140,17 @@ def covariance_check(rows, coverage: float = COVARIANCE_COVERAGE) -> dict:
     return {"coverage": coverage, "views": len(got),
             "inside_share": float(np.mean([r["nees"] <= bound for r in got])),
             "inside_share_twin": float(np.mean([r["nees_twin"] <= bound for r in got]))}
+
+
+# Below coverage by more than this (≈ 3 binomial σ at 100 views) the report says over-confident.
+OVER_CONFIDENT_MARGIN = 0.1
+
+
+def over_confident(check: dict) -> bool:
+    """Whether a :func:`covariance_check` shows the covariance over-confident: fewer errors inside
+    the ellipsoid (to the nearest box twin, what the covariance promises) than its coverage by
+    more than :data:`OVER_CONFIDENT_MARGIN`."""
+    return bool(check.get("views")) and check["inside_share_twin"] < check["coverage"] - OVER_CONFIDENT_MARGIN
 
 
 MIN_CALIBRATION_POSES = 20
@@ -389,13 +404,25 @@ def report_markdown(s: dict) -> str:
                          f"{b['rot_median_deg']:.2f} | {b['gross_error_share']:.1%} |")
     if s.get("accuracy_by_quality"):
         lines += ["", quality_table(s["accuracy_by_quality"])]
-    c = s.get("covariance_check") or {}
+    lines += covariance_lines(s.get("covariance_check") or {}, s.get("checkpoint", "CK"))
+    return "\n".join(lines) + "\n"
+
+
+def covariance_lines(c: dict, checkpoint="CK") -> list[str]:
+    """Markdown lines of a :func:`covariance_check` (none without views), with how to re-scale an
+    over-confident covariance of ``checkpoint``."""
+    lines = []
     if c.get("views"):
         lines += ["", f"Covariance check: of the {c['views']} views with a pose, {c['inside_share']:.1%} lie inside the "
                       f"{c['coverage']:.0%} χ²₆ ellipsoid of the reported covariance around the true pose, "
                       f"{c['inside_share_twin']:.1%} around the nearest box twin (calibrated: ≈ {c['coverage']:.0%}; "
                       "far below: over-confident)."]
-    return "\n".join(lines) + "\n"
+        if over_confident(c):
+            lines += ["", f"**Over-confident covariance** (the training calibration saw only the network's first pass): "
+                          f"re-scale it on the whole inference path over held-out views before a filter uses it: "
+                          f"`hybridpose calibrate --checkpoint {checkpoint} --data OTHER_DIR "
+                          "--out calibrated.pt`."]
+    return lines
 
 
 def quality_table(gates) -> str:

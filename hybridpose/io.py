@@ -10,19 +10,26 @@ import cv2
 import numpy as np
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a reader never sees a partial file (temp + ``os.replace``)."""
+def atomic_write_with(path, write) -> None:
+    """Call ``write(f)`` on a binary file so that a reader of ``path`` never sees a partial file:
+    a temp file beside it, then ``os.replace``; if ``write`` raises, ``path`` is left as it was.
+    Streams: a multi-GB checkpoint is never held in memory as one bytes object."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            write(f)
         os.chmod(tmp, 0o644)  # mkstemp creates 0600; results are meant to be shared
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that a reader never sees a partial file (temp + ``os.replace``)."""
+    atomic_write_with(path, lambda f: f.write(data))
 
 
 def atomic_write_json(path, obj, indent: int | None = 2) -> None:

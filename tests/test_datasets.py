@@ -171,3 +171,20 @@ def test_split_is_seeded_80_20():
     assert not np.array_equal(va, split_indices(100, 0.2, seed=2)[1])
     with pytest.raises(ValueError, match="n: need at least 2"):
         split_indices(1)
+
+
+def test_atomic_write_keeps_the_old_file_when_the_writer_fails(tmp_path):
+    from hybridpose.io import atomic_write_bytes, atomic_write_with
+
+    target = tmp_path / "sub" / "ck.pt"
+    atomic_write_bytes(target, b"old")
+
+    def half_then_fail(f):
+        f.write(b"new, partly")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write_with(target, half_then_fail)
+    assert target.read_bytes() == b"old" and sorted(p.name for p in target.parent.iterdir()) == ["ck.pt"]
+    atomic_write_with(target, lambda f: f.write(b"new"))
+    assert target.read_bytes() == b"new" and oct(target.stat().st_mode & 0o777) == "0o644"

@@ -287,14 +287,12 @@ def plot_error_vs_distance(bins, path, title: str) -> None:
         ax.grid(alpha=0.3)
     fig.suptitle(f"{title}: error vs distance (mean ± 1σ)")
     fig.tight_layout()
-    import io
+    from ..io import atomic_write_with
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    from ..io import atomic_write_bytes
-
-    atomic_write_bytes(path, buf.getvalue())
+    try:
+        atomic_write_with(path, lambda f: fig.savefig(f, format="png", dpi=110))
+    finally:
+        plt.close(fig)
 
 
 def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:

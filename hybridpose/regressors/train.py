@@ -25,7 +25,7 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from ..datasets.bop import dataset_object
 from ..datasets.torch_dataset import PoseDataset, split_indices
 from ..geometry import Pose
-from ..io import atomic_write_bytes, atomic_write_json, atomic_write_text
+from ..io import atomic_write_json, atomic_write_text, atomic_write_with
 from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
 from .calibration import calibrate, keypoint_pnp_batch
 from .keypoint_net import keypoint_loss, widen_state_dict
@@ -272,9 +272,7 @@ def dataset_info(root, obj=None) -> dict:
 
 def save_checkpoint(path: Path, payload: dict) -> None:
     """Atomic ``torch.save`` (temp file + rename): an interrupted write never corrupts a checkpoint."""
-    buf = io.BytesIO()
-    torch.save(payload, buf)
-    atomic_write_bytes(path, buf.getvalue())
+    atomic_write_with(path, lambda f: torch.save(payload, f))
 
 
 INFERENCE_KEYS = ("config", "model", "build", "dataset", "twins", "calibration", "epoch", "best")

@@ -19,7 +19,6 @@ are poor too, where the nearest twin is still the one to pick).
 """
 from __future__ import annotations
 
-import io
 import logging
 import time
 from pathlib import Path
@@ -33,7 +32,7 @@ from ..core import Frame
 from ..datasets.labels import read_labels
 from ..geometry import Pose, load_camera
 from ..metrics import rotation_error_deg
-from ..io import atomic_write_bytes, atomic_write_json, read_json
+from ..io import atomic_write_json, atomic_write_with, read_json
 from .train import save_checkpoint
 from .twin_verifier import (CHECKPOINT_FORMAT, STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifierNet,
                             verifier_inputs)
@@ -215,11 +214,10 @@ def _build_chunk(job) -> None:
         labels.append(label)
         errors.append(err)
     n = len(twins)
-    buf = io.BytesIO()
-    np.savez(buf, strips=np.stack(strips) if strips else np.zeros((0, STRIP_H, STRIP_W), np.uint8),
-             drawings=np.stack(drawings) if drawings else np.zeros((0, n, STRIP_H, STRIP_W), np.uint8),
-             labels=np.array(labels, np.int64), rot_err_deg=np.array(errors, np.float32).reshape(-1, n))
-    atomic_write_bytes(pairs / f"chunk_{c:05d}.npz", buf.getvalue())
+    arrays = {"strips": np.stack(strips) if strips else np.zeros((0, STRIP_H, STRIP_W), np.uint8),
+              "drawings": np.stack(drawings) if drawings else np.zeros((0, n, STRIP_H, STRIP_W), np.uint8),
+              "labels": np.array(labels, np.int64), "rot_err_deg": np.array(errors, np.float32).reshape(-1, n)}
+    atomic_write_with(pairs / f"chunk_{c:05d}.npz", lambda f: np.savez(f, **arrays))
 
 
 def load_pairs(pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

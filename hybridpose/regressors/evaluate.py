@@ -194,7 +194,9 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
         if progress:
             progress(k + 1, len(items))
     if len(values) < MIN_CALIBRATION_POSES:
-        raise ValueError(f"data: {data} gave {len(values)} poses; calibrating needs at least {MIN_CALIBRATION_POSES}")
+        raise ValueError(f"data: {data} gave {len(values)} poses; calibrating needs at least {MIN_CALIBRATION_POSES} "
+                         f"(the regressor reported {len(items) - len(values)} of {len(items)} views lost: too few "
+                         "views, or a checkpoint that does not see the object)")
     bound = float(chi2.ppf(coverage, 6))
     factor = float(np.quantile(values, coverage)) / bound
     new = dict(cal)

@@ -74,7 +74,7 @@ def test_interrupted_render_resumes_to_identical_files(truss, tmp_path):
     for sub in ("rgb", "mask_visib", "depth"):
         for f in sorted((full / "train" / "000000" / sub).iterdir()):
             assert f.read_bytes() == (part / "train" / "000000" / sub / f.name).read_bytes(), f
-    for name in ("scene_gt.json", "scene_gt_info.json", "scene_camera.json"):
+    for name in ("scene_gt.json", "scene_gt_info.json", "scene_camera.json", "scene_meta.json"):
         assert (full / "train/000000" / name).read_text() == (part / "train/000000" / name).read_text()
     assert not list(part.rglob("*.tmp"))
     # a finished job re-run renders nothing
@@ -108,11 +108,35 @@ def test_render_workers_write_the_same_dataset_and_resume(truss, tmp_path):
         render_random_dataset(tmp_path / "bad", truss, CAM, count=2, workers=0)
 
 
+def test_random_dataset_records_each_images_sun(truss, tmp_path):
+    from hybridpose.datasets.generate import sun_directions_in_cone
+    from hybridpose.render import SpaceLighting
+
+    light = SpaceLighting(sun_direction_cam=(0.0, 0.0, 1.0))
+    out = render_random_dataset(tmp_path / "sun", truss, CAM, count=5, seed=2, lighting=light, sun_cone_deg=60.0,
+                                sun_scale_range=(0.5, 1.5))
+    scene = BopScene(out)
+    meta = json.loads((out / "scene_meta.json").read_text())["frames"]
+    # the same draws the renderer used: the lighting stream of the seed, then the intensities
+    rng = np.random.default_rng([2, 7])
+    expected = sun_directions_in_cone((0.0, 0.0, 1.0), 60.0, 5, rng)
+    scales = rng.uniform(0.5, 1.5, 5)
+    for i in range(5):
+        np.testing.assert_allclose(scene.sun_direction_cam(i), expected[i], atol=1e-12)
+        assert meta[str(i)]["sun_scale"] == pytest.approx(scales[i])
+    # one fixed sun: every image records it; BOP data from elsewhere has none
+    fixed = BopScene(render_random_dataset(tmp_path / "fixed", truss, CAM, count=2, seed=2, lighting=light))
+    np.testing.assert_allclose(fixed.sun_direction_cam(1), [0.0, 0.0, 1.0])
+    (out / "scene_meta.json").unlink()
+    assert BopScene(out).sun_direction_cam(0) is None
+
+
 def test_sequence_dataset_has_timestamps_and_occlusion(truss, tmp_path):
     spec = SequenceSpec("tumble", frames=12, fps=10, occlusion="arm-full", seed=2)
     scene_dir = render_sequence_dataset(tmp_path / "seq", truss, CAM, spec)
     meta = json.loads((scene_dir / "scene_meta.json").read_text())
     assert meta["fps"] == 10 and meta["frames"]["5"]["timestamp_s"] == pytest.approx(0.5)
+    np.testing.assert_allclose(BopScene(scene_dir).sun_direction_cam(5), np.array([0.6, 0.4, 0.7]) / np.linalg.norm([0.6, 0.4, 0.7]))
     info = json.loads((scene_dir / "scene_gt_info.json").read_text())
     assert info["6"][0]["visib_fract"] < 0.05 and info["0"][0]["visib_fract"] > 0.99
 

@@ -275,8 +275,13 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert set(s["ms_per_image"]) == {"1_thread", "2_threads"}
     assert sum(b["n"] for b in s["error_vs_elevation"]) == 10
     assert all(0.0 <= r["elevation_deg"] <= 90.0 for r in rep["per_image"])
+    # the dataset records its sun: errors per phase angle and light azimuth
+    assert sum(b["n"] for b in s["error_vs_phase"]) == 10 and sum(b["n"] for b in s["error_vs_light_azimuth"]) == 10
+    assert all(0.0 <= r["sun_phase_deg"] <= 180.0 for r in rep["per_image"])
+    assert [r["light_azimuth_deg"] for r in rep["per_image"]] == [pytest.approx(33.69, abs=0.01)] * 10  # one default sun
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "| elevation ° | n | mean rot ° | median rot ° | > 30° |" in md
+    assert "| phase ° | n |" in md and "| azimuth ° | n |" in md
     assert s["accuracy_by_quality"][0]["kept_share"] == 1.0 and "| quality ≥ | views kept |" in md
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
     c = s["covariance_check"]
@@ -484,6 +489,35 @@ def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
         R = Rotation.from_euler("x", 90 - deg, degrees=True).as_matrix()
         pose = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ truss.center)
         assert view_elevation_deg(pose, truss) == pytest.approx(deg, abs=1e-6)
+
+
+def test_sun_phase_angle_and_light_azimuth(truss):
+    from scipy.spatial.transform import Rotation
+
+    from hybridpose.objects import light_azimuth_deg, sun_phase_angle_deg
+    from hybridpose.regressors.evaluate import error_in_bins
+
+    R = Rotation.from_euler("xyz", [20, -35, 60], degrees=True).as_matrix()
+    on_axis = Pose(R, np.array([0.0, 0.0, 0.9]) - R @ truss.center)  # box centre on the optical axis
+    assert sun_phase_angle_deg([0, 0, 1], on_axis, truss) == pytest.approx(0.0, abs=1e-6)     # sun behind the camera
+    assert sun_phase_angle_deg([0, 0, -2], on_axis, truss) == pytest.approx(180.0, abs=1e-6)  # back-lit
+    assert sun_phase_angle_deg([1, 0, 0], on_axis, truss) == pytest.approx(90.0)              # side-lit
+    # oracle: the angle between the unit vectors to the sun and to the camera, by scipy's rotation of one onto the other
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        d, t = rng.normal(size=3), np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(0.4, 1.2)])
+        pose = Pose(R, t - R @ truss.center)
+        to_sun, to_cam = -d / np.linalg.norm(d), -t / np.linalg.norm(t)
+        rot, _ = Rotation.align_vectors([to_cam], [to_sun])
+        assert sun_phase_angle_deg(d, pose, truss) == pytest.approx(np.degrees(rot.magnitude()), abs=1e-5)
+    for d, az in (([1, 0, 0.3], 0.0), ([0, 1, 0.3], 90.0), ([-1, 0, 0.3], 180.0), ([0, -1, 0.3], 270.0),
+                  ([0.6, 0.4, 0.7], 33.690)):
+        assert light_azimuth_deg(d) == pytest.approx(az, abs=1e-3)
+    rows = [{"rot_deg": 1.0, "sun_phase_deg": 10.0}, {"rot_deg": 90.0, "sun_phase_deg": 80.0},
+            {"rot_deg": 3.0, "sun_phase_deg": 180.0}, {"rot_deg": 5.0}]  # the last: no recorded sun
+    bins = error_in_bins(rows, "sun_phase_deg", np.array([0.0, 45.0, 90.0, 180.0]))
+    assert [(b["n"], b["gross_error_share"]) for b in bins] == [(1, 0.0), (1, 1.0), (1, 0.0)]
+    assert error_in_bins(rows[3:], "sun_phase_deg", np.array([0.0, 180.0])) == []
 
 
 def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_checkpoint):

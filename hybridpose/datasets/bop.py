@@ -180,6 +180,7 @@ class BopScene:
         self.info_raw = read_json(info_path) if info_path.exists() else {}
         self.image_ids = sorted(int(k) for k in self.gt_raw)
         self._size = self._image_size()
+        self._meta: dict | None = None  # scene_meta.json's frames, read on first use
 
     def _image_size(self) -> tuple[int, int]:
         for root in (self.dir.parent.parent, self.dir.parent):
@@ -228,6 +229,15 @@ class BopScene:
             bbox_obj=tuple(info.get("bbox_obj", (-1, -1, -1, -1))),
             bbox_visib=tuple(info.get("bbox_visib", (-1, -1, -1, -1))),
         )
+
+    def sun_direction_cam(self, im_id: int) -> np.ndarray | None:
+        """(3,) unit direction the sunlight of image ``im_id`` travels, camera frame, as recorded by
+        ``hybridpose render`` in ``scene_meta.json``; None for scenes without it (other BOP data)."""
+        if self._meta is None:
+            path = self.dir / "scene_meta.json"
+            self._meta = read_json(path).get("frames", {}) if path.is_file() else {}
+        d = self._meta.get(str(im_id), {}).get("sun_direction_cam")
+        return None if d is None else np.asarray(d, dtype=np.float64)
 
     def rgb(self, im_id: int) -> np.ndarray:
         """(H, W, 3) uint8 RGB."""

@@ -169,8 +169,10 @@ def render_random_dataset(
     far from edge-on (:func:`~hybridpose.objects.view_elevation_deg`), e.g. ``(0, 20)`` to render
     more of the near edge-on views where a flat object's pose is hardest. ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
     ``lighting.sun_direction_cam`` and ``sun_scale_range`` its intensity factor, so a network
-    trained on the data does not learn one shading. ``workers`` > 1 renders in that many processes
-    (identical images: each image's noise is seeded by its index). Returns the scene directory.
+    trained on the data does not learn one shading; each image's sun (unit direction the light
+    travels, camera frame, and intensity factor) is recorded in ``<scene>/scene_meta.json``.
+    ``workers`` > 1 renders in that many processes (identical images: each image's noise is seeded
+    by its index). Returns the scene directory.
     """
     if count < 1:
         raise ValueError(f"count: expected ≥ 1 images, got {count}")
@@ -195,7 +197,14 @@ def render_random_dataset(
             if sun_cone_deg > 0 else [None] * count)
     scales = sun_rng.uniform(lo, hi, count) if hi > lo else np.full(count, lo)
     items = [(p, None, float(k), d) for p, k, d in zip(poses, scales, dirs)]
-    return _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress, workers)
+    scene_dir = _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress, workers)
+    default_dir = list(lighting.sun_direction_cam)
+    # Each image's sun, so that an evaluation can report error against the lighting geometry
+    # (phase angle, where the light comes from in the image): written last, from the same draws.
+    meta = {str(i): {"sun_direction_cam": default_dir if d is None else [float(x) for x in d / np.linalg.norm(d)],
+                     "sun_scale": float(k)} for i, (_, _, k, d) in enumerate(items)}
+    atomic_write_json(scene_dir / "scene_meta.json", {"frames": meta})
+    return scene_dir
 
 
 def render_sequence_dataset(
@@ -210,7 +219,7 @@ def render_sequence_dataset(
 ) -> Path:
     """A rendered sequence (split ``test``) with timestamps and occlusion per frame; resumable.
 
-    Per-frame extras (timestamp, occlusion state, sun factor) go to ``<scene>/scene_meta.json``.
+    Per-frame extras (timestamp, occlusion state, sun factor and direction) go to ``<scene>/scene_meta.json``.
     """
     out = Path(out)
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
@@ -218,6 +227,7 @@ def render_sequence_dataset(
     frames = make_sequence(spec, obj, camera)
     items = [(f.pose, f.arm, f.sun_scale, None) for f in frames]
     scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress, workers)
-    meta = {str(f.index): {"timestamp_s": f.timestamp, "occlusion": f.occlusion, "sun_scale": f.sun_scale} for f in frames}
+    meta = {str(f.index): {"timestamp_s": f.timestamp, "occlusion": f.occlusion, "sun_scale": f.sun_scale,
+                           "sun_direction_cam": list(lighting.sun_direction_cam)} for f in frames}
     atomic_write_json(scene_dir / "scene_meta.json", {"fps": spec.fps, "frames": meta})
     return scene_dir

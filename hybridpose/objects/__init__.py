@@ -1,5 +1,7 @@
 """Object models: mesh in metres, sharp edges, 3D keypoints, diameter; built-in ``truss``."""
-from .base import ObjectModel, default_keypoints, sharp_edges, view_elevation_deg
+from .base import (ObjectModel, default_keypoints, light_azimuth_deg, sharp_edges, sun_phase_angle_deg,
+                   view_elevation_deg)
 from .loaders import load_builtin, load_object
 
-__all__ = ["ObjectModel", "default_keypoints", "load_builtin", "load_object", "sharp_edges", "view_elevation_deg"]
+__all__ = ["ObjectModel", "default_keypoints", "light_azimuth_deg", "load_builtin", "load_object", "sharp_edges",
+           "sun_phase_angle_deg", "view_elevation_deg"]

@@ -100,6 +100,26 @@ def view_elevation_deg(pose, obj: ObjectModel) -> float:
     return float(np.degrees(np.arcsin(min(1.0, abs(float(thin_axis @ sight))))))
 
 
+def sun_phase_angle_deg(sun_direction_cam, pose, obj: ObjectModel) -> float:
+    """Phase angle (°, 0–180) of ``obj`` at ``pose`` (``T_cam_obj``, metres) under a sun whose light
+    travels along ``sun_direction_cam`` ((3,), camera frame): the angle at the object's box centre
+    between the directions to the sun and to the camera. 0° the sun behind the camera (the face
+    seen is fully lit), 90° side-lit, 180° back-lit (only rims lit)."""
+    d = np.asarray(sun_direction_cam, dtype=np.float64)
+    centre = pose.R @ obj.center + pose.t
+    # to the sun is -d, to the camera is -centre: their cosine is d · centre / |centre|
+    cos_phase = float(d @ centre) / (np.linalg.norm(d) * np.linalg.norm(centre))
+    return float(np.degrees(np.arccos(np.clip(cos_phase, -1.0, 1.0))))
+
+
+def light_azimuth_deg(sun_direction_cam) -> float:
+    """Direction (°, 0–360) the sunlight travels across the image: the angle of its image-plane part
+    from the image's +x axis towards +y (clockwise on screen, y being down). The default sun
+    (0.6, 0.4, 0.7) gives 33.7°: light from the upper left, travelling right and down."""
+    d = np.asarray(sun_direction_cam, dtype=np.float64)
+    return float(np.degrees(np.arctan2(d[1], d[0])) % 360.0)
+
+
 def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(8, 3) corners of the axis-aligned box [lo, hi]."""
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], dtype=np.float64)

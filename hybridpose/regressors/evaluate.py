@@ -4,8 +4,9 @@ Writes to ``--out``: ``report.json`` and ``report.md`` (the paper's table — me
 mean translation m — beside ours, plus SPEED score, ADD-0.1d recall, failures, ms/image at 1 and 2
 threads), ``error_vs_distance.png`` (mean ± 1σ per distance bin, as in the paper) and
 ``gradcam.png`` (Grad-CAM of the best and worst predictions, as in the paper), and errors per
-bin of view elevation (how far from edge-on the object is seen, :func:`view_elevation_deg`), and
-accuracy by quality: what a caller that only trusts measurements above a quality keeps, and how
+bin of view elevation (how far from edge-on the object is seen, :func:`view_elevation_deg`), of sun
+phase angle and of light azimuth in the image (where the dataset records each image's sun, as
+``hybridpose render`` does), and accuracy by quality: what a caller that only trusts measurements above a quality keeps, and how
 accurate those are (the fusion layer's gate on re-initialisation).
 """
 from __future__ import annotations
@@ -23,7 +24,7 @@ from ..datasets.bop import BopScene, find_scenes
 from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text, write_image
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
-from ..objects import view_elevation_deg
+from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .calibration import nees
 from .predictor import CheckpointRegressor, uncalibrated_record
@@ -40,6 +41,10 @@ GROSS_ERROR_DEG = 30.0
 # Edge-on views (a flat object seen along its plane) hold most of the gross errors: bins fine near 0°.
 ELEVATION_BINS_DEG = np.array([0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 90.0])
 QUALITY_GATES = (0.0, 0.2, 0.3, 0.4, 0.5)
+# Lighting geometry of a view (datasets written by `hybridpose render` record each image's sun):
+# phase angle 0° sun behind the camera, 90° side-lit; azimuth where the light travels in the image.
+PHASE_BINS_DEG = np.array([0.0, 30.0, 45.0, 60.0, 75.0, 90.0, 180.0])
+AZIMUTH_BINS_DEG = np.arange(0.0, 361.0, 45.0)
 
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 100,
@@ -75,7 +80,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         frame = Frame(scene.rgb(im_id), gt.camera, float(im_id), im_id)
         m = reg.predict(frame)
         row = {"image": f"{scene.dir.name}/{im_id:06d}", "distance_m": float(gt.pose.t[2]),
-               "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost, "quality": m.quality}
+               "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost, "quality": m.quality,
+               **lighting_columns(scene.sun_direction_cam(im_id), gt.pose, obj)}
         if m.pose is None:
             row.update(rot_deg=FAILED_ROT_DEG, trans_m=FAILED_TRANS_M, speed=np.pi + FAILED_TRANS_M / np.linalg.norm(gt.pose.t),
                        add_m=float("inf"))
@@ -102,6 +108,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     bins = error_vs_distance(rows)
     summary["error_vs_distance"] = bins
     summary["error_vs_elevation"] = error_vs_elevation(rows)
+    summary["error_vs_phase"] = error_in_bins(rows, "sun_phase_deg", PHASE_BINS_DEG)
+    summary["error_vs_light_azimuth"] = error_in_bins(rows, "light_azimuth_deg", AZIMUTH_BINS_DEG)
     summary["accuracy_by_quality"] = accuracy_by_quality(rows)
     summary["covariance_check"] = covariance_check(rows)
     if over_confident(summary["covariance_check"]):
@@ -258,16 +266,45 @@ def error_vs_distance(rows) -> list[dict]:
 def error_vs_elevation(rows) -> list[dict]:
     """Per view-elevation bin (°, :func:`view_elevation_deg`): count, mean / median rotation error (°)
     and the share of views more than ``GROSS_ERROR_DEG`` off (failures included, as 180°)."""
-    elev = np.array([r["elevation_deg"] for r in rows])
+    return error_in_bins(rows, "elevation_deg", ELEVATION_BINS_DEG)
+
+
+def error_in_bins(rows, key: str, edges) -> list[dict]:
+    """Per bin ``[lo, hi)`` of ``row[key]`` (the last bin closed): count, mean / median rotation error (°)
+    and the share more than ``GROSS_ERROR_DEG`` off (failures included, as 180°). Rows without
+    ``key`` (e.g. no recorded sun) are left out; no such rows, no bins."""
+    rows = [r for r in rows if r.get(key) is not None]
+    if not rows:
+        return []
+    value = np.array([r[key] for r in rows])
     rot = np.array([r["rot_deg"] for r in rows])
     out = []
-    for lo, hi in zip(ELEVATION_BINS_DEG[:-1], ELEVATION_BINS_DEG[1:]):
-        sel = (elev >= lo) & ((elev < hi) | (hi == ELEVATION_BINS_DEG[-1]))
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (value >= lo) & ((value < hi) | (hi == edges[-1]))
         if sel.any():
             out.append({"lo_deg": float(lo), "hi_deg": float(hi), "n": int(sel.sum()),
                         "rot_mean_deg": float(rot[sel].mean()), "rot_median_deg": float(np.median(rot[sel])),
                         "gross_error_share": float(np.mean(rot[sel] > GROSS_ERROR_DEG))})
     return out
+
+
+def lighting_columns(sun_direction_cam, pose: Pose, obj) -> dict:
+    """A report row's lighting geometry: the sun's direction (camera frame), phase angle and image
+    azimuth (:func:`sun_phase_angle_deg`, :func:`light_azimuth_deg`); empty without a recorded sun."""
+    if sun_direction_cam is None:
+        return {}
+    return {"sun_direction_cam": [float(x) for x in sun_direction_cam],
+            "sun_phase_deg": sun_phase_angle_deg(sun_direction_cam, pose, obj),
+            "light_azimuth_deg": light_azimuth_deg(sun_direction_cam)}
+
+
+def bins_table(bins, label: str) -> list[str]:
+    """Markdown rows of :func:`error_in_bins` output under a ``label`` column."""
+    lines = [f"| {label} | n | mean rot ° | median rot ° | > 30° |", "|---|---|---|---|---|"]
+    for b in bins:
+        lines.append(f"| {b['lo_deg']:.0f}–{b['hi_deg']:.0f} | {b['n']} | {b['rot_mean_deg']:.2f} | "
+                     f"{b['rot_median_deg']:.2f} | {b['gross_error_share']:.1%} |")
+    return lines
 
 
 def plot_error_vs_distance(bins, path, title: str) -> None:
@@ -397,11 +434,16 @@ def report_markdown(s: dict) -> str:
         lines.append(f"| {b['lo_m']:.1f}–{b['hi_m']:.1f} | {b['n']} | {b['rot_mean_deg']:.2f} ± {b['rot_std_deg']:.2f} | "
                      f"{b['trans_mean_m']:.3f} ± {b['trans_std_m']:.3f} |")
     if s.get("error_vs_elevation"):
-        lines += ["", "View elevation: the line of sight's angle to the object's main plane (0° edge-on, 90° face-on).", "",
-                  "| elevation ° | n | mean rot ° | median rot ° | > 30° |", "|---|---|---|---|---|"]
-        for b in s["error_vs_elevation"]:
-            lines.append(f"| {b['lo_deg']:.0f}–{b['hi_deg']:.0f} | {b['n']} | {b['rot_mean_deg']:.2f} | "
-                         f"{b['rot_median_deg']:.2f} | {b['gross_error_share']:.1%} |")
+        lines += ["", "View elevation: the line of sight's angle to the object's main plane (0° edge-on, 90° face-on).", ""]
+        lines += bins_table(s["error_vs_elevation"], "elevation °")
+    if s.get("error_vs_phase"):
+        lines += ["", "Sun phase angle: at the object, the angle between the directions to the sun and to the camera "
+                  "(0° sun behind the camera, 90° side-lit, 180° back-lit).", ""]
+        lines += bins_table(s["error_vs_phase"], "phase °")
+    if s.get("error_vs_light_azimuth"):
+        lines += ["", "Light azimuth: the direction the sunlight travels across the image, from +x (right) towards "
+                  "+y (down); 0° light from the left, 90° from above, 180° from the right, 270° from below.", ""]
+        lines += bins_table(s["error_vs_light_azimuth"], "azimuth °")
     if s.get("accuracy_by_quality"):
         lines += ["", quality_table(s["accuracy_by_quality"])]
     lines += covariance_lines(s.get("covariance_check") or {}, s.get("checkpoint", "CK"))

@@ -5,14 +5,16 @@ Usage:
     hybridpose render $common --sun-cone 40 --seed 128 --out data/truss_test128                        # trained cone
     hybridpose render $common --sun-dir 0,0,1 --sun-cone 85 --seed 210 --out data/truss_wide210        # any side
     python benchmarks/regressor_lighting.py --data cone=data/truss_test128 --data wide=data/truss_wide210 \\
-        [--checkpoint NAME=PATH ...]
+        [--checkpoint NAME=PATH ...] [--sun-known NAME ...]
 
 The shipped ``default`` was trained with the sun within 40° of one direction (0.6, 0.4, 0.7): light
 from behind the camera's upper left. In orbit the sun can be anywhere. The *wide* sets draw it
 anywhere within 85° of the optical axis (phase angle 0–85°, light from any side of the image).
-Runs ``hybridpose eval`` (full inference path, no roi) of each checkpoint on each set, compares the
-first checkpoint with each other one on the same views (McNemar on the > 30° views, paired bootstrap
-of the mean), and tabulates the errors pooled over the sets against the angle between each image's
+Runs ``hybridpose eval`` (full inference path, no roi) of each checkpoint on each set — and, for the
+checkpoints named by ``--sun-known``, again with each image's sun given to the regressor (its crop
+turned so the light crosses it as in training: ``predict(..., sun_direction_cam=...)``) — compares the
+first row with each other one on the same views (McNemar on the > 30° views, paired bootstrap of the
+mean), and tabulates the errors pooled over the sets against the angle between each image's
 sun and the shipped default's training direction, and against the phase angle. Writes
 ``results/regressor_lighting.json`` and the "regressor-lighting" section of RESULTS.md.
 """
@@ -62,24 +64,33 @@ def main() -> None:
     ap.add_argument("--data", action="append", required=True, help="NAME=DIR, a rendered set (repeat)")
     ap.add_argument("--checkpoint", action="append", default=[], help="NAME=PATH (default: the shipped default); "
                     "the first is the reference of the paired comparisons")
+    ap.add_argument("--sun-known", action="append", default=[], metavar="NAME",
+                    help="also evaluate checkpoint NAME with each image's sun given (row 'NAME, sun given')")
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--reports", default=None, help="keep the eval reports in this folder (default: a temp folder)")
     args = ap.parse_args()
     sets = [d.split("=", 1) for d in args.data]
-    models = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
+    checkpoints = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
+    unknown = set(args.sun_known) - {n for n, _ in checkpoints}
+    if unknown:
+        raise SystemExit(f"--sun-known: no checkpoint named {', '.join(sorted(unknown))}")
+    # rows: (name, checkpoint path, sun given), each checkpoint's sun-given row right after it
+    models = [row for n, p in checkpoints for row in [(n, p, False)] + ([(f"{n}, sun given", p, True)]
+                                                                          if n in args.sun_known else [])]
     root = Path(args.reports or tempfile.mkdtemp())
     summaries, reports = {}, {}
-    for model, path in models:
+    for model, path, sun_known in models:
         for name, data in sets:
-            out = root / f"{model}_{name}"
-            s = evaluate_checkpoint(path, data, out, limit=args.limit, timing_images=20, gradcam_count=0)
+            out = root / f"{model.replace(', ', '_').replace(' ', '-')}_{name}"
+            s = evaluate_checkpoint(path, data, out, limit=args.limit, timing_images=20, gradcam_count=0,
+                                    sun_known=sun_known)
             summaries[(model, name)], reports[(model, name)] = s, out / "report.json"
             print(f"{model} on {name}: {s['rot_mean_deg']:.2f}° mean, {s['rot_median_deg']:.2f}° median, "
                   f"{s['gross_error_share']:.1%} > 30°, {s['trans_mean_m']:.3f} m")
     import json
 
     pooled = {}
-    for model, _ in models:
+    for model, _, _ in models:
         rows = []
         for name, _ in sets:
             rows += json.loads(reports[(model, name)].read_text())["per_image"]
@@ -88,13 +99,13 @@ def main() -> None:
                          "phase": error_in_bins(rows, "sun_phase_deg", PHASE_BINS_DEG)}
     comparisons = {}
     ref = models[0][0]
-    for model, _ in models[1:]:
+    for model, _, _ in models[1:]:
         for label, names in [(n, [n]) for n, _ in sets] + ([("all", [n for n, _ in sets])] if len(sets) > 1 else []):
             comparisons[f"{model} vs {ref} on {label}"] = compare_reports([reports[(ref, n)] for n in names],
                                                                           [reports[(model, n)] for n in names])
     env = environment()
     write_json("regressor_lighting", {
-        "env": env, "sets": dict(sets), "checkpoints": dict(models),
+        "env": env, "sets": dict(sets), "checkpoints": dict(checkpoints), "sun_known": args.sun_known,
         "summaries": {f"{m} on {n}": {k: v for k, v in s.items()} for (m, n), s in summaries.items()},
         "pooled_bins": pooled, "comparisons": comparisons})
 

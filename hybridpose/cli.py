@@ -215,7 +215,7 @@ def cmd_eval(args) -> int:
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
-                            pnp_outliers=args.pnp_outliers,
+                            pnp_outliers=args.pnp_outliers, sun_known=args.sun_known,
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
@@ -394,6 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")
+    e.add_argument("--sun-known", action="store_true",
+                   help="keypoint models: give the regressor each image's sun as the dataset records it (what a "
+                        "caller with a sun sensor can do: the crop is turned so the light crosses it as in training)")
     e.set_defaults(func=cmd_eval)
 
     c = sub.add_parser("compare", help="paired comparison of two eval reports on the same images "

@@ -302,6 +302,22 @@ def test_eval_without_gradcam_writes_no_sheet(tiny_checkpoint, tmp_path):
     assert not (tmp_path / "rep" / "gradcam.png").exists()
 
 
+def test_eval_can_give_the_regressor_each_images_sun(tiny_checkpoint, tmp_path):
+    import shutil
+
+    from hybridpose.regressors.evaluate import evaluate_checkpoint
+
+    data = tiny_checkpoint.parent.parent / "ds"
+    s = evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=3, timing_images=1, gradcam_count=0,
+                            sun_known=True)
+    assert s["sun_known"] is True and s["images"] == 3
+    bare = tmp_path / "bare"
+    shutil.copytree(data, bare)
+    (bare / "train" / "000000" / "scene_meta.json").unlink()
+    with pytest.raises(ValueError, match="does not record each image's sun"):
+        evaluate_checkpoint(tiny_checkpoint, bare, tmp_path / "rep2", limit=3, sun_known=True)
+
+
 def test_covariance_check_counts_errors_inside_the_ellipsoid():
     from scipy.stats import chi2
 
@@ -489,6 +505,48 @@ def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
         R = Rotation.from_euler("x", 90 - deg, degrees=True).as_matrix()
         pose = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ truss.center)
         assert view_elevation_deg(pose, truss) == pytest.approx(deg, abs=1e-6)
+
+
+def test_sun_turn_aligns_the_light_with_the_training_sun(tiny_checkpoint, truss):
+    from hybridpose.regressors.predictor import (SUN_TURN_BEYOND_DEG, CheckpointRegressor, sun_turn_deg,
+                                                 trained_light_azimuth_deg)
+    from hybridpose.regressors.train import load_checkpoint
+
+    # the training data's sun is recorded (the tiny set: the default sun, no cone)
+    light = load_checkpoint(tiny_checkpoint)["dataset"]["lighting"]
+    assert light["sun_cone_deg"] == 0.0 and trained_light_azimuth_deg(light) == pytest.approx(33.690, abs=1e-3)
+    # lit from every side (the cone holds the optical axis), or no record: nothing to align to
+    assert trained_light_azimuth_deg({"sun_direction_cam": [0.1, 0.0, 1.0], "sun_cone_deg": 85.0}) is None
+    assert trained_light_azimuth_deg(None) is None and sun_turn_deg([1, 0, 0], None) == 0.0
+    assert sun_turn_deg(None, 33.7) == 0.0
+    # light travelling up the image (270°) vs trained 0°: turn the crop 90° clockwise on screen, i.e. -90° in
+    # OpenCV's counter-clockwise sense; within SUN_TURN_BEYOND_DEG of the training azimuth: no turn
+    assert sun_turn_deg([0, -1, 0.5], 0.0) == pytest.approx(-90.0)
+    assert sun_turn_deg([-1, 0, 0.5], 0.0) == pytest.approx(-180.0)
+    assert sun_turn_deg([1, 0.5, 0.5], 0.0) == 0.0 and np.degrees(np.arctan2(0.5, 1)) < SUN_TURN_BEYOND_DEG
+    # the turn moves the light to the training azimuth: rotate the light's image direction by the turn
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        d, trained = rng.normal(size=3), rng.uniform(0, 360)
+        a = np.radians(sun_turn_deg(d, trained, beyond_deg=0.0))
+        turn = np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])  # cv2.getRotationMatrix2D's 2×2
+        x, y = turn @ d[:2]
+        assert (np.degrees(np.arctan2(y, x)) - trained + 180) % 360 - 180 == pytest.approx(0.0, abs=1e-6)
+    # every network pass of predict starts from the sun turn
+    reg = CheckpointRegressor(tiny_checkpoint, turns="always", passes=1)
+    seen, solve = [], reg._solve_turned
+    reg._solve_turned = lambda crop, K, angles: seen.append(tuple(angles)) or solve(crop, K, angles)
+    from hybridpose.render import Renderer
+
+    cam = Camera.default().scaled(160)
+    with Renderer(truss, cam) as r:
+        frame = Frame(r.render(Pose.from_rotvec_t([0.2, 0.1, 0.0], [0.0, 0.0, 0.7])).rgb, cam, 0.0)
+    reg.predict(frame, sun_direction_cam=[-0.6, -0.4, 0.7])  # the default sun's opposite: turn by ±180°
+    assert seen and abs(seen[0][0]) == pytest.approx(180.0) and len(seen[1]) == 4
+    assert [a - seen[0][0] for a in seen[1]] == pytest.approx([20.0, -20.0, 40.0, -40.0])
+    seen.clear()
+    reg.predict(frame)
+    assert seen[0] == (0.0,)
 
 
 def test_sun_phase_angle_and_light_azimuth(truss):

@@ -14,7 +14,8 @@ class PoseRegressor(ABC):
     ``predict(frame, roi)`` returns a :class:`~hybridpose.core.Measurement` whose pose is
     ``T_cam_obj`` (metres, OpenCV camera frame), whose covariance is 6×6 over the right
     perturbation ``[ω (rad), v (m)]`` and whose quality is in 0..1; ``pose`` is None (and ``lost``
-    True) when the object is not found.
+    True) when the object is not found. Backends may take further keyword arguments that a caller
+    can leave out (the keypoint checkpoints: ``sun_direction_cam``, the sun where it is known).
     """
 
     name: str = "regressor"

@@ -49,7 +49,8 @@ AZIMUTH_BINS_DEG = np.arange(0.0, 361.0, 45.0)
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 100,
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
-                        device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst") -> dict:
+                        device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
+                        sun_known: bool = False) -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
     ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in
@@ -58,7 +59,9 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     ms/image timings are then those of that device with 1 and 2 CPU threads beside it. ``verifier``:
     the twin verifier (:class:`CheckpointRegressor`'s argument: ``"auto"``, a path or None);
     ``turns``: the test-time crop turns (its argument too: ``"auto"``, ``"always"``, ``"off"``);
-    ``pnp_outliers``: ``"drop-worst"`` or ``"ransac"`` (ditto).
+    ``pnp_outliers``: ``"drop-worst"`` or ``"ransac"`` (ditto). ``sun_known``: give the regressor each
+    image's sun as the dataset records it (``predict(..., sun_direction_cam=...)``: what a caller
+    with a sun sensor can do).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -70,6 +73,9 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         raise ValueError(f"data: {data} holds no images")
     if limit is not None:
         items = items[:limit]
+    if sun_known and any(scene.sun_direction_cam(i) is None for scene, i in items):
+        raise ValueError(f"data: {data} does not record each image's sun (scene_meta.json, written by "
+                         "`hybridpose render`); evaluate it without sun_known (--sun-known)")
     from ..datasets.bop import dataset_object
 
     obj = dataset_object(data)
@@ -78,7 +84,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     for k, (scene, im_id) in enumerate(items):
         gt = scene.image(im_id)
         frame = Frame(scene.rgb(im_id), gt.camera, float(im_id), im_id)
-        m = reg.predict(frame)
+        m = reg.predict(frame, sun_direction_cam=scene.sun_direction_cam(im_id) if sun_known else None)
         row = {"image": f"{scene.dir.name}/{im_id:06d}", "distance_m": float(gt.pose.t[2]),
                "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost, "quality": m.quality,
                **lighting_columns(scene.sun_direction_cam(im_id), gt.pose, obj)}
@@ -97,7 +103,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
         "refine_edges": reg.refine_edges and reg.twin_check is not None, "passes": reg.passes, "turns": reg.turns,
-        "pnp_outliers": reg.pnp_outliers,
+        "pnp_outliers": reg.pnp_outliers, "sun_known": bool(sun_known),
         "device": str(reg.device),
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "gross_error_share": float(np.mean(rot > GROSS_ERROR_DEG)), "speed_score": float(np.mean([r["speed"] for r in rows])),

@@ -80,6 +80,14 @@ PASSES = (1, 2, "auto")
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
 TURNS_BELOW_INLIERS = 0.8
 TURNS = ("auto", "always", "off")
+# Sun turn: a network trained with the sun on one side of its images (the shipped default: within 40°
+# of (0.6, 0.4, 0.7), light from the upper left) errs three times as often when the light crosses the
+# image from elsewhere. Where the caller knows the sun (sun sensor, or ephemeris and attitude), the
+# crop is turned in-plane so that the light crosses it as in training, when the light's image azimuth
+# is more than SUN_TURN_BEYOND_DEG from the training sun's (nearer, the training data had such light
+# and a turn only resamples the crop). Chosen among full / beyond 45° / beyond 60° / the excess beyond
+# 30–60° on 800 tuning views (benchmarks/RESULTS.md, "CNN regressors under other lighting").
+SUN_TURN_BEYOND_DEG = 60.0
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -104,6 +112,47 @@ def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_p
             raise ValueError(f"verifier_prob: expected the shape of prob {prob.shape}, got {verifier_prob.shape}")
         score = score + verifier_weight * np.log(verifier_prob + 1e-6)
     return score
+
+
+def check_sun_direction(sun_direction_cam) -> np.ndarray | None:
+    """The caller's sun as a (3,) unit float64 direction the sunlight travels (camera frame), or None."""
+    if sun_direction_cam is None:
+        return None
+    d = np.asarray(sun_direction_cam, dtype=np.float64)
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
+        raise ValueError("sun_direction_cam: expected a non-zero, finite (3,) direction the sunlight travels in "
+                         f"the camera frame (x right, y down, z forward), got {sun_direction_cam!r}")
+    return d / np.linalg.norm(d)
+
+
+def trained_light_azimuth_deg(lighting: dict | None) -> float | None:
+    """The image azimuth (°, :func:`~hybridpose.objects.light_azimuth_deg`) of a training set's sun
+    (``{"sun_direction_cam", "sun_cone_deg"}`` as :func:`~hybridpose.regressors.train.dataset_info`
+    records it), or None when the set had light from every side (its sun cone holds the optical axis)
+    or no record."""
+    if not lighting or lighting.get("sun_direction_cam") is None:
+        return None
+    from ..objects import light_azimuth_deg
+
+    d = np.asarray(lighting["sun_direction_cam"], dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    if np.degrees(np.arccos(np.clip(d[2], -1.0, 1.0))) <= float(lighting.get("sun_cone_deg", 0.0)):
+        return None
+    return light_azimuth_deg(d)
+
+
+def sun_turn_deg(sun_direction_cam, trained_azimuth_deg: float | None, beyond_deg: float = SUN_TURN_BEYOND_DEG) -> float:
+    """In-plane crop turn (°, OpenCV's sense: counter-clockwise on screen) that makes light travelling
+    along ``sun_direction_cam`` cross the crop at ``trained_azimuth_deg``, when the two azimuths differ
+    by more than ``beyond_deg`` (else 0, as without a sun or a training azimuth)."""
+    if sun_direction_cam is None or trained_azimuth_deg is None:
+        return 0.0
+    from ..objects import light_azimuth_deg
+
+    # turning the crop by a (counter-clockwise) moves every direction in it, the light's too, by -a in
+    # light_azimuth_deg's clockwise sense
+    delta = (light_azimuth_deg(sun_direction_cam) - trained_azimuth_deg + 180.0) % 360.0 - 180.0
+    return float(delta) if abs(delta) > beyond_deg else 0.0
 
 
 def uncalibrated_record(kind: str) -> dict:
@@ -309,6 +358,8 @@ class CheckpointRegressor(PoseRegressor):
                             if hasattr(self.net, "keypoints_m") else None)
         self.image_size = int(ck["config"]["image_size"])
         self.dataset = ck.get("dataset", {})
+        # the image azimuth of the training sun (None: lit from every side, or not recorded)
+        self.trained_light_azimuth_deg = trained_light_azimuth_deg(self.dataset.get("lighting"))
         self.calibration = ck.get("calibration")
         self.twins = [Pose.from_matrix(np.asarray(m)) for m in ck.get("twins", [])]
         self.has_twin_head = getattr(self.net, "twin_head", None) is not None and bool(self.twins)
@@ -388,31 +439,46 @@ class CheckpointRegressor(PoseRegressor):
         x = torch.cat([_to_tensor(img) for img in images]) if len(images) > 1 else _to_tensor(images[0])
         return x.to(self.device).contiguous(memory_format=self.memory_format)
 
-    def predict(self, frame: Frame, roi=None) -> Measurement:
+    def predict(self, frame: Frame, roi=None, sun_direction_cam=None) -> Measurement:
+        """The pose of the object in ``frame`` (no prior needed).
+
+        Args:
+            frame: the image (H, W, 3) uint8 RGB and its camera.
+            roi: (x, y, w, h) pixels where the object is (e.g. a tracker's predicted box); None: found
+                by detection.
+            sun_direction_cam: where known (sun sensor, or ephemeris and attitude), the (3,) direction
+                the sunlight travels in the camera frame (x right, y down, z forward; any length).
+                Keypoint models then turn their crop so that the light crosses it from the side
+                their training data was lit from (:func:`sun_turn_deg`; checkpoints that record
+                their training sun, as the shipped ``default`` does). The direct (VGG) models take
+                the whole frame and ignore it.
+        """
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         roi = check_roi(roi, frame)
+        sun = check_sun_direction(sun_direction_cam)
         self._check_camera(frame.camera)
         with torch.no_grad():
             if self.kind == "keypoints":
-                return self._predict_keypoints(frame, roi)
+                return self._predict_keypoints(frame, roi, sun_turn_deg(sun, self.trained_light_azimuth_deg))
             return self._predict_direct(frame, roi)
 
     def _crop(self, image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float):
         return crop_image(image, K, cx, cy, side, (self.image_size, self.image_size))
 
-    def _keypoint_pass(self, image, K, box, turns: bool = False):
+    def _keypoint_pass(self, image, K, box, turns: bool = False, sun_turn: float = 0.0):
         """One network pass on ``box``: (PnP result in the head's most likely twin, keypoints (N, 2)
         in crop pixels, crop K, twin order, twin probabilities). The order lists the symmetry
         indices (0 = the keypoints' own pose, k = ``twins[k-1]``) most likely first by the twin head
         (fixed 0, 1, 2, 3 without one); the result's pose is already turned to the first. The
         probabilities (T,), indexed like the symmetries, are the head's softmax (None without one).
         With ``turns`` the crop turned by ``TURNS_DEG`` is tried too where :meth:`_turn_crop` says
-        so, and the pass whose PnP keeps the most keypoints (then the lowest RMS) is returned."""
+        so, and the pass whose PnP keeps the most keypoints (then the lowest RMS) is returned. Every
+        turn starts from ``sun_turn`` (°, :func:`sun_turn_deg`)."""
         crop, K_crop = self._crop(image, K, *box)
-        best = self._solve_turned(crop, K_crop, (0.0,))[0]
+        best = self._solve_turned(crop, K_crop, (sun_turn,))[0]
         if turns and self._turn_crop(best[0]):
-            best = min([best, *self._solve_turned(crop, K_crop, TURNS_DEG)], key=_pass_rank)
+            best = min([best, *self._solve_turned(crop, K_crop, [sun_turn + a for a in TURNS_DEG])], key=_pass_rank)
         res, uv, order, prob = best
         return res, uv, K_crop, order, prob
 
@@ -464,39 +530,42 @@ class CheckpointRegressor(PoseRegressor):
             return None
         return crop_box((lo[0], lo[1], hi[0] - lo[0] + 1, hi[1] - lo[1] + 1), CROP_MARGIN)
 
-    def _keypoint_estimate(self, image: np.ndarray, cam: Camera, roi):
+    def _keypoint_estimate(self, image: np.ndarray, cam: Camera, roi, sun_turn: float = 0.0):
         """The network passes and PnP before any twin check or edge fit on an undistorted ``image``:
         (PnP result turned to the head's twin, twin order, twin probabilities), or None when nothing
-        is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for order and probabilities)."""
+        is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for order and
+        probabilities; ``sun_turn``: its crop turn, °)."""
         K = cam.K
         seen = roi if roi is not None else detect_bright_object(image)
         if seen is None:
             return None
         box = crop_box(seen, CROP_MARGIN)
-        res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box, turns=True)
+        res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box, turns=True, sun_turn=sun_turn)
         # second pass on the crop centred on the first pose (the crop the network knows best)
         again = (self._box_around(res.pose if res is not None else None, uv, K_crop, K)
                  if self._second_pass(res, prob) else None)
         if again is not None:
-            res2, _, _, order2, prob2 = self._keypoint_pass(image, K, again)
+            res2, _, _, order2, prob2 = self._keypoint_pass(image, K, again, sun_turn=sun_turn)
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
                 res, order, prob = res2, order2, prob2
         if res is None or size_ratio(res.pose, self.keypoints_m, cam, seen) > SIZE_RATIO_MAX:
             return None
         return res, order, prob
 
-    def twin_candidates(self, frame: Frame, roi=None):
+    def twin_candidates(self, frame: Frame, roi=None, sun_direction_cam=None):
         """The box twins the twin choice weighs, before any edge fit: (poses T_cam_obj, head
         probabilities), both in the head's order (most likely first), or None when the object is
         not found. What a twin verifier is shown at inference, so what it is trained on
-        (``hybridpose train-verifier --estimates-from``). Keypoint models with a twin head only."""
+        (``hybridpose train-verifier --estimates-from``). Keypoint models with a twin head only;
+        ``roi`` and ``sun_direction_cam`` as in :meth:`predict`."""
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         self.require_twin_head()
         roi = check_roi(roi, frame)
+        sun = check_sun_direction(sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
-            est = self._keypoint_estimate(image, cam, roi)
+            est = self._keypoint_estimate(image, cam, roi, sun_turn_deg(sun, self.trained_light_azimuth_deg))
         if est is None:
             return None
         res, order, prob = est
@@ -515,9 +584,9 @@ class CheckpointRegressor(PoseRegressor):
         first = S[order[0]]
         return [pose] + [pose @ first @ S[k] for k in order[1:]]
 
-    def _predict_keypoints(self, frame: Frame, roi) -> Measurement:
+    def _predict_keypoints(self, frame: Frame, roi, sun_turn: float = 0.0) -> Measurement:
         image, cam = self._undistorted(frame)
-        est = self._keypoint_estimate(image, cam, roi)
+        est = self._keypoint_estimate(image, cam, roi, sun_turn)
         if est is None:
             return self._lost(frame)
         res, order, prob = est

@@ -259,12 +259,17 @@ def kw_for_checkpoint(kw: dict) -> dict:
 
 
 def dataset_info(root, obj=None) -> dict:
-    """What the training data was: object name/diameter and camera (checked again at inference)."""
+    """What the training data was: object name/diameter and camera (checked again at inference), and
+    its sun (``lighting``: the direction the light travels, camera frame, and the cone each image's
+    sun was drawn in; what a keypoint model's sun turn aligns to)."""
     from ..io import read_json
 
     config = Path(root) / "hybridpose.json"
     info = read_json(config) if config.is_file() else {}
     out = {"object": info.get("object"), "camera": info.get("camera")}
+    sun = (info.get("lighting") or {}).get("sun_direction_cam")
+    if sun is not None:
+        out["lighting"] = {"sun_direction_cam": [float(x) for x in sun], "sun_cone_deg": float(info.get("sun_cone_deg", 0.0))}
     if obj is not None:
         out["diameter_m"] = float(obj.diameter)
     return out

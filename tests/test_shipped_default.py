@@ -211,20 +211,23 @@ def test_calibrating_the_shipped_default_on_its_full_path(truss, tmp_path, capsy
 
 
 def test_a_known_sun_turns_the_crop_to_the_light_the_default_was_trained_with(regressor, truss):
-    """Lit from the side opposite its training sun, the default's keypoints degrade; told where the sun
-    is, it turns its crop so that the light crosses it as in training."""
-    camera, seed = Camera.default(), 4243
-    poses = random_poses(24, camera, (0.3, 1.2), rng=seed, in_view_points=truss.bbox_corners)
-    suns = sun_directions_in_cone((-0.6, -0.4, 0.7), 20.0, len(poses), np.random.default_rng(seed))
+    """Lit from the side opposite the sun most of its training views had, the default's keypoints are
+    worse; told where the sun is, it turns its crop so that the light crosses it as there."""
+    camera = Camera.default()
     without, given = [], []
     with Renderer(truss, camera) as r:
-        for i, (truth, sun) in enumerate(zip(poses, suns)):
-            frame = Frame(r.render(truth, sun_direction_cam=sun).rgb, camera, float(i), i)
-            for errors, kw in ((without, {}), (given, {"sun_direction_cam": sun})):
-                m = regressor.predict(frame, **kw)
-                errors.append(rotation_error_deg(m.pose, truth) if m.pose is not None else 180.0)
-    # measured: median 3.0° without, 0.55° given (the 40°-cone views above: 0.4°)
-    assert np.median(given) < 1.5 and np.median(given) < 0.5 * np.median(without), (np.median(given), np.median(without))
+        for seed in (4243, 4245):
+            poses = random_poses(24, camera, (0.3, 1.2), rng=seed, in_view_points=truss.bbox_corners)
+            suns = sun_directions_in_cone((-0.6, -0.4, 0.7), 20.0, len(poses), np.random.default_rng(seed))
+            for i, (truth, sun) in enumerate(zip(poses, suns)):
+                frame = Frame(r.render(truth, sun_direction_cam=sun).rgb, camera, float(i), i)
+                for errors, kw in ((without, {}), (given, {"sun_direction_cam": sun})):
+                    m = regressor.predict(frame, **kw)
+                    errors.append(rotation_error_deg(m.pose, truth) if m.pose is not None else 180.0)
+    without, given = np.array(without), np.array(given)
+    # measured (stage 9): median 1.3° and 4 views > 30° without, 0.6° and 2 given (stage 7: 3.0° / 0.6°)
+    assert np.median(given) < 1.0 and np.median(given) < np.median(without), (np.median(given), np.median(without))
+    assert np.sum(given > 30) <= np.sum(without > 30)
     with pytest.raises(ValueError, match="sun_direction_cam: expected a non-zero, finite \\(3,\\) direction"):
         regressor.predict(frame, sun_direction_cam=[0.0, 0.0])
     with pytest.raises(ValueError, match="sun_direction_cam"):

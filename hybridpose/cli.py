@@ -313,7 +313,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--sun-dir", type=_sun_dir, default=(0.6, 0.4, 0.7), help="sunlight direction x,y,z in the camera frame")
     r.add_argument("--sun", type=float, default=1.0, help="sun intensity")
     r.add_argument("--sun-cone", type=float, default=0.0,
-                   help="random: per-image sun direction uniform within this cone (degrees) around --sun-dir")
+                   help="random: per-image sun direction uniform within this cone (degrees, up to 180) around --sun-dir "
+                        "(e.g. --sun-dir 0,0,1 --sun-cone 120: light from any side, some back-lit)")
     r.add_argument("--in-view", action="store_true",
                    help="random: keep the whole object in the image (default: only its centre)")
     r.add_argument("--elevation", type=_float_pair, default=None, metavar="LOW,HIGH",

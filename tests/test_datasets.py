@@ -129,6 +129,8 @@ def test_random_dataset_records_each_images_sun(truss, tmp_path):
     np.testing.assert_allclose(fixed.sun_direction_cam(1), [0.0, 0.0, 1.0])
     (out / "scene_meta.json").unlink()
     assert BopScene(out).sun_direction_cam(0) is None
+    with pytest.raises(ValueError, match="sun_cone_deg: expected 0..180 degrees"):
+        render_random_dataset(tmp_path / "bad", truss, CAM, count=2, sun_cone_deg=200.0)
 
 
 def test_sequence_dataset_has_timestamps_and_occlusion(truss, tmp_path):

@@ -68,6 +68,12 @@ def test_sun_directions_stay_in_their_cone():
     # uniform on the cap: the cap's outer half (in solid angle) holds half the directions
     cos_mid = (1 + np.cos(np.radians(40.0))) / 2
     assert abs(np.mean(d @ axis < cos_mid) - 0.5) < 0.03
+    # beyond a hemisphere (back-lit views around the optical axis): still uniform on the cap
+    z = np.array([0.0, 0.0, 1.0])
+    d = sun_directions_in_cone(z, 150.0, 5000, np.random.default_rng(1))
+    ang = np.degrees(np.arccos(np.clip(d[:, 2], -1, 1)))
+    assert ang.max() <= 150.0 + 1e-9 and ang.max() > 145.0 and np.mean(ang > 90) == pytest.approx(
+        np.cos(np.radians(150.0)) / (np.cos(np.radians(150.0)) - 1), abs=0.03)
 
 
 @pytest.mark.parametrize("name", ["tumble", "approach", "fly-around", "distance-sweep"])

@@ -168,7 +168,8 @@ def render_random_dataset(
     otherwise only its centre is. ``elevation_range_deg`` (low, high) keeps only views seen that
     far from edge-on (:func:`~hybridpose.objects.view_elevation_deg`), e.g. ``(0, 20)`` to render
     more of the near edge-on views where a flat object's pose is hardest. ``sun_cone_deg`` > 0 draws each image's sun direction uniformly within that cone around
-    ``lighting.sun_direction_cam`` and ``sun_scale_range`` its intensity factor, so a network
+    ``lighting.sun_direction_cam`` (up to 180°: beyond 90° around the optical axis the cone holds
+    side- and back-lit views) and ``sun_scale_range`` its intensity factor, so a network
     trained on the data does not learn one shading; each image's sun (unit direction the light
     travels, camera frame, and intensity factor) is recorded in ``<scene>/scene_meta.json``.
     ``workers`` > 1 renders in that many processes (identical images: each image's noise is seeded
@@ -176,8 +177,8 @@ def render_random_dataset(
     """
     if count < 1:
         raise ValueError(f"count: expected ≥ 1 images, got {count}")
-    if not 0 <= sun_cone_deg <= 90:
-        raise ValueError(f"sun_cone_deg: expected 0..90 degrees, got {sun_cone_deg}")
+    if not 0 <= sun_cone_deg <= 180:
+        raise ValueError(f"sun_cone_deg: expected 0..180 degrees (180: the sun anywhere), got {sun_cone_deg}")
     lo, hi = sun_scale_range
     if not 0 <= lo <= hi:
         raise ValueError(f"sun_scale_range: expected 0 ≤ low ≤ high, got {sun_scale_range}")

@@ -22,6 +22,7 @@ sun and the shipped default's training direction, and against the phase angle. W
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 from pathlib import Path
 
@@ -88,8 +89,6 @@ def main() -> None:
             summaries[(model, name)], reports[(model, name)] = s, out / "report.json"
             print(f"{model} on {name}: {s['rot_mean_deg']:.2f}° mean, {s['rot_median_deg']:.2f}° median, "
                   f"{s['gross_error_share']:.1%} > 30°, {s['trans_mean_m']:.3f} m")
-    import json
-
     pooled = {}
     for model, _, _ in models:
         rows = []
@@ -107,7 +106,7 @@ def main() -> None:
     env = environment()
     write_json("regressor_lighting", {
         "env": env, "sets": dict(sets), "checkpoints": dict(checkpoints), "sun_known": args.sun_known,
-        "summaries": {f"{m} on {n}": {k: v for k, v in s.items()} for (m, n), s in summaries.items()},
+        "summaries": {f"{m} on {n}": s for (m, n), s in summaries.items()},
         "pooled_bins": pooled, "comparisons": comparisons})
 
     lines = [

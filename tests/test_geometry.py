@@ -196,3 +196,12 @@ def test_camera_scaled_keeps_fov_and_pixel_centres():
 def test_bad_input_names_the_argument(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_unit_direction_check_normalises_and_names_the_argument():
+    from hybridpose.geometry import as_unit_direction
+
+    np.testing.assert_allclose(as_unit_direction([0.0, 3.0, 4.0], "d"), [0.0, 0.6, 0.8])
+    for bad in ([0.0, 0.0], [0.0, 0.0, 0.0], [1.0, np.nan, 0.0], "up"):
+        with pytest.raises(ValueError, match=r"sun: expected a non-zero, finite \(3,\) direction it travels, got"):
+            as_unit_direction(bad, "sun", "it travels")

@@ -63,6 +63,18 @@ def as_rotation_matrix(R, name: str = "R", atol: float = ROTATION_ATOL) -> np.nd
     return U @ Vt
 
 
+def as_unit_direction(d, name: str, meaning: str = "") -> np.ndarray:
+    """(3,) float64 unit vector from a non-zero, finite direction of any length; ``meaning`` (e.g.
+    what the direction is and its frame) is added to the error message."""
+    try:
+        arr = np.asarray(d, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)  # not numeric: the same error as any other bad direction
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.linalg.norm(arr) < 1e-9:
+        raise ValueError(f"{name}: expected a non-zero, finite (3,) direction{' ' + meaning if meaning else ''}, got {d!r}")
+    return arr / np.linalg.norm(arr)
+
+
 def as_unit_quat(q, name: str = "q", atol: float = QUAT_NORM_ATOL) -> np.ndarray:
     """(4,) or (N, 4) quaternion (w, x, y, z), normalised after checking ‖q‖ = 1 within ``atol``."""
     q = np.asarray(q, dtype=np.float64)

@@ -84,10 +84,11 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     for k, (scene, im_id) in enumerate(items):
         gt = scene.image(im_id)
         frame = Frame(scene.rgb(im_id), gt.camera, float(im_id), im_id)
-        m = reg.predict(frame, sun_direction_cam=scene.sun_direction_cam(im_id) if sun_known else None)
+        sun = scene.sun_direction_cam(im_id)
+        m = reg.predict(frame, sun_direction_cam=sun if sun_known else None)
         row = {"image": f"{scene.dir.name}/{im_id:06d}", "distance_m": float(gt.pose.t[2]),
                "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost, "quality": m.quality,
-               **lighting_columns(scene.sun_direction_cam(im_id), gt.pose, obj)}
+               **lighting_columns(sun, gt.pose, obj)}
         if m.pose is None:
             row.update(rot_deg=FAILED_ROT_DEG, trans_m=FAILED_TRANS_M, speed=np.pi + FAILED_TRANS_M / np.linalg.norm(gt.pose.t),
                        add_m=float("inf"))

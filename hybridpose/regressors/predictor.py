@@ -24,7 +24,7 @@ import torch
 
 from ..core import LOST_COVARIANCE, Frame, Measurement
 from ..datasets.torch_dataset import crop_box, crop_image
-from ..geometry import Camera, Pose
+from ..geometry import Camera, Pose, as_unit_direction
 from ..registry import register
 from .base import PoseRegressor, check_roi
 from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance
@@ -112,17 +112,6 @@ def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_p
             raise ValueError(f"verifier_prob: expected the shape of prob {prob.shape}, got {verifier_prob.shape}")
         score = score + verifier_weight * np.log(verifier_prob + 1e-6)
     return score
-
-
-def check_sun_direction(sun_direction_cam) -> np.ndarray | None:
-    """The caller's sun as a (3,) unit float64 direction the sunlight travels (camera frame), or None."""
-    if sun_direction_cam is None:
-        return None
-    d = np.asarray(sun_direction_cam, dtype=np.float64)
-    if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
-        raise ValueError("sun_direction_cam: expected a non-zero, finite (3,) direction the sunlight travels in "
-                         f"the camera frame (x right, y down, z forward), got {sun_direction_cam!r}")
-    return d / np.linalg.norm(d)
 
 
 def trained_light_azimuth_deg(lighting: dict | None) -> float | None:
@@ -439,6 +428,14 @@ class CheckpointRegressor(PoseRegressor):
         x = torch.cat([_to_tensor(img) for img in images]) if len(images) > 1 else _to_tensor(images[0])
         return x.to(self.device).contiguous(memory_format=self.memory_format)
 
+    def _sun_turn(self, sun_direction_cam) -> float:
+        """The crop turn (°, :func:`sun_turn_deg`) for the caller's sun (checked; None: no turn)."""
+        if sun_direction_cam is None:
+            return 0.0
+        sun = as_unit_direction(sun_direction_cam, "sun_direction_cam",
+                                "the sunlight travels in the camera frame (x right, y down, z forward)")
+        return sun_turn_deg(sun, self.trained_light_azimuth_deg)
+
     def predict(self, frame: Frame, roi=None, sun_direction_cam=None) -> Measurement:
         """The pose of the object in ``frame`` (no prior needed).
 
@@ -456,11 +453,11 @@ class CheckpointRegressor(PoseRegressor):
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         roi = check_roi(roi, frame)
-        sun = check_sun_direction(sun_direction_cam)
+        sun_turn = self._sun_turn(sun_direction_cam)
         self._check_camera(frame.camera)
         with torch.no_grad():
             if self.kind == "keypoints":
-                return self._predict_keypoints(frame, roi, sun_turn_deg(sun, self.trained_light_azimuth_deg))
+                return self._predict_keypoints(frame, roi, sun_turn)
             return self._predict_direct(frame, roi)
 
     def _crop(self, image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float):
@@ -562,10 +559,10 @@ class CheckpointRegressor(PoseRegressor):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         self.require_twin_head()
         roi = check_roi(roi, frame)
-        sun = check_sun_direction(sun_direction_cam)
+        sun_turn = self._sun_turn(sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
-            est = self._keypoint_estimate(image, cam, roi, sun_turn_deg(sun, self.trained_light_azimuth_deg))
+            est = self._keypoint_estimate(image, cam, roi, sun_turn)
         if est is None:
             return None
         res, order, prob = est

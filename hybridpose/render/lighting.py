@@ -6,6 +6,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..geometry import as_unit_direction
+
 BACKGROUNDS = ("black", "earth")
 
 
@@ -29,10 +31,8 @@ class SpaceLighting:
     background: str = "black"
 
     def __post_init__(self) -> None:
-        d = np.asarray(self.sun_direction_cam, dtype=np.float64)
-        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
-            raise ValueError(f"sun_direction_cam: expected a non-zero (3,) direction, got {self.sun_direction_cam!r}")
-        object.__setattr__(self, "sun_direction_cam", tuple(float(x) for x in d / np.linalg.norm(d)))
+        d = as_unit_direction(self.sun_direction_cam, "sun_direction_cam")
+        object.__setattr__(self, "sun_direction_cam", tuple(float(x) for x in d))
         for name in ("sun_intensity", "sun_specular", "exposure"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:

@@ -17,7 +17,7 @@ from dataclasses import dataclass  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..geometry import Camera, Pose, matrix_to_quat_wxyz  # noqa: E402
+from ..geometry import Camera, Pose, as_unit_direction, matrix_to_quat_wxyz  # noqa: E402
 from ..objects import ObjectModel  # noqa: E402
 from .lighting import SensorModel, SpaceLighting, earth_background  # noqa: E402
 from .occluder import ArmState  # noqa: E402
@@ -299,10 +299,7 @@ class Renderer:
         if not np.isfinite(sun_scale) or sun_scale < 0:
             raise ValueError(f"sun_scale: expected a non-negative factor, got {sun_scale}")
         if sun_direction_cam is not None:
-            d = np.asarray(sun_direction_cam, dtype=np.float64)
-            if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
-                raise ValueError(f"sun_direction_cam: expected a non-zero (3,) direction, got {sun_direction_cam!r}")
-            sun_direction_cam = d / np.linalg.norm(d)
+            sun_direction_cam = as_unit_direction(sun_direction_cam, "sun_direction_cam")
         rng = np.random.default_rng(rng)
         self._set_mocap("object", T_cam_obj.t, matrix_to_quat_wxyz(T_cam_obj.R))
         self._set_arm(arm)

@@ -216,7 +216,8 @@ def cmd_eval(args) -> int:
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
                             pnp_outliers=args.pnp_outliers, sun_known=args.sun_known,
-                            device=args.device, verifier=None if args.verifier == "none" else args.verifier)
+                            device=args.device, verifier=None if args.verifier == "none" else args.verifier,
+                            mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -276,7 +277,7 @@ def cmd_train_verifier(args) -> int:
     # unset: build_pairs' own default (LABEL_MAX_DEG), so the bound is written down in one place
     bound = {} if args.label_max_deg is None else {"label_max_deg": args.label_max_deg}
     pairs = build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers,
-                        estimates_from=args.estimates_from, **bound)
+                        estimates_from=args.estimates_from, mirrors=args.mirrors, **bound)
     best = train_verifier(pairs, args.out, obj, epochs=args.epochs, batch=args.batch, lr=args.lr, width=args.width,
                           seed=args.seed, resume=args.resume, init_from=args.init_from)
     hist = json.loads((Path(args.out) / "history.json").read_text())
@@ -365,6 +366,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "poor keypoints too)")
     tv.add_argument("--init-from", default=None, metavar="CHECKPOINT",
                     help="start from this twin-verifier checkpoint's weights (fine-tuning; same --width)")
+    tv.add_argument("--mirrors", action="store_true",
+                    help="the edge-on mirror verifier: views estimated near edge-on only, each with eight candidates "
+                         "(the four twins and the four twins of the edge-on mirror, verify.edge_on_mirror)")
     tv.set_defaults(func=cmd_train_verifier)
 
     cal = sub.add_parser("calibrate", help="re-scale a regressor checkpoint's covariance on its whole inference path "
@@ -395,6 +399,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")
+    e.add_argument("--mirror-verifier", default="auto",
+                   help="keypoint models: edge-on mirror verifier (train-verifier --mirrors), 'auto' (the shipped one, "
+                        "if any) or 'none'")
     e.add_argument("--sun-known", action="store_true",
                    help="keypoint models: give the regressor each image's sun as the dataset records it (what a "
                         "caller with a sun sensor can do: the crop is turned so the light crosses it as in training)")

@@ -839,3 +839,90 @@ def test_components_in_the_masks_box_are_the_full_frames(rng):
         np.testing.assert_array_equal(stats[1:][order[0]], ref_stats[1:][order[1]])
         assert np.array_equal(labels > 0, ref_labels[y:y + h, x:x + w] > 0)
     assert _components(np.zeros((10, 10), np.uint8)) is None
+
+
+def test_edge_on_mirror_mirrors_the_sight_and_keeps_what_the_image_shows(truss, camera, rng):
+    """The mirror keeps the box centre and the elevation, mirrors the line of sight across the long
+    axis within the main plane (object frame: long x, thin z) and undoes itself; seen edge-on from
+    afar, the box's corners project where the pose's do (cv2.projectPoints): what makes it ambiguous."""
+    from scipy.spatial.transform import Rotation
+
+    from hybridpose.objects import view_elevation_deg
+    from hybridpose.regressors.verify import edge_on_mirror
+
+    c = truss.center
+    for _ in range(5):
+        pose = Pose(Rotation.random(random_state=rng).as_matrix(), rng.uniform([-0.1, -0.1, 0.5], [0.1, 0.1, 1.2]))
+        m = edge_on_mirror(pose, truss)
+        np.testing.assert_allclose(m.R @ c + m.t, pose.R @ c + pose.t, atol=1e-12)
+        assert view_elevation_deg(m, truss) == pytest.approx(view_elevation_deg(pose, truss), abs=1e-9)
+        sight, sight_m = pose.R.T @ -(pose.R @ c + pose.t), m.R.T @ -(m.R @ c + m.t)
+        np.testing.assert_allclose(sight_m, sight * [1, -1, 1], atol=1e-12)
+        back = edge_on_mirror(m, truss)
+        assert rotation_error_deg(back, pose) < 1e-6 and np.allclose(back.t, pose.t)
+    # edge-on (the sight in the x-y plane), 40° from the long axis, 30 m away: the two images coincide
+    R = Rotation.from_euler("x", 90, degrees=True).as_matrix() @ Rotation.from_euler("z", 50, degrees=True).as_matrix()
+    pose = Pose(R, np.array([0.0, 0.0, 30.0]) - R @ c)
+    m = edge_on_mirror(pose, truss)
+    assert rotation_error_deg(m, pose) > 60
+    corners = truss.bbox_corners
+
+    def project(p):
+        uv, _ = cv2.projectPoints(corners, cv2.Rodrigues(p.R)[0], p.t, camera.K, np.zeros(5))
+        return uv.reshape(-1, 2)
+
+    a, b = project(pose), project(m)
+    # the same set of corner images (to 0.05 px at 30 m): each corner of one lands on a corner of the other
+    assert np.abs(a[:, None] - b[None]).max(-1).min(1).max() < 0.05
+
+
+def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpoint, truss, camera, tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    from hybridpose.objects import view_elevation_deg
+    from hybridpose.regressors.predictor import MIRROR_SWITCH_P, REFINE_MIN_QUALITY, REFINE_SEARCH_PX
+    from hybridpose.trackers.edges import fit_edges
+    from hybridpose.regressors.verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror
+    from hybridpose.render import Renderer
+
+    assert CheckpointRegressor(tiny_checkpoint, mirror_verifier=None).mirror_verifier is None
+    ck = _verifier_checkpoint(tmp_path / "mv.pt", truss)
+    assert CheckpointRegressor(tiny_checkpoint, mirror_verifier=ck, refine_edges=False).mirror_verifier is None
+    with pytest.raises(FileNotFoundError, match="twin verifier"):
+        CheckpointRegressor(tiny_checkpoint, mirror_verifier=tmp_path / "missing.pt")
+    reg = CheckpointRegressor(tiny_checkpoint, mirror_verifier=ck)
+    c = truss.center
+    R = Rotation.from_euler("x", 95, degrees=True).as_matrix() @ Rotation.from_euler("z", 50, degrees=True).as_matrix()
+    edge_on = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ c)               # 5° from edge-on
+    face_on = Pose(np.eye(3), np.array([0.0, 0.0, 0.8]) - c)
+    calls = []
+    answer = {"p": None}
+
+    def stub(image, K, candidates, strip_pose=None):
+        calls.append((candidates, strip_pose))
+        return answer["p"]
+
+    reg.mirror_verifier.probabilities = stub
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(edge_on).rgb, camera, 0.0)
+    assert reg._mirror_check(frame, face_on) is None and not calls, "far from edge-on: no check"
+    assert view_elevation_deg(edge_on, truss) < MIRROR_BELOW_DEG
+    answer["p"] = np.array([0.9, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.01])
+    assert reg._mirror_check(frame, edge_on) is None                       # the pose itself is believed
+    cands, strip_pose = calls[-1]
+    assert len(cands) == 8 and rotation_error_deg(strip_pose, edge_on) < 1e-9
+    mirror = edge_on_mirror(edge_on, truss)
+    S = [Pose.identity(), *box_half_turns(truss)]
+    for got, want in zip(cands, [edge_on @ s for s in S] + [mirror @ s for s in S]):
+        assert rotation_error_deg(got, want) < 1e-9 and np.allclose(got.t, want.t)
+    answer["p"] = np.full(8, 0.01)
+    answer["p"][5] = MIRROR_SWITCH_P - 0.02
+    assert reg._mirror_check(frame, edge_on) is None                       # not sure enough
+    answer["p"][5] = MIRROR_SWITCH_P + 0.02
+    pose, p = reg._mirror_check(frame, edge_on)
+    assert p == pytest.approx(MIRROR_SWITCH_P + 0.02)
+    # the believed candidate (the mirror's first twin), edge-fitted where the fit is good, as _refine does
+    fit = fit_edges(reg.twin_check.view, frame, mirror @ S[1], search_px=REFINE_SEARCH_PX)
+    want = fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else mirror @ S[1]
+    assert rotation_error_deg(pose, want) < 1e-6 and np.allclose(pose.t, want.t)
+    assert rotation_error_deg(pose, edge_on) > 30

@@ -246,3 +246,36 @@ def test_fine_tuning_starts_from_the_given_verifier(views, truss, tmp_path):
     for k in a:
         if k.endswith("weight") and a[k].ndim == 4:
             torch.testing.assert_close(a[k], b[k], atol=1e-6, rtol=0)
+
+
+@pytest.fixture(scope="module")
+def edge_on_views(truss, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tv_edge") / "ds"
+    render_random_dataset(out, truss, Camera.default().scaled((320, 240)), count=6, seed=5, in_view=True,
+                          elevation_range_deg=(0.0, 10.0))
+    return out
+
+
+def test_mirror_pairs_hold_the_twins_and_their_edge_on_mirrors(edge_on_views, views, truss, tmp_path):
+    """--mirrors: views estimated near edge-on only, eight candidates each (a pose's four box twins
+    and the four of its edge-on mirror), labelled by the one nearest the truth; recorded in meta.json,
+    so a resume with other settings is refused."""
+    from hybridpose.objects import view_elevation_deg
+    from hybridpose.regressors.verify import MIRROR_BELOW_DEG
+
+    pairs = build_pairs([edge_on_views], tmp_path / "m", truss, seed=1, progress=False, chunk=3, mirrors=True)
+    assert json.loads((pairs / "meta.json").read_text())["mirrors"] == {"below_elevation_deg": MIRROR_BELOW_DEG}
+    strips, drawings, labels = load_pairs(pairs)
+    errors = _chunk_errors(pairs)
+    assert len(labels) >= 4 and drawings.shape == (len(labels), 8, STRIP_H, STRIP_W) and errors.shape[1] == 8
+    np.testing.assert_array_equal(labels, errors.argmin(1))
+    assert np.all(errors.min(1) < 40)
+    # the next nearest candidate is well away from the nearest: the mirrors do not repeat the twins
+    assert np.all(np.sort(errors, 1)[:, 1] > errors.min(1) + 20)
+    with pytest.raises(ValueError, match="mirrors"):
+        build_pairs([edge_on_views], tmp_path / "m", truss, seed=1, progress=False, chunk=3)
+    # far from edge-on, a view teaches nothing about mirrors and is left out
+    scenes = [BopScene(s) for s in find_scenes(views)]
+    near = sum(view_elevation_deg(s.image(i).pose, truss) < MIRROR_BELOW_DEG + 15 for s in scenes for i in s.image_ids)
+    kept = load_pairs(build_pairs([views], tmp_path / "v", truss, seed=1, progress=False, mirrors=True))[2]
+    assert len(kept) <= near < 8

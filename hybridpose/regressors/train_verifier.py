@@ -12,7 +12,10 @@ makes (``ROT_NOISE_MIX``, ``TRANS_NOISE``) and its three box twins, with that sa
 the twins are generated from the one estimated pose), or, with ``estimates_from=CHECKPOINT``
 (``--estimates-from``), exactly what the verifier is shown at inference: the box twins of that
 keypoint regressor's own PnP pose of the view (:meth:`CheckpointRegressor.twin_candidates`), with
-its real errors. Their order is shuffled; the label is the place of the true one (the twin nearest
+its real errors. With ``mirrors=True`` (``--mirrors``) only views seen within ``MIRROR_BELOW_DEG`` of
+edge-on (by the estimate) are cut, and each gets eight candidates: the four twins and the four twins of
+their edge-on mirror (:func:`~hybridpose.regressors.verify.edge_on_mirror`), the checkpoint the
+predictor's edge-on mirror check loads. Their order is shuffled; the label is the place of the true one (the twin nearest
 the ground truth; views where even that one is more than ``LABEL_MAX_DEG`` off teach nothing about
 the twin choice and are left out; ``--label-max-deg`` widens this to teach the views whose keypoints
 are poor too, where the nearest twin is still the one to pick).
@@ -36,7 +39,7 @@ from ..io import atomic_write_json, atomic_write_with, read_json
 from .train import save_checkpoint
 from .twin_verifier import (CHECKPOINT_FORMAT, STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifierNet,
                             verifier_inputs)
-from .verify import box_half_turns
+from .verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +85,7 @@ def _label_sets(dirs) -> list[tuple[Path, list, object]]:
 
 def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progress: bool = True,
                 workers: int = 1, chunk: int = CHUNK, estimates_from=None,
-                label_max_deg: float = LABEL_MAX_DEG) -> Path:
+                label_max_deg: float = LABEL_MAX_DEG, mirrors: bool = False) -> Path:
     """Cut strips and drawings of every view in the datasets ``dirs`` into ``out/pairs`` (see module doc).
 
     Chunks already there are kept (a killed run resumes) when ``out/pairs/meta.json`` records the same
@@ -92,7 +95,9 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
     Returns the pairs directory. ``limit``: at most this many views (tests); ``chunk``: views per file;
     ``estimates_from``: a keypoint-regressor checkpoint with a twin head whose own estimates give the
     candidates (instead of noise on the ground truth; ≈ 15 ms more per view); ``label_max_deg``: with
-    ``estimates_from``, views whose nearest twin is further off (degrees) are left out.
+    ``estimates_from``, views whose nearest twin is further off (degrees) are left out; ``mirrors``:
+    eight candidates (the twins and the twins of the edge-on mirror) of the views estimated within
+    ``MIRROR_BELOW_DEG`` of edge-on only.
     """
     if chunk < 1 or workers < 1:
         raise ValueError(f"chunk, workers: expected positive counts, got {chunk}, {workers}")
@@ -108,6 +113,8 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
     n_chunks = (n_views + chunk - 1) // chunk
     settings = {"views": n_views, "chunks": n_chunks, "chunk": chunk, "seed": seed, "data": [str(d) for d in dirs],
                 "object": obj.name, "estimates_from": estimates_from, "label_max_deg": label_max_deg}
+    if mirrors:  # recorded only when set, so pairs cut before the option existed still resume
+        settings["mirrors"] = {"below_elevation_deg": MIRROR_BELOW_DEG}
     _open_pairs(pairs, settings, out)
     todo = [c for c in range(n_chunks) if not (pairs / f"chunk_{c:05d}.npz").is_file()]
     bar = None
@@ -115,7 +122,8 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
         from tqdm import tqdm
 
         bar = tqdm(total=n_chunks, initial=n_chunks - len(todo), desc="twin-verifier pairs", unit="chunk")
-    jobs = [(views[c * chunk:(c + 1) * chunk], pairs, obj, seed, c, estimates_from, label_max_deg) for c in todo]
+    jobs = [(views[c * chunk:(c + 1) * chunk], pairs, obj, seed, c, estimates_from, label_max_deg, mirrors)
+            for c in todo]
     if workers > 1 and len(jobs) > 1:
         import multiprocessing as mp
 
@@ -166,21 +174,29 @@ def _estimator(checkpoint: str):
     return _ESTIMATORS[checkpoint]
 
 
-def _candidates(d: Path, lab, cam, rng, twins, estimates_from, label_max_deg: float = LABEL_MAX_DEG):
+def _candidates(d: Path, lab, cam, rng, twins, estimates_from, label_max_deg: float = LABEL_MAX_DEG,
+                mirror_of=None):
     """(grey image, candidate poses, strip pose, index of the true one, candidates' rotation errors °)
-    of one view, or None when the estimator loses it or none of its twins is within ``label_max_deg``."""
+    of one view, or None when the estimator loses it or none of its twins is within ``label_max_deg``.
+    ``mirror_of``: the object, to add the twins of the edge-on mirror (views estimated more than
+    ``MIRROR_BELOW_DEG`` from edge-on: None)."""
     if estimates_from is None:
         gray = _read_image(d / lab.image, cv2.IMREAD_GRAYSCALE)
         estimate = noisy_pose(lab.pose, rng)
-        order = rng.permutation(len(twins))
-        cands = [estimate @ twins[k] for k in order]
+        starts = _with_mirrors([estimate @ s for s in twins], twins, mirror_of)
+        if starts is None:
+            return None
+        order = rng.permutation(len(starts))
+        cands = [starts[k] for k in order]
         errors = np.array([rotation_error_deg(p, lab.pose) for p in cands])
-        return gray, cands, cands[int(rng.integers(len(cands)))], int(np.flatnonzero(order == 0)[0]), errors
+        return gray, cands, cands[int(rng.integers(len(cands)))], int(errors.argmin()), errors
     rgb = cv2.cvtColor(_read_image(d / lab.image, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     found = _estimator(estimates_from).twin_candidates(Frame(rgb, cam, 0.0))
     if found is None:
         return None
-    starts = found[0]
+    starts = _with_mirrors(found[0], twins, mirror_of)
+    if starts is None:
+        return None
     order = rng.permutation(len(starts))
     cands = [starts[k] for k in order]
     errors = np.array([rotation_error_deg(p, lab.pose) for p in cands])
@@ -188,6 +204,20 @@ def _candidates(d: Path, lab, cam, rng, twins, estimates_from, label_max_deg: fl
         return None
     # the strip along the head's choice, as the predictor cuts it
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), cands, starts[0], int(errors.argmin()), errors
+
+
+def _with_mirrors(starts: list, twins: list, obj) -> list | None:
+    """``starts`` (the twins of one estimate, the estimate first) and, with ``obj``, the twins of the
+    estimate's edge-on mirror after them; None where the estimate is not within ``MIRROR_BELOW_DEG``
+    of edge-on (the predictor checks mirrors there only)."""
+    if obj is None:
+        return starts
+    from ..objects import view_elevation_deg
+
+    if view_elevation_deg(starts[0], obj) >= MIRROR_BELOW_DEG:
+        return None
+    mirror = edge_on_mirror(starts[0], obj)
+    return list(starts) + [mirror @ s for s in twins]
 
 
 def _read_image(path: Path, flags: int) -> np.ndarray:
@@ -198,13 +228,13 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
 
 
 def _build_chunk(job) -> None:
-    views, pairs, obj, seed, c, estimates_from, label_max_deg = job
+    views, pairs, obj, seed, c, estimates_from, label_max_deg, mirrors = job
     cv2.setNumThreads(1)
     renderer, twins = HypothesisRenderer(obj), [Pose.identity(), *box_half_turns(obj)]
     rng = np.random.default_rng([seed, c])
     strips, drawings, labels, errors = [], [], [], []
     for d, lab, cam in views:
-        view = _candidates(d, lab, cam, rng, twins, estimates_from, label_max_deg)
+        view = _candidates(d, lab, cam, rng, twins, estimates_from, label_max_deg, obj if mirrors else None)
         if view is None:
             continue
         gray, cands, strip_pose, label, err = view
@@ -213,7 +243,7 @@ def _build_chunk(job) -> None:
         drawings.append(drawn)
         labels.append(label)
         errors.append(err)
-    n = len(twins)
+    n = len(twins) * (2 if mirrors else 1)
     arrays = {"strips": np.stack(strips) if strips else np.zeros((0, STRIP_H, STRIP_W), np.uint8),
               "drawings": np.stack(drawings) if drawings else np.zeros((0, n, STRIP_H, STRIP_W), np.uint8),
               "labels": np.array(labels, np.int64), "rot_err_deg": np.array(errors, np.float32).reshape(-1, n)}

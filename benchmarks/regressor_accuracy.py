@@ -8,7 +8,8 @@ Usage:
 Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (full inference path,
 no roi: detection, a network pass (the crop turned by ±20°/±40° too where PnP drops keypoints, a
 second pass where the twin head is unsure), PnP dropping the worst keypoint, twin head + verifier +
-edge check), without the crop turns, with RANSAC for PnP's outliers, without the twin verifier, without the final edge refinement, with always one and always two passes, and
+edge check, edge-on mirror check), without the crop turns, with RANSAC for PnP's outliers, without the twin
+verifier, without the mirror check, without the final edge refinement, with always one and always two passes, and
 what a quality gate keeps (accuracy by quality); copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
@@ -32,20 +33,16 @@ def main() -> None:
     args = ap.parse_args()
     pairs = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
     results = {}
-    # the shipped twin verifier ("auto") in every row but the one that shows what it adds
-    # and the test-time crop turns ("auto") in every row but the one without them
-    # and PnP dropping the worst keypoint ("drop-worst") in every row but the one with RANSAC
-    runs = ([(n, p, True, "auto", "auto", "auto", "drop-worst") for n, p in pairs]
-            + [(f"{n}, no crop turns", p, True, "auto", "auto", "off", "drop-worst") for n, p in pairs]
-            + [(f"{n}, PnP outliers by RANSAC", p, True, "auto", "auto", "auto", "ransac") for n, p in pairs]
-            + [(f"{n}, no twin verifier", p, True, "auto", None, "auto", "drop-worst") for n, p in pairs]
-            + [(f"{n}, no edge refinement", p, False, "auto", "auto", "auto", "drop-worst") for n, p in pairs]
-            + [(f"{n}, 1 pass", p, True, 1, "auto", "auto", "drop-worst") for n, p in pairs]
-            + [(f"{n}, 2 passes", p, True, 2, "auto", "auto", "drop-worst") for n, p in pairs])
-    for name, path, refine, passes, verifier, turns, pnp_outliers in runs:
+    # every row runs the shipped path (evaluate_checkpoint's defaults: twin verifier, mirror check, crop
+    # turns, PnP dropping the worst keypoint, edge refinement, passes "auto") but for what its name says
+    variants = [("", {}), (", no crop turns", {"turns": "off"}), (", PnP outliers by RANSAC", {"pnp_outliers": "ransac"}),
+                (", no twin verifier", {"verifier": None}), (", no mirror check", {"mirror_verifier": None}),
+                (", no edge refinement", {"refine_edges": False}), (", 1 pass", {"passes": 1}),
+                (", 2 passes", {"passes": 2})]
+    runs = [(n + suffix, p, options) for suffix, options in variants for n, p in pairs]
+    for name, path, options in runs:
         tmp = Path(tempfile.mkdtemp())
-        s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit, refine_edges=refine, passes=passes,
-                                verifier=verifier, turns=turns, pnp_outliers=pnp_outliers)
+        s = evaluate_checkpoint(path, args.data, tmp, limit=args.limit, **options)
         if name in dict(pairs):  # the plots of the default inference path
             for png in ("error_vs_distance.png", "gradcam.png"):
                 if (tmp / png).exists():

@@ -510,8 +510,6 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
         ``"gross_only_a", "gross_only_b", "gross_both", "mcnemar_p",
         "rot_mean_diff_deg", "rot_median_diff_deg"`` (each: estimate, ci95 low, high; B − A)}.
     """
-    from scipy.stats import binomtest
-
     if not (gross_deg > 0 and np.isfinite(gross_deg)):
         raise ValueError(f"gross_deg: expected a rotation error > 0 degrees, got {gross_deg}")
     many_a = list(report_a) if isinstance(report_a, (list, tuple)) else [report_a]
@@ -529,10 +527,24 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
         b += rows_b
         paths_a.append(str(path_a))
         paths_b.append(str(path_b))
-    path_a, path_b = ", ".join(paths_a), ", ".join(paths_b)
     # a failure's row already holds FAILED_ROT_DEG (evaluate_checkpoint)
-    rot_a = np.array([r["rot_deg"] for r in a], dtype=float)
-    rot_b = np.array([r["rot_deg"] for r in b], dtype=float)
+    c = paired_comparison([r["rot_deg"] for r in a], [r["rot_deg"] for r in b], gross_deg, resamples, seed)
+    c["a"].update(report=", ".join(paths_a), model=model_a)
+    c["b"].update(report=", ".join(paths_b), model=model_b)
+    return c
+
+
+def paired_comparison(rot_a, rot_b, gross_deg: float = GROSS_ERROR_DEG, resamples: int = 2000, seed: int = 0) -> dict:
+    """:func:`compare_reports` on two (N,) arrays of rotation errors (°) of the same views (A's and B's):
+    McNemar's exact test on the views more than ``gross_deg`` off, paired bootstrap 95 % intervals of
+    the mean and median difference B − A. Same keys as :func:`compare_reports` (``a`` and ``b`` without
+    report paths and models)."""
+    from scipy.stats import binomtest
+
+    rot_a, rot_b = np.asarray(rot_a, dtype=float), np.asarray(rot_b, dtype=float)
+    if rot_a.shape != rot_b.shape or rot_a.ndim != 1 or not len(rot_a):
+        raise ValueError(f"rot_a, rot_b: expected two (N,) error arrays of the same views, got shapes "
+                         f"{rot_a.shape} and {rot_b.shape}")
     gross_a, gross_b = rot_a > gross_deg, rot_b > gross_deg
     only_a, only_b = int(np.sum(gross_a & ~gross_b)), int(np.sum(gross_b & ~gross_a))
     rng = np.random.default_rng(seed)
@@ -544,13 +556,12 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
         lo, hi = np.percentile(boot, [2.5, 97.5])
         return {"estimate": float(estimate), "ci95": [float(lo), float(hi)]}
 
-    def side(path, model, rot, gross):
-        return {"report": path, "model": model, "rot_mean_deg": float(rot.mean()),
-                "rot_median_deg": float(np.median(rot)), "gross_share": float(gross.mean())}
+    def side(rot, gross):
+        return {"rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)),
+                "gross_share": float(gross.mean())}
 
     return {
-        "images": len(rot_a), "gross_deg": float(gross_deg),
-        "a": side(path_a, model_a, rot_a, gross_a), "b": side(path_b, model_b, rot_b, gross_b),
+        "images": len(rot_a), "gross_deg": float(gross_deg), "a": side(rot_a, gross_a), "b": side(rot_b, gross_b),
         "gross_only_a": only_a, "gross_only_b": only_b, "gross_both": int(np.sum(gross_a & gross_b)),
         "mcnemar_p": float(binomtest(only_b, only_a + only_b).pvalue) if only_a + only_b else 1.0,
         "rot_mean_diff_deg": interval(rot_b.mean() - rot_a.mean(), boot_mean),

@@ -8,8 +8,8 @@ Usage:
 Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (full inference path,
 no roi: detection, a network pass (the crop turned by ±20°/±40° too where PnP drops keypoints, a
 second pass where the twin head is unsure), PnP dropping the worst keypoint, twin head + verifier +
-edge check, edge-on mirror check), without the crop turns, with RANSAC for PnP's outliers, without the twin
-verifier, without the mirror check, without the final edge refinement, with always one and always two passes, and
+edge check), without the crop turns, with RANSAC for PnP's outliers, without the twin verifier, without the
+final edge refinement, with always one and always two passes, and
 what a quality gate keeps (accuracy by quality); copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
@@ -33,10 +33,10 @@ def main() -> None:
     args = ap.parse_args()
     pairs = [c.split("=", 1) for c in args.checkpoint] or [["default", str(shipped_checkpoint("default"))]]
     results = {}
-    # every row runs the shipped path (evaluate_checkpoint's defaults: twin verifier, mirror check, crop
+    # every row runs the shipped path (evaluate_checkpoint's defaults: twin verifier, crop
     # turns, PnP dropping the worst keypoint, edge refinement, passes "auto") but for what its name says
     variants = [("", {}), (", no crop turns", {"turns": "off"}), (", PnP outliers by RANSAC", {"pnp_outliers": "ransac"}),
-                (", no twin verifier", {"verifier": None}), (", no mirror check", {"mirror_verifier": None}),
+                (", no twin verifier", {"verifier": None}),
                 (", no edge refinement", {"refine_edges": False}), (", 1 pass", {"passes": 1}),
                 (", 2 passes", {"passes": 2})]
     runs = [(n + suffix, p, options) for suffix, options in variants for n, p in pairs]

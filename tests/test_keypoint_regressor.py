@@ -908,7 +908,8 @@ def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpo
     assert reg._mirror_check(frame, face_on) is None and not calls, "far from edge-on: no check"
     assert view_elevation_deg(edge_on, truss) < MIRROR_BELOW_DEG
     answer["p"] = np.array([0.9, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.01])
-    assert reg._mirror_check(frame, edge_on) is None                       # the pose itself is believed
+    pose, p, k = reg._mirror_check(frame, edge_on)                         # the pose itself is believed
+    assert k == 0 and p == 0.9 and pose is edge_on
     cands, strip_pose = calls[-1]
     assert len(cands) == 8 and rotation_error_deg(strip_pose, edge_on) < 1e-9
     mirror = edge_on_mirror(edge_on, truss)
@@ -917,10 +918,10 @@ def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpo
         assert rotation_error_deg(got, want) < 1e-9 and np.allclose(got.t, want.t)
     answer["p"] = np.full(8, 0.01)
     answer["p"][5] = MIRROR_SWITCH_P - 0.02
-    assert reg._mirror_check(frame, edge_on) is None                       # not sure enough
+    assert reg._mirror_check(frame, edge_on)[2] == 0                       # not sure enough
     answer["p"][5] = MIRROR_SWITCH_P + 0.02
-    pose, p = reg._mirror_check(frame, edge_on)
-    assert p == pytest.approx(MIRROR_SWITCH_P + 0.02)
+    pose, p, k = reg._mirror_check(frame, edge_on)
+    assert k == 5 and p == pytest.approx(MIRROR_SWITCH_P + 0.02)
     # the believed candidate (the mirror's first twin), edge-fitted where the fit is good, as _refine does
     fit = fit_edges(reg.twin_check.view, frame, mirror @ S[1], search_px=REFINE_SEARCH_PX)
     want = fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else mirror @ S[1]

@@ -611,10 +611,10 @@ class CheckpointRegressor(PoseRegressor):
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
             if self.refine_edges:
                 pose, twin = self._refine(undistorted, pose, order, prob)
-                mirrored = self._mirror_check(undistorted, pose)
-                if mirrored is not None:
+                checked = self._mirror_check(undistorted, pose)
+                if checked is not None and checked[2] > 0:
                     # the head's belief was in a twin of the pose replaced: the mirror verifier's replaces it
-                    pose, twin_prob = mirrored
+                    pose, twin_prob, _ = checked
                     return Measurement(pose=pose, covariance=cov, quality=quality * twin_prob,
                                        source=f"regressor:{self.name}", timestamp=frame.timestamp)
             elif self.check_twins and not self.has_twin_head:
@@ -675,12 +675,15 @@ class CheckpointRegressor(PoseRegressor):
         # a poor fit: the twin the head and edges chose, unrefined; without a head, the CNN's own pose
         return (starts[best], twin_of[best]) if prob is not None else (pose, order[0])
 
-    def _mirror_check(self, frame: Frame, pose: Pose) -> tuple[Pose, float] | None:
+    def _mirror_check(self, frame: Frame, pose: Pose, switch_p: float = MIRROR_SWITCH_P
+                      ) -> tuple[Pose, float, int] | None:
         """Where ``pose`` is within ``MIRROR_BELOW_DEG`` of edge-on and a mirror verifier is loaded:
-        (the candidate it believes with p ≥ ``MIRROR_SWITCH_P``, edge-fitted where the fit reaches
-        ``REFINE_MIN_QUALITY``, and that p) when it is not ``pose`` itself; else None. The candidates
-        are ``pose``'s box twins and those of its edge-on mirror, the strip cut along ``pose``, as
-        ``train-verifier --mirrors`` cuts them around the regressor's estimate."""
+        (pose returned, the verifier's probability of it, its index among the candidates); else None.
+        The candidates are ``pose``'s box twins (index 0: ``pose`` itself, 1–3) and those of its
+        edge-on mirror (4–7), the strip cut along ``pose``, as ``train-verifier --mirrors`` cuts them
+        around the regressor's estimate. The verifier's favourite is returned, edge-fitted where the
+        fit reaches ``REFINE_MIN_QUALITY``, when its probability is ≥ ``switch_p``; else ``pose``
+        (index 0)."""
         if self.mirror_verifier is None:
             return None
         obj = self.twin_check.view.object
@@ -691,12 +694,12 @@ class CheckpointRegressor(PoseRegressor):
         cands = [pose @ s for s in S] + [mirror @ s for s in S]
         p = self.mirror_verifier.probabilities(frame.image, frame.camera.K, cands, strip_pose=pose)
         k = int(np.argmax(p))
-        if k == 0 or p[k] < MIRROR_SWITCH_P:
-            return None
+        if k == 0 or p[k] < switch_p:
+            return pose, float(p[0]), 0
         from ..trackers.edges import fit_edges
 
         fit = fit_edges(self.twin_check.view, frame, cands[k], search_px=REFINE_SEARCH_PX)
-        return (fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else cands[k]), float(p[k])
+        return (fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else cands[k]), float(p[k]), k
 
     def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
         cam = frame.camera

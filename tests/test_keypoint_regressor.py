@@ -927,3 +927,29 @@ def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpo
     want = fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else mirror @ S[1]
     assert rotation_error_deg(pose, want) < 1e-6 and np.allclose(pose.t, want.t)
     assert rotation_error_deg(pose, edge_on) > 30
+
+
+def test_a_mirror_switch_returns_that_pose_with_the_verifiers_belief_in_its_quality(truss, camera, tmp_path,
+                                                                                   monkeypatch):
+    """predict: where the mirror check replaces the pose, the measurement carries it, and its quality
+    weighs the verifier's belief instead of the twin head's; where it keeps the pose, nothing changes."""
+    from hybridpose.regressors.predictor import shipped_checkpoint
+    from hybridpose.render import Renderer
+
+    pose = Pose.from_rotvec_t([0.4, 0.3, 0.2], [0.0, 0.0, 0.7])
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(pose).rgb, camera, 0.0)
+    reg = CheckpointRegressor(shipped_checkpoint("default"),
+                              mirror_verifier=_verifier_checkpoint(tmp_path / "mv.pt", truss))
+    kept = reg.predict(frame)
+    assert not kept.lost and kept.quality > 0
+    other = Pose.from_rotvec_t([0.1, -0.2, 0.3], [0.01, 0.0, 0.8])
+    monkeypatch.setattr(reg, "_mirror_check", lambda frame, pose: (pose, 0.6, 0))
+    assert reg.predict(frame).quality == pytest.approx(kept.quality)
+    monkeypatch.setattr(reg, "_mirror_check", lambda frame, pose: (other, 0.5, 5))
+    m = reg.predict(frame)
+    assert rotation_error_deg(m.pose, other) < 1e-9 and np.allclose(m.pose.t, other.t)
+    assert m.quality > 0
+    np.testing.assert_allclose(m.covariance, kept.covariance)
+    monkeypatch.setattr(reg, "_mirror_check", lambda frame, pose: (other, 1.0, 5))
+    assert reg.predict(frame).quality == pytest.approx(2 * m.quality)   # the belief, not the head's p, weighs it

@@ -609,25 +609,26 @@ class CheckpointRegressor(PoseRegressor):
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
         quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * self.image_size)))
         pose, twin = res.pose, order[0]
+        # the covariance cannot say "maybe turned end for end" (a 180° mode, not a Gaussian spread): the
+        # quality does, through the belief in the returned twin (benchmarks/RESULTS.md, "accuracy by
+        # quality": a gate on it removes most of the gross errors): the head's, or the mirror verifier's
+        # where it replaced the pose
+        belief = None
         if self.twin_check is not None:
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
             if self.refine_edges:
                 pose, twin = self._refine(undistorted, pose, order, prob)
                 checked = self._mirror_check(undistorted, pose)
                 if checked is not None and checked[2] > 0:
-                    # the head's belief was in a twin of the pose replaced: the mirror verifier's replaces it
-                    pose, twin_prob, _ = checked
-                    return Measurement(pose=pose, covariance=cov, quality=quality * twin_prob,
-                                       source=f"regressor:{self.name}", timestamp=frame.timestamp)
+                    pose, belief, _ = checked
             elif self.check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
                     quality *= 0.5
-        if prob is not None:
-            # the covariance cannot say "maybe turned end for end" (a 180° mode, not a Gaussian spread):
-            # the quality does, through the head's belief in the returned twin (benchmarks/RESULTS.md,
-            # "accuracy by quality": a gate on it removes most of the gross errors)
-            quality *= float(prob[twin])
+        if belief is None and prob is not None:
+            belief = float(prob[twin])
+        if belief is not None:
+            quality *= belief
         return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 

@@ -69,10 +69,10 @@ def measure(data: str, checkpoint: str, mirror_verifier: str, limit=None) -> dic
             {"base": base, "switched": switched, "p_top": p_top, "top": top, "seconds": seconds}.items()}
 
 
-def replay(m: dict, threshold: float) -> np.ndarray:
-    """Rotation errors (°) with the check switching at ``threshold``."""
+def replay(m: dict, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation errors (°) with the check switching at ``threshold``, which views it switches)."""
     switch = (m["top"] > 0) & (m["p_top"] >= threshold)
-    return np.where(switch, m["switched"], m["base"])
+    return np.where(switch, m["switched"], m["base"]), switch
 
 
 def pooled(sets: list[dict]) -> dict:
@@ -93,7 +93,7 @@ def main() -> None:
     measured = {g: [measure(d, args.checkpoint, args.mirror_verifier, args.limit) for d in dirs]
                 for g, dirs in groups.items() if dirs}
     tune = pooled(measured["tune"])
-    by_threshold = {t: replay(tune, t) for t in THRESHOLDS}
+    by_threshold = {t: replay(tune, t)[0] for t in THRESHOLDS}
     chosen = min(THRESHOLDS, key=lambda t: (by_threshold[t].mean(), -t))
     rows, out = [], {"env": environment(), "checkpoint": args.checkpoint, "mirror_verifier": args.mirror_verifier,
                      "sets": groups, "below_elevation_deg": MIRROR_BELOW_DEG, "chosen_threshold": chosen,
@@ -106,10 +106,10 @@ def main() -> None:
                  "check_ms_per_view": float(1e3 * m["seconds"].mean()),
                  "thresholds": {}}
         for t in THRESHOLDS:
-            err = replay(m, t)
+            err, switch = replay(m, t)
             c = paired_comparison(m["base"], err)
-            group["thresholds"][str(t)] = {"switched": int(np.sum(err != m["base"])), **c}
-            rows.append((g, t, c, int(np.sum((m["top"] > 0) & (m["p_top"] >= t)))))
+            group["thresholds"][str(t)] = {"switched": int(switch.sum()), **c}
+            rows.append((g, t, c, int(switch.sum())))
         out["groups"][g] = group
     write_json("mirror_check", out)
     lines = ["## Edge-on mirror check of the shipped keypoint regressor (`benchmarks/mirror_check.py`)", "",

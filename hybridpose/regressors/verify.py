@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import Frame
-from ..geometry import Pose
+from ..geometry import Pose, rotvec_to_matrix
 from ..objects import ObjectModel
 
 MATCH_PX = 2.0
@@ -51,18 +51,16 @@ def edge_on_mirror(pose: Pose, obj: ObjectModel) -> Pose:
     Returns:
         T_cam_obj of the mirrored view.
     """
-    from scipy.spatial.transform import Rotation
-
     order = np.argsort(obj.extents)
     thin, long_ = np.eye(3)[order[0]], np.eye(3)[order[-1]]
-    c = 0.5 * (obj.bbox_min + obj.bbox_max)
+    c = obj.center
     centre_cam = pose.R @ c + pose.t
     sight = pose.R.T @ -centre_cam                 # box centre → camera, object frame
     in_plane = sight - (sight @ thin) * thin
     # signed angle from the long axis to the sight's in-plane part, about the thin axis: turning the
     # object by twice it mirrors the sight (Q^T turns the sight by -2·beta: beta → -beta)
     beta = np.arctan2(np.cross(long_, in_plane) @ thin, long_ @ in_plane)
-    Q = Rotation.from_rotvec(2.0 * beta * thin).as_matrix()
+    Q = rotvec_to_matrix(2.0 * beta * thin)
     R = pose.R @ Q
     return Pose(R, centre_cam - R @ c)
 

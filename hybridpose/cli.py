@@ -217,7 +217,8 @@ def cmd_eval(args) -> int:
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
                             pnp_outliers=args.pnp_outliers, sun_known=args.sun_known,
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier,
-                            mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier)
+                            mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier,
+                            edge_on_expert=None if args.edge_on_expert == "none" else args.edge_on_expert)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -402,6 +403,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--mirror-verifier", default="auto",
                    help="keypoint models: edge-on mirror verifier (train-verifier --mirrors), 'auto' (the shipped one, "
                         "if any) or 'none'")
+    e.add_argument("--edge-on-expert", default="auto",
+                   help="keypoint models: a second keypoint checkpoint trained on near edge-on views that re-estimates "
+                        "the pose where the first estimate is near edge-on, 'auto' (the shipped one, if any) or 'none'")
     e.add_argument("--sun-known", action="store_true",
                    help="keypoint models: give the regressor each image's sun as the dataset records it (what a "
                         "caller with a sun sensor can do: the crop is turned so the light crosses it as in training)")

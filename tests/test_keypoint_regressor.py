@@ -953,3 +953,60 @@ def test_a_mirror_switch_returns_that_pose_with_the_verifiers_belief_in_its_qual
     np.testing.assert_allclose(m.covariance, kept.covariance)
     monkeypatch.setattr(reg, "_mirror_check", lambda frame, pose: (other, 1.0, 5))
     assert reg.predict(frame).quality == pytest.approx(2 * m.quality)   # the belief, not the head's p, weighs it
+
+
+def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoint, truss, camera, tmp_path):
+    """The expert re-estimates where the first estimate is seen within ``expert_below_deg`` of edge-on,
+    on the same detection, and its estimate is what the measurement carries; elsewhere it is not run;
+    an expert for other keypoints, or a gate outside [0, 90]°, is refused by name."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from hybridpose.objects import view_elevation_deg
+    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+    from hybridpose.render import Renderer
+
+    assert CheckpointRegressor(tiny_checkpoint, edge_on_expert=None).expert is None
+    with pytest.raises(ValueError, match="expert_below_deg"):
+        CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, expert_below_deg=120.0)
+    ck = load_checkpoint(tiny_checkpoint)
+    ck["model"]["keypoints_m"] = ck["model"]["keypoints_m"] * 1.5
+    save_checkpoint(tmp_path / "other.pt", ck)
+    with pytest.raises(ValueError, match="edge_on_expert: .*other.pt"):
+        CheckpointRegressor(tiny_checkpoint, edge_on_expert=tmp_path / "other.pt")
+
+    c = truss.center
+    R = Rotation.from_euler("x", 80, degrees=True).as_matrix() @ Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    near = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ c)
+    elevation = view_elevation_deg(near, truss)
+    assert 5 < elevation < 15
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(near).rgb, camera, 0.0)
+    reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False)
+    # a PnP result of exact keypoints (the tiny network's own would be noise)
+    p = (near @ reg.keypoints_m) @ camera.K.T
+    res = solve_pnp(p[:, :2] / p[:, 2:3], reg.keypoints_m, camera.K, threshold_px=4.0)
+    order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
+    expert_pose = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
+    calls = []
+    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (replace(res, pose=near), order, prob)
+
+    def expert(image, cam, seen, sun_turn=0.0):
+        calls.append(seen)
+        return replace(res, pose=expert_pose), order, prob
+
+    reg.expert._estimate_in = expert
+    for gate, runs in ((elevation + 1.0, True), (elevation - 1.0, False)):
+        reg.expert_below_deg = gate
+        m = reg.predict(frame, roi=(200, 150, 240, 180))
+        assert bool(calls) == runs
+        want = expert_pose if runs else near
+        assert rotation_error_deg(m.pose, want) < 1e-9 and np.allclose(m.pose.t, want.t)
+        if runs:
+            assert calls[-1] == (200, 150, 240, 180), "the expert sees the same detection"
+        calls.clear()
+    reg.expert._estimate_in = lambda *a, **k: None              # the expert finds nothing: the first estimate
+    reg.expert_below_deg = 90.0
+    m = reg.predict(frame)
+    assert rotation_error_deg(m.pose, near) < 1e-9

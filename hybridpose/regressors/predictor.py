@@ -96,6 +96,12 @@ SUN_TURN_BEYOND_DEG = 60.0
 # they fixed, and even this one did not pay on fresh sets, so none is shipped: benchmarks/RESULTS.md,
 # "Edge-on mirror check")
 MIRROR_SWITCH_P = 0.95
+# Edge-on expert (edge_on_expert): where the first estimate is within EXPERT_BELOW_DEG of edge-on (the
+# views that hold most of the gross errors: benchmarks/RESULTS.md, "error vs view elevation"), the
+# network passes and PnP are made again by a second keypoint network trained on near edge-on views
+# only, and its estimate replaces the first before the twin choice and the edge fit. Chosen with
+# benchmarks/edge_on_expert.py.
+EXPERT_BELOW_DEG = 12.0
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -329,12 +335,20 @@ class CheckpointRegressor(PoseRegressor):
             by one it believes with p ≥ ``MIRROR_SWITCH_P``; ``"auto"`` (default): the one shipped
             in the package (``weights/mirror_verifier.pt``) when there is one for this object;
             None: none.
+        edge_on_expert: keypoint models — a second keypoint checkpoint for the same object and
+            keypoints, trained on near edge-on views (``hybridpose render --elevation 0,25``), that
+            re-estimates the pose where the first estimate is within ``expert_below_deg`` of edge-on
+            (:func:`~hybridpose.objects.view_elevation_deg`); its estimate replaces the first one
+            before the twin choice and the edge fit. ``"auto"``: the one shipped in the package
+            (``weights/edge_on_expert.pt``, default) when there is one for this object; None: none.
+            The covariance stays this checkpoint's calibrated one.
+        expert_below_deg: the view elevation (°, estimated) below which the expert runs.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
-                 mirror_verifier="auto") -> None:
+                 mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG) -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -399,6 +413,34 @@ class CheckpointRegressor(PoseRegressor):
         if pnp_outliers not in OUTLIER_STRATEGIES:
             raise ValueError(f"pnp_outliers: expected one of {', '.join(OUTLIER_STRATEGIES)}, got {pnp_outliers!r}")
         self.pnp_outliers = pnp_outliers
+        self.expert_below_deg = float(expert_below_deg)
+        if not 0.0 <= self.expert_below_deg <= 90.0:
+            raise ValueError(f"expert_below_deg: expected a view elevation in [0, 90] degrees, got {expert_below_deg!r}")
+        self.expert = self._load_expert(edge_on_expert, object)
+
+    def _load_expert(self, expert, obj) -> "CheckpointRegressor | None":
+        """The edge-on expert as a bare keypoint estimator (no twin check, edge fit or verifiers of its
+        own: this regressor's run on its estimate), or None. Refused, naming the file, unless it is a
+        keypoint model with a twin head for the same keypoints and twins as this one."""
+        if expert is None or expert is False or self.kind != "keypoints":
+            return None
+        if isinstance(expert, str) and expert == "auto":
+            path = WEIGHTS_DIR / "edge_on_expert.pt"
+            if not path.is_file():
+                return None
+        else:
+            path = Path(expert)
+        reg = CheckpointRegressor(path, object=obj, check_twins=False, refine_edges=False, passes=self.passes,
+                                  device=self.device, verifier=None, turns=self.turns, pnp_outliers=self.pnp_outliers,
+                                  mirror_verifier=None, edge_on_expert=None)
+        same = (reg.kind == "keypoints" and reg.keypoints_m is not None and self.keypoints_m is not None
+                and reg.keypoints_m.shape == self.keypoints_m.shape and np.allclose(reg.keypoints_m, self.keypoints_m)
+                and len(reg.twins) == len(self.twins)
+                and all(a.allclose(b, atol=1e-6) for a, b in zip(reg.twins, self.twins)))
+        if not same or (self.has_twin_head and not reg.has_twin_head):
+            raise ValueError(f"edge_on_expert: {path} is not a keypoint model for the keypoints and twins of "
+                             f"{self.path}" + ("" if reg.has_twin_head or not self.has_twin_head else " (no twin head)"))
+        return reg
 
     def _load_verifier(self, verifier, shipped: str = "twin_verifier.pt"):
         if verifier is None or verifier is False or self.twin_check is None or not self.has_twin_head:
@@ -550,10 +592,31 @@ class CheckpointRegressor(PoseRegressor):
         (PnP result turned to the head's twin, twin order, twin probabilities), or None when nothing
         is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for order and
         probabilities; ``sun_turn``: its crop turn, °)."""
-        K = cam.K
         seen = roi if roi is not None else detect_bright_object(image)
         if seen is None:
             return None
+        est = self._estimate_in(image, cam, seen, sun_turn)
+        if (self.expert is not None and est is not None
+                and view_elevation_deg(est[0].pose, self._object()) < self.expert_below_deg):
+            # near edge-on: the expert's passes on the same detection; the first estimate only where it finds nothing
+            est = self.expert._estimate_in(image, cam, seen, sun_turn) or est
+        return est
+
+    def _object(self):
+        """The object whose keypoints the network predicts (for view elevations)."""
+        if self.twin_check is not None:
+            return self.twin_check.view.object
+        if getattr(self, "_builtin_object", None) is None:
+            from ..objects import load_builtin
+
+            self._builtin_object = load_builtin(self.dataset.get("object"))
+            if self._builtin_object is None:
+                raise ValueError(f"{self.path}: the edge-on expert needs the object's model: pass object=")
+        return self._builtin_object
+
+    def _estimate_in(self, image: np.ndarray, cam: Camera, seen, sun_turn: float = 0.0):
+        """:meth:`_keypoint_estimate` on a box ``seen`` (x, y, w, h, pixels) where the object was found."""
+        K = cam.K
         box = crop_box(seen, CROP_MARGIN)
         res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box, turns=True, sun_turn=sun_turn)
         # second pass on the crop centred on the first pose (the crop the network knows best)

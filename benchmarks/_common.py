@@ -41,6 +41,20 @@ def update_results_md(section: str, markdown: str) -> None:
     RESULTS_MD.write_text(text)
 
 
+PAIRED_HEADER = ("mean rot ° without → with | Δ mean ° (95 % CI) | > {gross:.0f}° without → with | "
+                 "only without / only with | McNemar p")
+
+
+def paired_cells(c: dict) -> str:
+    """The Markdown cells of one :func:`hybridpose.regressors.evaluate.paired_comparison` (A without, B
+    with), in the order of ``PAIRED_HEADER``."""
+    d = c["rot_mean_diff_deg"]
+    return (f"{c['a']['rot_mean_deg']:.2f} → {c['b']['rot_mean_deg']:.2f} | "
+            f"{d['estimate']:+.2f} ({d['ci95'][0]:+.2f}, {d['ci95'][1]:+.2f}) | "
+            f"{100 * c['a']['gross_share']:.2f} % → {100 * c['b']['gross_share']:.2f} % | "
+            f"{c['gross_only_a']} / {c['gross_only_b']} | {c['mcnemar_p']:.3g}")
+
+
 def tune_confirm_parser(chooses: str):
     """Arguments of the benchmarks that tune a rule of the shipped regressor on the first ``--tune``
     held-out views and confirm it on the rest: --data, --checkpoint, --tune, --limit."""

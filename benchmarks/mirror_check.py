@@ -27,7 +27,7 @@ import time
 import numpy as np
 import torch
 
-from _common import environment, update_results_md, write_json
+from _common import PAIRED_HEADER, environment, paired_cells, update_results_md, write_json
 from hybridpose.core import Frame
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.metrics import rotation_error_deg
@@ -126,16 +126,11 @@ def main() -> None:
                          f"{v['check_ms_per_checked_view']:.1f} ms each ({v['check_ms_per_view']:.1f} ms a view on average, "
                          "one thread)" for g, v in out["groups"].items())
              + f". git {out['env']['git']}.", "",
-             "| sets | threshold | views switched | mean rot ° without → with | Δ mean ° (95 % CI) | "
-             f"> {GROSS_ERROR_DEG:.0f}° without → with | only without / only with | McNemar p |",
+             f"| sets | threshold | views switched | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} |",
              "|---|---|---|---|---|---|---|---|"]
     for g, t, c, n in rows:
-        d = c["rot_mean_diff_deg"]
         bold = "**" if t == chosen else ""
-        lines.append(f"| {g} | {bold}{t}{bold} | {n} | {c['a']['rot_mean_deg']:.2f} → {c['b']['rot_mean_deg']:.2f} | "
-                     f"{d['estimate']:+.2f} ({d['ci95'][0]:+.2f}, {d['ci95'][1]:+.2f}) | "
-                     f"{100 * c['a']['gross_share']:.2f} % → {100 * c['b']['gross_share']:.2f} % | "
-                     f"{c['gross_only_a']} / {c['gross_only_b']} | {c['mcnemar_p']:.3g} |")
+        lines.append(f"| {g} | {bold}{t}{bold} | {n} | {paired_cells(c)} |")
     update_results_md("mirror-check", "\n".join(lines))
     print("\n".join(lines))
 

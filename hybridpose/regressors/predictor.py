@@ -416,6 +416,7 @@ class CheckpointRegressor(PoseRegressor):
         self.expert_below_deg = float(expert_below_deg)
         if not 0.0 <= self.expert_below_deg <= 90.0:
             raise ValueError(f"expert_below_deg: expected a view elevation in [0, 90] degrees, got {expert_below_deg!r}")
+        self.expert_object = None  # the object whose view elevation gates the expert
         self.expert = self._load_expert(edge_on_expert, object)
 
     def _load_expert(self, expert, obj) -> "CheckpointRegressor | None":
@@ -440,6 +441,14 @@ class CheckpointRegressor(PoseRegressor):
         if not same or (self.has_twin_head and not reg.has_twin_head):
             raise ValueError(f"edge_on_expert: {path} is not a keypoint model for the keypoints and twins of "
                              f"{self.path}" + ("" if reg.has_twin_head or not self.has_twin_head else " (no twin head)"))
+        if obj is None:
+            from ..objects import load_builtin
+
+            obj = self.twin_check.view.object if self.twin_check is not None else load_builtin(self.dataset.get("object"))
+        if obj is None:
+            raise ValueError(f"edge_on_expert: gating it needs the model of the object {self.path} was trained on "
+                             f"({self.dataset.get('object')!r}): pass object=")
+        self.expert_object = obj
         return reg
 
     def _load_verifier(self, verifier, shipped: str = "twin_verifier.pt"):
@@ -597,22 +606,10 @@ class CheckpointRegressor(PoseRegressor):
             return None
         est = self._estimate_in(image, cam, seen, sun_turn)
         if (self.expert is not None and est is not None
-                and view_elevation_deg(est[0].pose, self._object()) < self.expert_below_deg):
+                and view_elevation_deg(est[0].pose, self.expert_object) < self.expert_below_deg):
             # near edge-on: the expert's passes on the same detection; the first estimate only where it finds nothing
             est = self.expert._estimate_in(image, cam, seen, sun_turn) or est
         return est
-
-    def _object(self):
-        """The object whose keypoints the network predicts (for view elevations)."""
-        if self.twin_check is not None:
-            return self.twin_check.view.object
-        if getattr(self, "_builtin_object", None) is None:
-            from ..objects import load_builtin
-
-            self._builtin_object = load_builtin(self.dataset.get("object"))
-            if self._builtin_object is None:
-                raise ValueError(f"{self.path}: the edge-on expert needs the object's model: pass object=")
-        return self._builtin_object
 
     def _estimate_in(self, image: np.ndarray, cam: Camera, seen, sun_turn: float = 0.0):
         """:meth:`_keypoint_estimate` on a box ``seen`` (x, y, w, h, pixels) where the object was found."""

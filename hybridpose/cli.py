@@ -246,10 +246,14 @@ def cmd_calibrate(args) -> int:
     from .regressors.evaluate import calibrate_checkpoint
 
     cal = calibrate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("calibrate"),
-                               coverage=args.coverage)
+                               coverage=args.coverage, by_quality=not args.single_scale)
     fp = cal["full_path"]
     print(f"calibrate: {fp['poses']} poses on {args.data}: {fp['inside_share_before']:.0%} were inside the "
           f"{fp['coverage']:.0%} ellipsoid; covariance ×{fp['factor']:.3f} → {args.out}")
+    bands = cal.get("quality_scale")
+    if bands:
+        print("  then by quality band: " + ", ".join(f"≥ {e:.1f}: ×{f:.2f} ({n} poses)" for e, f, n in
+                                                     zip(bands["edges"], bands["factors"], bands["poses"])))
     return 0
 
 
@@ -380,6 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--limit", type=int, default=None, help="use the first N images only")
     cal.add_argument("--coverage", type=float, default=0.9, help="share of the errors inside the ellipsoid of that "
                                                                   "probability (default 0.9)")
+    cal.add_argument("--single-scale", action="store_true",
+                     help="one covariance factor for all measurements (default: keypoint models also get a factor per "
+                          "band of measurement quality, so poor measurements are not over-confident)")
     cal.set_defaults(func=cmd_calibrate)
 
     e = sub.add_parser("eval", help="evaluate a trained regressor: paper table, SPEED, ADD-0.1d, plots, Grad-CAM, ms/img")

@@ -1010,3 +1010,35 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
     reg.expert_below_deg = 90.0
     m = reg.predict(frame)
     assert rotation_error_deg(m.pose, near) < 1e-9
+
+
+def test_quality_scale_recovers_each_bands_spread_and_never_rises_with_quality():
+    """Errors that spread s_k times wider (in NEES) in band k give back factors ≈ s_k relative to the
+    one factor for all; sparse bands merge upwards; a better band never gets a larger factor."""
+    from scipy.stats import chi2
+
+    from hybridpose.regressors.calibration import quality_factor, quality_scale
+
+    rng = np.random.default_rng(0)
+    spread = {0.05: 9.0, 0.25: 2.0, 0.45: 0.5}          # quality → NEES multiplier
+    q = np.concatenate([np.full(2000, k) for k in spread])
+    v = np.concatenate([s * rng.chisquare(6, 2000) for s in spread.values()])
+    bands = quality_scale(q, v, edges=(0.0, 0.2, 0.4))
+    assert bands["edges"] == [0.0, 0.2, 0.4] and bands["poses"] == [2000, 2000, 2000]
+    overall = float(np.quantile(v, 0.9)) / chi2.ppf(0.9, 6)
+    assert bands["overall"] == pytest.approx(overall)
+    for f, s in zip(bands["factors"], spread.values()):
+        assert f * overall == pytest.approx(s, rel=0.1)
+    rec = {"quality_scale": bands}
+    assert quality_factor(rec, 0.1) == bands["factors"][0] and quality_factor(rec, 0.2) == bands["factors"][1]
+    assert quality_factor(rec, 0.99) == bands["factors"][2] and quality_factor(None, 0.3) == 1.0
+    # a band with too few poses joins the next one up; factors do not rise with quality
+    q2 = np.concatenate([np.full(10, 0.05), np.full(200, 0.15), np.full(200, 0.3)])
+    v2 = np.concatenate([np.full(10, 1.0), np.full(200, 1.0), 3.0 * rng.chisquare(6, 200)])
+    b2 = quality_scale(q2, v2, edges=(0.0, 0.1, 0.2), min_poses=50)
+    assert b2["edges"] == [0.0, 0.2] and b2["poses"] == [210, 200]
+    assert b2["factors"][0] == b2["factors"][1], "the low band's tiny spread is raised to the better band's"
+    with pytest.raises(ValueError, match="nees_values"):
+        quality_scale(q[:10], v[:10])
+    with pytest.raises(ValueError, match="finite"):
+        quality_scale(np.full(60, np.nan), np.ones(60))

@@ -86,6 +86,27 @@ def test_shipped_default_covariance_is_not_over_confident(truss, held_out):
     assert len(inside) >= 18 and np.mean(inside) >= 0.7, f"only {np.mean(inside):.0%} inside the 90 % ellipsoid"
 
 
+def test_the_covariance_grows_by_the_calibrated_factor_of_the_measurements_quality_band(truss, held_out, tmp_path):
+    """A calibration with quality bands multiplies the PnP covariance by the band's factor, and only
+    that: same pose, same quality."""
+    from hybridpose.regressors.predictor import CheckpointRegressor
+    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+
+    ck = load_checkpoint(shipped_checkpoint("default"))
+    cal = {k: v for k, v in ck["calibration"].items() if k != "quality_scale"}
+    ck["calibration"] = cal
+    save_checkpoint(tmp_path / "single.pt", ck)
+    ck["calibration"] = {**cal, "quality_scale": {"edges": [0.0, 0.3, 0.6], "factors": [7.0, 3.0, 1.0],
+                                                  "poses": [100, 100, 100], "overall": 1.0}}
+    save_checkpoint(tmp_path / "banded.pt", ck)
+    single, banded = CheckpointRegressor(tmp_path / "single.pt"), CheckpointRegressor(tmp_path / "banded.pt")
+    for frame, _ in held_out[:3]:
+        a, b = single.predict(frame), banded.predict(frame)
+        assert a.quality == b.quality and a.pose.allclose(b.pose)
+        want = 7.0 if a.quality < 0.3 else 3.0 if a.quality < 0.6 else 1.0
+        assert np.allclose(b.covariance, want * a.covariance)
+
+
 @pytest.mark.parametrize("head", [1, 2, 3])
 def test_twin_choice_trusts_a_sure_head_and_asks_the_edges_when_unsure(regressor, truss, head):
     """The keypoints are right, the head names a wrong box twin: sure (p ≥ TWIN_SURE, or VERIFIER_SURE

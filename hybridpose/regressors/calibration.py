@@ -10,6 +10,12 @@ validation split fix one scale per checkpoint:
 
 ``s`` is chosen so that ``COVERAGE`` of the validation errors fall inside the χ²₆ ellipsoid of
 the same probability (not the mean NEES: a few gross failures would inflate every covariance).
+
+One scale is over-confident where the measurement is poor and under-confident where it is good
+(the shipped default, under light from within 120° of the optical axis: 32 % of the errors inside
+the 90 % ellipsoid at quality < 0.1, 97 % at quality ≥ 0.5). ``hybridpose calibrate`` therefore
+also fits a factor per band of measurement quality (:func:`quality_scale`), which the regressor
+applies on top of ``s`` (:func:`quality_factor`).
 """
 from __future__ import annotations
 
@@ -21,6 +27,11 @@ from ..geometry import Pose
 from .keypoint_pnp import solve_pnp
 
 COVERAGE = 0.9
+# quality bands of the covariance factor (lower edges): the quality the regressor reports (PnP inlier
+# share × reprojection term × twin belief) is mostly 0.2–0.6, and its errors spread ten times wider
+# below 0.3 than above 0.4
+QUALITY_EDGES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+MIN_BAND_POSES = 50  # a band with fewer poses is merged into the next one up
 SIGMA_FLOOR_PX = 0.5
 PNP_THRESHOLD = 0.03  # RANSAC inlier threshold, fraction of the crop side
 
@@ -31,6 +42,56 @@ def pnp_covariance(information: np.ndarray, rms_px: float, scale: float = 1.0,
     sigma2 = max(float(rms_px), sigma_floor_px) ** 2
     cov = scale * sigma2 * np.linalg.pinv(information)
     return 0.5 * (cov + cov.T)
+
+
+def quality_scale(quality, nees_values, coverage: float = COVERAGE, edges=QUALITY_EDGES,
+                  min_poses: int = MIN_BAND_POSES) -> dict:
+    """Covariance factors per band of measurement quality, relative to one factor for all poses.
+
+    Args:
+        quality: (N,) the measurements' quality, 0..1.
+        nees_values: (N,) their NEES under the covariance the factors will multiply.
+        coverage: share of each band's errors to put inside the χ²₆ ellipsoid of that probability.
+        edges: lower edges of the bands (increasing, the first 0).
+        min_poses: a band with fewer poses is merged into the next one up (the last into the one below).
+    Returns:
+        ``{"edges": [...], "factors": [...], "poses": [...], "overall": f}``: band k covers quality in
+        ``[edges[k], edges[k + 1])``; its factor puts ``coverage`` of its errors inside, divided by
+        ``overall`` (the factor that does so for all poses at once). Factors never rise with
+        quality (a band's is at least the one above it): a better measurement is never reported as
+        less certain.
+    """
+    q, v = np.asarray(quality, dtype=float), np.asarray(nees_values, dtype=float)
+    if q.shape != v.shape or q.ndim != 1 or len(q) < min_poses:
+        raise ValueError(f"quality, nees_values: expected two (N,) arrays with N ≥ {min_poses}, got {q.shape} and {v.shape}")
+    if not np.all(np.isfinite(q)) or not np.all(np.isfinite(v)):
+        raise ValueError("quality, nees_values: expected finite values")
+    bound = float(chi2.ppf(coverage, 6))
+    overall = float(np.quantile(v, coverage)) / bound
+    band = np.searchsorted(np.asarray(edges, dtype=float), q, side="right") - 1
+    groups, current = [], []
+    for k in range(len(edges)):
+        current.append(k)
+        if np.isin(band, current).sum() >= min_poses:
+            groups.append(current)
+            current = []
+    if current:  # the last bands hold too few poses: they join the band below
+        groups[-1] += current
+    factors = [float(np.quantile(v[np.isin(band, g)], coverage)) / bound / overall for g in groups]
+    for k in range(len(factors) - 2, -1, -1):
+        factors[k] = max(factors[k], factors[k + 1])
+    return {"edges": [float(edges[g[0]]) for g in groups], "factors": factors,
+            "poses": [int(np.isin(band, g).sum()) for g in groups], "overall": overall}
+
+
+def quality_factor(record: dict | None, quality: float) -> float:
+    """The covariance factor for a measurement of ``quality`` under a calibration ``record``'s
+    ``quality_scale`` (:func:`quality_scale`); 1 without one."""
+    bands = (record or {}).get("quality_scale")
+    if not bands:
+        return 1.0
+    k = int(np.searchsorted(np.asarray(bands["edges"], dtype=float), quality, side="right")) - 1
+    return float(bands["factors"][max(k, 0)])
 
 
 def nees(xi: np.ndarray, cov: np.ndarray) -> float:

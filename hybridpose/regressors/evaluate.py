@@ -26,7 +26,7 @@ from ..io import atomic_write_json, atomic_write_text, write_image
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
-from .calibration import nees
+from .calibration import MIN_BAND_POSES, nees, quality_scale
 from .predictor import CheckpointRegressor, uncalibrated_record
 
 log = logging.getLogger(__name__)
@@ -176,7 +176,7 @@ MIN_CALIBRATION_POSES = 20
 
 
 def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progress=None,
-                         coverage: float = COVARIANCE_COVERAGE, **options) -> dict:
+                         coverage: float = COVARIANCE_COVERAGE, by_quality: bool = True, **options) -> dict:
     """Re-scale a checkpoint's covariance on the whole inference path; write it to ``out``.
 
     The training calibration (:func:`~hybridpose.regressors.calibration.calibrate`) sees the first
@@ -190,6 +190,11 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     end for end). Both directions: a path more precise than its training calibration gets a smaller
     covariance.
 
+    ``by_quality`` (keypoint models): also a factor per band of the measurements' quality
+    (:func:`~hybridpose.regressors.calibration.quality_scale`, stored as ``quality_scale``), so that
+    poor measurements are not over-confident and good ones not under-confident; False: one factor
+    for all (any bands stored before are dropped).
+
     A checkpoint without a calibration (its training one failed) starts from the inflated default
     the regressor would use. Returns the new calibration record (also in ``out``'s ``calibration``,
     with a ``full_path`` entry: data, poses used, factor, share inside before). Writes atomically;
@@ -201,15 +206,18 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
         raise ValueError(f"coverage: expected a probability in [0.5, 1), got {coverage}")
     ck = load_checkpoint(checkpoint)
     reg = CheckpointRegressor(checkpoint, **options)
-    # a checkpoint whose training calibration failed starts from the inflated default the predictor uses
-    cal = ck.get("calibration") or uncalibrated_record(reg.kind)
+    # a checkpoint whose training calibration failed starts from the inflated default the predictor uses;
+    # the errors are measured under its single scale (bands fitted before are not applied)
+    cal = {k: v for k, v in (ck.get("calibration") or uncalibrated_record(reg.kind)).items() if k != "quality_scale"}
+    reg.calibration = cal
     items = [(sc, i) for sc in (BopScene(p) for p in find_scenes(data)) for i in sc.image_ids][:limit]
-    values = []
+    values, qualities = [], []
     for k, (scene, im_id) in enumerate(items):
         gt = scene.image(im_id)
         m = reg.predict(Frame(scene.rgb(im_id), gt.camera, float(im_id), im_id))
         if m.pose is not None:
             values.append(covariance_nees(m, gt.pose, reg.twins)["nees_twin"])
+            qualities.append(m.quality)
         if progress:
             progress(k + 1, len(items))
     if len(values) < MIN_CALIBRATION_POSES:
@@ -221,6 +229,8 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     new = dict(cal)
     if cal.get("kind") == "pnp":
         new["scale"] = float(cal["scale"]) * factor
+        if by_quality and len(values) >= MIN_BAND_POSES:
+            new["quality_scale"] = quality_scale(qualities, values, coverage)
     else:
         new["covariance"] = (factor * np.asarray(cal["covariance"], dtype=float)).tolist()
     new["full_path"] = {"data": str(data), "poses": len(values), "images": len(items), "factor": factor,

@@ -28,7 +28,7 @@ from ..geometry import Camera, Pose, as_unit_direction
 from ..objects import view_elevation_deg
 from ..registry import register
 from .base import PoseRegressor, check_roi
-from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance
+from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance, quality_factor
 from .keypoint_pnp import OUTLIER_STRATEGIES, solve_pnp
 from .verify import MIRROR_BELOW_DEG, edge_on_mirror
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
@@ -290,7 +290,9 @@ class CheckpointRegressor(PoseRegressor):
 
     Keypoint models' ``Measurement.quality`` (0..1) = PnP inlier share × exp(−RMS reprojection error
     / 2 % of the crop side) × the twin head's probability of the twin returned (no last factor
-    without a head). The covariance covers the error up to the object's box twins; the quality is
+    without a head). The covariance (the calibrated PnP one, times the factor of the quality's band
+    where the calibration has bands: :func:`~hybridpose.regressors.calibration.quality_scale`)
+    covers the error up to the object's box twins; the quality is
     what says a pose may be turned end for end: on the held-out truss test set a gate at 0.3 keeps
     ≈ 88 % of the views with almost none > 30° off (benchmarks/RESULTS.md, "accuracy by quality").
 
@@ -689,6 +691,8 @@ class CheckpointRegressor(PoseRegressor):
             belief = float(prob[twin])
         if belief is not None:
             quality *= belief
+        # poorer measurements spread wider than their PnP covariance says (calibration.quality_scale)
+        cov = cov * quality_factor(cal, quality)
         return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 

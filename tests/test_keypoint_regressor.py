@@ -334,10 +334,14 @@ def test_covariance_check_counts_errors_inside_the_ellipsoid():
                               truth, [half_turn])
     assert flipped["nees"] > 1e4 and flipped["nees_twin"] == pytest.approx(1.0, rel=1e-6)
     bound = chi2.ppf(0.9, 6)
-    rows = [{"nees": 1.0, "nees_twin": 1.0}, {"nees": 2 * bound, "nees_twin": 1.0}, {"nees": 2 * bound, "nees_twin": 2 * bound},
-            {"rot_deg": 180.0}]  # the last: a failure, no pose
+    rows = [{"nees": 1.0, "nees_twin": 1.0, "quality": 0.6}, {"nees": 2 * bound, "nees_twin": 1.0, "quality": 0.35},
+            {"nees": 2 * bound, "nees_twin": 2 * bound, "quality": 0.1}, {"rot_deg": 180.0, "quality": 0.0}]  # the last: a failure, no pose
     c = covariance_check(rows)
+    by_quality = c.pop("by_quality")
     assert c == {"coverage": 0.9, "views": 3, "inside_share": pytest.approx(1 / 3), "inside_share_twin": pytest.approx(2 / 3)}
+    assert [(b["min_quality"], b["max_quality"], b["views"], b["inside_share_twin"]) for b in by_quality] == [
+        (0.0, 0.2, 1, 0.0), (0.3, 0.4, 1, 1.0), (0.5, None, 1, 1.0)]
+    assert "0.0–0.2; 0.3–0.4; ≥ 0.5 → 0% of 1; 100% of 1; 100% of 1" in "\n".join(covariance_lines({**c, "by_quality": by_quality}))
     # 2/3 inside a 90 % ellipsoid: the report says over-confident and how to re-scale
     assert over_confident(c) and not over_confident({**c, "inside_share_twin": 0.85}) and not over_confident({"views": 0})
     md = "\n".join(covariance_lines(c, "runs/x/best.pt"))

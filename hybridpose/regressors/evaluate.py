@@ -148,17 +148,29 @@ def covariance_nees(m, truth: Pose, twins=()) -> dict:
     return {"nees": float(values[0]), "nees_twin": float(min(values))}
 
 
+# quality bands (lower edges) of the covariance check: a covariance calibrated for all views at once can
+# still be over-confident where the measurement is poor and under-confident where it is good
+COVERAGE_QUALITY_EDGES = (0.0, 0.2, 0.3, 0.4, 0.5)
+
+
 def covariance_check(rows, coverage: float = COVARIANCE_COVERAGE) -> dict:
     """Share of the views with a pose whose error lies inside the ``coverage`` χ²₆ ellipsoid of the
     reported covariance — about ``coverage`` when it is calibrated, well below when over-confident
-    (what the fusion layer must not be fed): to the true pose and to the nearest box twin."""
+    (what the fusion layer must not be fed): to the true pose and to the nearest box twin; and, per
+    band of measurement quality (``COVERAGE_QUALITY_EDGES``), to the nearest twin (``by_quality``)."""
     bound = float(chi2.ppf(coverage, 6))
     got = [r for r in rows if "nees" in r]
     if not got:
         return {"coverage": coverage, "views": 0}
+    by_quality = []
+    for lo, hi in zip(COVERAGE_QUALITY_EDGES, COVERAGE_QUALITY_EDGES[1:] + (np.inf,)):
+        band = [r for r in got if lo <= r["quality"] < hi]
+        if band:
+            by_quality.append({"min_quality": lo, "max_quality": None if hi == np.inf else hi, "views": len(band),
+                               "inside_share_twin": float(np.mean([r["nees_twin"] <= bound for r in band]))})
     return {"coverage": coverage, "views": len(got),
             "inside_share": float(np.mean([r["nees"] <= bound for r in got])),
-            "inside_share_twin": float(np.mean([r["nees_twin"] <= bound for r in got]))}
+            "inside_share_twin": float(np.mean([r["nees_twin"] <= bound for r in got])), "by_quality": by_quality}
 
 
 # Below coverage by more than this (≈ 3 binomial σ at 100 views) the report says over-confident.
@@ -480,6 +492,11 @@ def covariance_lines(c: dict, checkpoint="CK") -> list[str]:
                       f"{c['coverage']:.0%} χ²₆ ellipsoid of the reported covariance around the true pose, "
                       f"{c['inside_share_twin']:.1%} around the nearest box twin (calibrated: ≈ {c['coverage']:.0%}; "
                       "far below: over-confident)."]
+        if c.get("by_quality"):
+            lines[-1] += " By measurement quality (nearest twin): " + "; ".join(
+                f"{b['min_quality']:.1f}–{b['max_quality']:.1f}" if b["max_quality"] is not None else f"≥ {b['min_quality']:.1f}"
+                for b in c["by_quality"]) + " → " + "; ".join(
+                f"{b['inside_share_twin']:.0%} of {b['views']}" for b in c["by_quality"]) + "."
         if over_confident(c):
             lines += ["", f"**Over-confident covariance** (the training calibration saw only the network's first pass): "
                           f"re-scale it on the whole inference path over held-out views before a filter uses it: "

@@ -9,7 +9,7 @@ Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (
 no roi: detection, a network pass (the crop turned by ±20°/±40° too where PnP drops keypoints, a
 second pass where the twin head is unsure), PnP dropping the worst keypoint, twin head + verifier +
 edge check), without the crop turns, with RANSAC for PnP's outliers, without the twin verifier, without the
-final edge refinement, with always one and always two passes, and
+edge-on expert (where one is shipped), without the final edge refinement, with always one and always two passes, and
 what a quality gate keeps (accuracy by quality); copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
@@ -21,8 +21,8 @@ import tempfile
 from pathlib import Path
 
 from _common import BENCH_DIR, environment, update_results_md, write_json
-from hybridpose.regressors.evaluate import PAPER, evaluate_checkpoint, quality_table
-from hybridpose.regressors.predictor import shipped_checkpoint
+from hybridpose.regressors.evaluate import PAPER, covariance_lines, evaluate_checkpoint, quality_table
+from hybridpose.regressors.predictor import WEIGHTS_DIR, shipped_checkpoint
 
 
 def main() -> None:
@@ -39,6 +39,8 @@ def main() -> None:
                 (", no twin verifier", {"verifier": None}),
                 (", no edge refinement", {"refine_edges": False}), (", 1 pass", {"passes": 1}),
                 (", 2 passes", {"passes": 2})]
+    if (WEIGHTS_DIR / "edge_on_expert.pt").is_file():
+        variants.insert(4, (", no edge-on expert", {"edge_on_expert": None}))
     runs = [(n + suffix, p, options) for suffix, options in variants for n, p in pairs]
     for name, path, options in runs:
         tmp = Path(tempfile.mkdtemp())
@@ -89,6 +91,7 @@ def main() -> None:
         lines += ["", f"`{name}`: measurement quality = PnP inlier share × exp(−RMS reprojection / 2 % of the crop side) × the twin "
                       "head's probability of the returned twin, so a pose that may be turned end for end scores low. "
                       + quality_table(s["accuracy_by_quality"])]
+        lines += covariance_lines(s["covariance_check"], s["checkpoint"])
     update_results_md("regressor-accuracy", "\n".join(lines))
 
 

@@ -974,6 +974,8 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
     assert CheckpointRegressor(tiny_checkpoint, edge_on_expert=None).expert is None
     with pytest.raises(ValueError, match="expert_below_deg"):
         CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, expert_below_deg=120.0)
+    with pytest.raises(ValueError, match="expert_rule"):
+        CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, expert_rule="vote")
     ck = load_checkpoint(tiny_checkpoint)
     ck["model"]["keypoints_m"] = ck["model"]["keypoints_m"] * 1.5
     save_checkpoint(tmp_path / "other.pt", ck)
@@ -987,18 +989,19 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
     assert 5 < elevation < 15
     with Renderer(truss, camera) as r:
         frame = Frame(r.render(near).rgb, camera, 0.0)
-    reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False)
+    reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False,
+                              expert_rule="replace")
     # a PnP result of exact keypoints (the tiny network's own would be noise)
     p = (near @ reg.keypoints_m) @ camera.K.T
     res = solve_pnp(p[:, :2] / p[:, 2:3], reg.keypoints_m, camera.K, threshold_px=4.0)
     order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
     expert_pose = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
     calls = []
-    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (replace(res, pose=near), order, prob)
+    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (replace(res, pose=near), order, prob, 64)
 
     def expert(image, cam, seen, sun_turn=0.0):
         calls.append(seen)
-        return replace(res, pose=expert_pose), order, prob
+        return replace(res, pose=expert_pose), order, prob, 64
 
     reg.expert._estimate_in = expert
     for gate, runs in ((elevation + 1.0, True), (elevation - 1.0, False)):
@@ -1046,3 +1049,37 @@ def test_quality_scale_recovers_each_bands_spread_and_never_rises_with_quality()
         quality_scale(q[:10], v[:10])
     with pytest.raises(ValueError, match="finite"):
         quality_scale(np.full(60, np.nan), np.ones(60))
+
+
+def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpoint, truss, camera):
+    """expert_rule="quality": both estimates are measured and the one of higher quality is returned
+    (the first on a tie); each estimate's quality uses its own crop side (the expert may run at
+    another resolution: the same RMS in pixels of a larger crop is a smaller error)."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from hybridpose.render import Renderer
+
+    c = truss.center
+    R = Rotation.from_euler("x", 85, degrees=True).as_matrix()
+    near = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ c)
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(near).rgb, camera, 0.0)
+    p = (near @ truss.keypoints) @ camera.K.T
+    res = solve_pnp(p[:, :2] / p[:, 2:3], truss.keypoints, camera.K, threshold_px=4.0)
+    order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
+    other = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
+    reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False,
+                              expert_below_deg=90.0)
+    assert reg.expert_rule == "quality"
+    assert res.inlier_ratio == 1.0
+    first = replace(res, pose=near, rms_px=2.0)
+    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (first, order, prob, 64)
+    for rms, crop_px, want in ((1.0, 64, other), (3.0, 64, near), (2.0, 64, near), (2.4, 96, other)):
+        second = replace(res, pose=other, rms_px=rms)
+        reg.expert._estimate_in = lambda image, cam, seen, sun_turn=0.0, e=second, s=crop_px: (e, order, prob, s)
+        m = reg.predict(frame, roi=(200, 150, 240, 180))
+        assert m.pose.allclose(want), (rms, crop_px)
+        q = np.exp(-(rms if want is other else 2.0) / (0.02 * (crop_px if want is other else 64))) * 0.97
+        assert m.quality == pytest.approx(q)

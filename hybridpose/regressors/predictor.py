@@ -102,6 +102,7 @@ MIRROR_SWITCH_P = 0.95
 # only, and its estimate replaces the first before the twin choice and the edge fit. Chosen with
 # benchmarks/edge_on_expert.py.
 EXPERT_BELOW_DEG = 12.0
+EXPERT_RULES = ("quality", "replace")
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -340,17 +341,20 @@ class CheckpointRegressor(PoseRegressor):
         edge_on_expert: keypoint models — a second keypoint checkpoint for the same object and
             keypoints, trained on near edge-on views (``hybridpose render --elevation 0,25``), that
             re-estimates the pose where the first estimate is within ``expert_below_deg`` of edge-on
-            (:func:`~hybridpose.objects.view_elevation_deg`); its estimate replaces the first one
-            before the twin choice and the edge fit. ``"auto"``: the one shipped in the package
-            (``weights/edge_on_expert.pt``, default) when there is one for this object; None: none.
-            The covariance stays this checkpoint's calibrated one.
+            (:func:`~hybridpose.objects.view_elevation_deg`), on the same detection. ``"auto"``: the
+            one shipped in the package (``weights/edge_on_expert.pt``, default) when there is one for
+            this object; None: none. The covariance stays this checkpoint's calibrated one.
         expert_below_deg: the view elevation (°, estimated) below which the expert runs.
+        expert_rule: ``"quality"`` (default): both estimates go through the twin choice and the edge
+            fit, and the measurement of higher quality is returned; ``"replace"``: the expert's
+            estimate replaces the first one.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
-                 mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG) -> None:
+                 mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
+                 expert_rule: str = "quality") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -418,6 +422,9 @@ class CheckpointRegressor(PoseRegressor):
         self.expert_below_deg = float(expert_below_deg)
         if not 0.0 <= self.expert_below_deg <= 90.0:
             raise ValueError(f"expert_below_deg: expected a view elevation in [0, 90] degrees, got {expert_below_deg!r}")
+        if expert_rule not in EXPERT_RULES:
+            raise ValueError(f"expert_rule: expected one of {', '.join(EXPERT_RULES)}, got {expert_rule!r}")
+        self.expert_rule = expert_rule
         self.expert_object = None  # the object whose view elevation gates the expert
         self.expert = self._load_expert(edge_on_expert, object)
 
@@ -600,18 +607,31 @@ class CheckpointRegressor(PoseRegressor):
 
     def _keypoint_estimate(self, image: np.ndarray, cam: Camera, roi, sun_turn: float = 0.0):
         """The network passes and PnP before any twin check or edge fit on an undistorted ``image``:
-        (PnP result turned to the head's twin, twin order, twin probabilities), or None when nothing
-        is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for order and
-        probabilities; ``sun_turn``: its crop turn, °)."""
+        (PnP result turned to the head's twin, twin order, twin probabilities, crop side in pixels),
+        or None when nothing is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for
+        order and probabilities; ``sun_turn``: its crop turn, °). With an edge-on expert: its
+        estimate under ``expert_rule="replace"``, the first one under ``"quality"``."""
+        ests = self._keypoint_estimates(image, cam, roi, sun_turn)
+        return ests[0] if ests else None
+
+    def _keypoint_estimates(self, image: np.ndarray, cam: Camera, roi, sun_turn: float = 0.0) -> list:
+        """The estimates (as :meth:`_keypoint_estimate`) a measurement is made from: the first one;
+        where an edge-on expert runs (the first estimate within ``expert_below_deg`` of edge-on) the
+        expert's instead (``expert_rule="replace"``) or the first and the expert's (``"quality"``);
+        the first alone where the expert finds nothing; [] where nothing is found."""
         seen = roi if roi is not None else detect_bright_object(image)
         if seen is None:
-            return None
+            return []
         est = self._estimate_in(image, cam, seen, sun_turn)
-        if (self.expert is not None and est is not None
-                and view_elevation_deg(est[0].pose, self.expert_object) < self.expert_below_deg):
-            # near edge-on: the expert's passes on the same detection; the first estimate only where it finds nothing
-            est = self.expert._estimate_in(image, cam, seen, sun_turn) or est
-        return est
+        if est is None:
+            return []
+        if self.expert is None or view_elevation_deg(est[0].pose, self.expert_object) >= self.expert_below_deg:
+            return [est]
+        # near edge-on: the expert's passes on the same detection
+        other = self.expert._estimate_in(image, cam, seen, sun_turn)
+        if other is None:
+            return [est]
+        return [other] if self.expert_rule == "replace" else [est, other]
 
     def _estimate_in(self, image: np.ndarray, cam: Camera, seen, sun_turn: float = 0.0):
         """:meth:`_keypoint_estimate` on a box ``seen`` (x, y, w, h, pixels) where the object was found."""
@@ -627,7 +647,7 @@ class CheckpointRegressor(PoseRegressor):
                 res, order, prob = res2, order2, prob2
         if res is None or size_ratio(res.pose, self.keypoints_m, cam, seen) > SIZE_RATIO_MAX:
             return None
-        return res, order, prob
+        return res, order, prob, self.image_size
 
     def twin_candidates(self, frame: Frame, roi=None, sun_direction_cam=None):
         """The box twins the twin choice weighs, before any edge fit: (poses T_cam_obj, head
@@ -645,7 +665,7 @@ class CheckpointRegressor(PoseRegressor):
             est = self._keypoint_estimate(image, cam, roi, sun_turn)
         if est is None:
             return None
-        res, order, prob = est
+        res, order, prob, _ = est
         return self._twin_starts(res.pose, order), np.asarray([prob[k] for k in order])
 
     def require_twin_head(self) -> None:
@@ -663,13 +683,19 @@ class CheckpointRegressor(PoseRegressor):
 
     def _predict_keypoints(self, frame: Frame, roi, sun_turn: float = 0.0) -> Measurement:
         image, cam = self._undistorted(frame)
-        est = self._keypoint_estimate(image, cam, roi, sun_turn)
-        if est is None:
+        ests = self._keypoint_estimates(image, cam, roi, sun_turn)
+        if not ests:
             return self._lost(frame)
-        res, order, prob = est
+        # with the expert's estimate too (expert_rule "quality"): the measurement of higher quality, the first on a tie
+        return max((self._measure(frame, image, cam, est) for est in ests), key=lambda m: m.quality)
+
+    def _measure(self, frame: Frame, image: np.ndarray, cam: Camera, est) -> Measurement:
+        """The measurement from one keypoint estimate on the undistorted ``image`` (camera ``cam``):
+        twin choice, edge fit, mirror check, calibrated covariance, quality."""
+        res, order, prob, crop_px = est
         cal = self.calibration or uncalibrated_record(self.kind)
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
-        quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * self.image_size)))
+        quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * crop_px)))
         pose, twin = res.pose, order[0]
         # the covariance cannot say "maybe turned end for end" (a 180° mode, not a Gaussian spread): the
         # quality does, through the belief in the returned twin (benchmarks/RESULTS.md, "accuracy by

@@ -9,7 +9,10 @@ pixels (:func:`detect_bright_object`); where its PnP drops keypoints, the same c
 by ±20°/±40° too (``turns="auto"``, one batch; the pass keeping the most keypoints wins:
 benchmarks/RESULTS.md, "Test-time crop turns"); and a second pass on the crop centred on the pose
 where the twin head is unsure (``passes="auto"``; ``passes=2`` always makes it, at ≈ 7 ms more;
-"Second network pass"). Keypoints → PnP → pose; the calibrated PnP covariance is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
+"Second network pass"). Where the first estimate is near edge-on, a second network trained on such
+views (``edge_on_expert``, shipped for the truss) estimates too, and the better measurement is kept
+("Edge-on expert"). Keypoints → PnP → pose; the calibrated PnP covariance, widened or narrowed by the
+measurement's quality band, is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
 the crop around its own translation estimate, or around ``roi``).
 """
 from __future__ import annotations
@@ -99,9 +102,10 @@ MIRROR_SWITCH_P = 0.95
 # Edge-on expert (edge_on_expert): where the first estimate is within EXPERT_BELOW_DEG of edge-on (the
 # views that hold most of the gross errors: benchmarks/RESULTS.md, "error vs view elevation"), the
 # network passes and PnP are made again by a second keypoint network trained on near edge-on views
-# only, and its estimate replaces the first before the twin choice and the edge fit. Chosen with
-# benchmarks/edge_on_expert.py.
-EXPERT_BELOW_DEG = 12.0
+# only; both estimates are measured and the one of higher quality is returned (expert_rule "quality").
+# Its estimate alone ("replace") fixed as many views as it broke; gate and rule chosen on test seeds
+# 128–131 among 8–25° (benchmarks/edge_on_expert.py, RESULTS "Edge-on expert").
+EXPERT_BELOW_DEG = 8.0
 EXPERT_RULES = ("quality", "replace")
 
 
@@ -654,7 +658,8 @@ class CheckpointRegressor(PoseRegressor):
         probabilities), both in the head's order (most likely first), or None when the object is
         not found. What a twin verifier is shown at inference, so what it is trained on
         (``hybridpose train-verifier --estimates-from``). Keypoint models with a twin head only;
-        ``roi`` and ``sun_direction_cam`` as in :meth:`predict`."""
+        ``roi`` and ``sun_direction_cam`` as in :meth:`predict`. With an edge-on expert under the
+        quality rule these are the first network's twins (the expert's estimate gets its own)."""
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         self.require_twin_head()

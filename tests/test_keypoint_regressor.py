@@ -985,6 +985,8 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
     save_checkpoint(tmp_path / "other.pt", ck)
     with pytest.raises(ValueError, match="edge_on_expert: .*other.pt"):
         CheckpointRegressor(tiny_checkpoint, edge_on_expert=tmp_path / "other.pt")
+    # a checkpoint for other keypoints (a user's object) just goes without the shipped expert
+    assert CheckpointRegressor(tmp_path / "other.pt", edge_on_expert="auto").expert is None
 
     c = truss.center
     R = Rotation.from_euler("x", 80, degrees=True).as_matrix() @ Rotation.from_euler("z", 30, degrees=True).as_matrix()

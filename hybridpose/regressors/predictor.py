@@ -442,8 +442,12 @@ class CheckpointRegressor(PoseRegressor):
             path = WEIGHTS_DIR / "edge_on_expert.pt"
             if not path.is_file():
                 return None
-        else:
-            path = Path(expert)
+            try:
+                return self._load_expert(path, obj)
+            except ValueError as exc:  # the shipped one is for the built-in truss's keypoints
+                log.info("shipped edge_on_expert.pt not used: %s", exc)
+                return None
+        path = Path(expert)
         reg = CheckpointRegressor(path, object=obj, check_twins=False, refine_edges=False, passes=self.passes,
                                   device=self.device, verifier=None, turns=self.turns, pnp_outliers=self.pnp_outliers,
                                   mirror_verifier=None, edge_on_expert=None)

@@ -1082,10 +1082,16 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
     assert res.inlier_ratio == 1.0
     first = replace(res, pose=near, rms_px=2.0)
     reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (first, order, prob, 64)
+    measured = []
+    measure = reg._measure
+    reg._measure = lambda frame, image, cam, est: measured.append(est[0].pose) or measure(frame, image, cam, est)
     for rms, crop_px, want in ((1.0, 64, other), (3.0, 64, near), (2.0, 64, near), (2.4, 96, other)):
         second = replace(res, pose=other, rms_px=rms)
         reg.expert._estimate_in = lambda image, cam, seen, sun_turn=0.0, e=second, s=crop_px: (e, order, prob, s)
+        measured.clear()
         m = reg.predict(frame, roi=(200, 150, 240, 180))
         assert m.pose.allclose(want), (rms, crop_px)
+        # an estimate that cannot beat the first one's quality is not measured (edge-fitted) at all
+        assert len(measured) == (2 if want is other else 1), (rms, crop_px)
         q = np.exp(-(rms if want is other else 2.0) / (0.02 * (crop_px if want is other else 64))) * 0.97
         assert m.quality == pytest.approx(q)

@@ -695,8 +695,23 @@ class CheckpointRegressor(PoseRegressor):
         ests = self._keypoint_estimates(image, cam, roi, sun_turn)
         if not ests:
             return self._lost(frame)
-        # with the expert's estimate too (expert_rule "quality"): the measurement of higher quality, the first on a tie
-        return max((self._measure(frame, image, cam, est) for est in ests), key=lambda m: m.quality)
+        # with the expert's estimate too (expert_rule "quality"): the measurement of higher quality, the first on a
+        # tie; an estimate whose quality cannot exceed the best one's is not edge-fitted at all (same result)
+        best = None
+        for est in ests:
+            if best is not None and self._quality_bound(est) <= best.quality:
+                continue
+            m = self._measure(frame, image, cam, est)
+            if best is None or m.quality > best.quality:
+                best = m
+        return best
+
+    def _quality_bound(self, est) -> float:
+        """An upper bound of the quality :meth:`_measure` gives ``est``: its PnP terms times the twin
+        head's largest probability (1 where a mirror verifier may replace the belief)."""
+        res, _, prob, crop_px = est
+        q = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * crop_px)))
+        return q if prob is None or self.mirror_verifier is not None else q * float(np.max(prob))
 
     def _measure(self, frame: Frame, image: np.ndarray, cam: Camera, est) -> Measurement:
         """The measurement from one keypoint estimate on the undistorted ``image`` (camera ``cam``):

@@ -1,21 +1,23 @@
-"""The edge-on expert of the shipped keypoint regressor: its gate chosen on some sets, confirmed on others.
+"""The edge-on expert of the shipped keypoint regressor: its rule and gate chosen on some sets, confirmed on others.
 
 Usage:
     common="--object truss --kind random --size 640x480 --in-view --sun-range 0.7,1.3 --workers 2 --count 1000"
-    hybridpose render $common --sun-cone 40 --seed 138 --out data/truss_test138                      # and so on
-    python benchmarks/edge_on_expert.py --expert runs/expert.pt --tune data/truss_test128 ... \\
-        --confirm data/truss_test138 ... [--wide data/truss_wide216 ...] [--side data/truss_side240 ...]
+    hybridpose render $common --sun-cone 40 --seed 142 --out data/truss_test142                      # and so on
+    python benchmarks/edge_on_expert.py --expert hybridpose/regressors/weights/edge_on_expert.pt \
+        --tune data/truss_test128 ... --confirm data/truss_test142 ... [--wide data/truss_wide216 ...] \
+        [--side data/truss_side240 ...] [--cache runs/expert_cache]
 
 Most of the regressor's views > 30° off are seen within a few degrees of edge-on
 (benchmarks/RESULTS.md, "error vs view elevation"). The edge-on expert is a second keypoint network
-trained on near edge-on views only; where the first estimate's view elevation is below a gate, its
-network passes and PnP replace the first ones before the twin choice and the edge fit
-(``CheckpointRegressor(edge_on_expert=..., expert_below_deg=..., expert_rule="replace")``). For every view: the full path
-without the expert, the first estimate's elevation, and (below the largest gate) the full path with the
-expert. Every gate in ``GATES_DEG`` is replayed on those numbers, with the expert's result returned
-(``replace``, what the predictor does) or the result of higher measurement quality (``quality``):
-chosen on ``--tune`` (lowest mean rotation error), then compared with no expert on ``--confirm``, ``--wide`` and ``--side`` (sets that
-took no part in choosing it; McNemar on the > 30° views, paired bootstrap of the mean). Writes
+trained on near edge-on views only, run where the first estimate's view elevation is below a gate.
+For every view: the full path without the expert (``edge_on_expert=None``), the first estimate's
+elevation, and (below the largest gate) the full path on the expert's estimate
+(``expert_rule="replace"``, gate 90°), with each measurement's quality. Every gate in ``GATES_DEG`` is
+replayed on those numbers under both rules: ``replace`` (the expert's measurement) and ``quality``
+(the one of higher measurement quality, the first on a tie: what the shipped predictor does). The
+rule and gate are chosen on ``--tune`` (lowest mean rotation error), then compared with no expert on
+``--confirm``, ``--wide`` and ``--side`` (sets that took no part in choosing them; McNemar on the
+> 30° views, paired bootstrap of the mean). ``--cache`` keeps each set's numbers. Writes
 ``results/edge_on_expert.json`` and the "edge-on-expert" section of RESULTS.md.
 """
 from __future__ import annotations

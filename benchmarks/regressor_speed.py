@@ -1,7 +1,8 @@
 """CPU inference cost of every regressor network: ms per image at 1 and 2 threads, parameter count.
 
-The paper's VGGs at ``--size`` (224); the keypoint models at their own crop size (network only —
-``hybridpose eval`` times the whole ``predict`` path: detection, two passes, PnP).
+The paper's VGGs at ``--size`` (224); the keypoint models at their own crop size, and ``default`` also at
+160 px, the shipped edge-on expert's (network only — ``hybridpose eval`` times the whole ``predict``
+path: detection, passes, PnP, edge fits).
 
 Usage: python benchmarks/regressor_speed.py [--size 224] [--repeats 3]
 Writes benchmarks/results/regressor_speed.json and the "regressor-speed" section of RESULTS.md.
@@ -17,6 +18,9 @@ from _common import environment, update_results_md, write_json
 from hybridpose.objects import load_object
 from hybridpose.regressors import available_models, build_model
 from hybridpose.regressors.models import MODEL_DEFAULTS, fold_batch_norm, model_kind
+
+
+EXTRA_KEYPOINT_SIZES = {"default": (160,)}
 
 
 def ms_per_image(model, size: int, threads: int, repeats: int) -> float:
@@ -39,11 +43,15 @@ def main() -> None:
     args = ap.parse_args()
     rows = []
     keypoints = load_object("truss").keypoints
-    for name in (args.models.split(",") if args.models else available_models()):
+    names = args.models.split(",") if args.models else available_models()
+    # the shipped default's edge-on expert is the same network at a larger crop
+    runs = [(name, None) for name in names] + [("default", size) for size in EXTRA_KEYPOINT_SIZES.get("default", ())
+                                               if "default" in names]
+    for name, own_size in runs:
         size = args.size
         kw = {"image_size": args.size} if name in ("branched-vgg19", "parallel-vgg19") else {}
         if model_kind(name) == "keypoints":
-            size = MODEL_DEFAULTS[name]["image_size"]
+            size = own_size or MODEL_DEFAULTS[name]["image_size"]
             kw = {"keypoints_m": keypoints, "image_size": size}
         model = build_model(name, **kw).eval()
         params = sum(p.numel() for p in model.parameters()) / 1e6

@@ -45,8 +45,7 @@ def main() -> None:
     keypoints = load_object("truss").keypoints
     names = args.models.split(",") if args.models else available_models()
     # the shipped default's edge-on expert is the same network at a larger crop
-    runs = [(name, None) for name in names] + [("default", size) for size in EXTRA_KEYPOINT_SIZES.get("default", ())
-                                               if "default" in names]
+    runs = [(name, None) for name in names] + [(name, size) for name in names for size in EXTRA_KEYPOINT_SIZES.get(name, ())]
     for name, own_size in runs:
         size = args.size
         kw = {"image_size": args.size} if name in ("branched-vgg19", "parallel-vgg19") else {}

@@ -69,19 +69,21 @@ def quality_scale(quality, nees_values, coverage: float = COVERAGE, edges=QUALIT
     bound = float(chi2.ppf(coverage, 6))
     overall = float(np.quantile(v, coverage)) / bound
     band = np.searchsorted(np.asarray(edges, dtype=float), q, side="right") - 1
+    counts = np.bincount(band, minlength=len(edges))
     groups, current = [], []
     for k in range(len(edges)):
         current.append(k)
-        if np.isin(band, current).sum() >= min_poses:
+        if counts[current].sum() >= min_poses:
             groups.append(current)
             current = []
     if current:  # the last bands hold too few poses: they join the band below
         groups[-1] += current
-    factors = [float(np.quantile(v[np.isin(band, g)], coverage)) / bound / overall for g in groups]
+    members = [np.isin(band, g) for g in groups]
+    factors = [float(np.quantile(v[m], coverage)) / bound / overall for m in members]
     for k in range(len(factors) - 2, -1, -1):
         factors[k] = max(factors[k], factors[k + 1])
     return {"edges": [float(edges[g[0]]) for g in groups], "factors": factors,
-            "poses": [int(np.isin(band, g).sum()) for g in groups], "overall": overall}
+            "poses": [int(m.sum()) for m in members], "overall": overall}
 
 
 def quality_factor(record: dict | None, quality: float) -> float:

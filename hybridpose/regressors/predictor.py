@@ -709,17 +709,16 @@ class CheckpointRegressor(PoseRegressor):
     def _quality_bound(self, est) -> float:
         """An upper bound of the quality :meth:`_measure` gives ``est``: its PnP terms times the twin
         head's largest probability (1 where a mirror verifier may replace the belief)."""
-        res, _, prob, crop_px = est
-        q = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * crop_px)))
+        q, prob = _pnp_quality(est), est[2]
         return q if prob is None or self.mirror_verifier is not None else q * float(np.max(prob))
 
     def _measure(self, frame: Frame, image: np.ndarray, cam: Camera, est) -> Measurement:
         """The measurement from one keypoint estimate on the undistorted ``image`` (camera ``cam``):
         twin choice, edge fit, mirror check, calibrated covariance, quality."""
-        res, order, prob, crop_px = est
+        res, order, prob, _ = est
         cal = self.calibration or uncalibrated_record(self.kind)
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
-        quality = res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * crop_px)))
+        quality = _pnp_quality(est)
         pose, twin = res.pose, order[0]
         # the covariance cannot say "maybe turned end for end" (a 180° mode, not a Gaussian spread): the
         # quality does, through the belief in the returned twin (benchmarks/RESULTS.md, "accuracy by
@@ -857,6 +856,13 @@ class CheckpointRegressor(PoseRegressor):
     def _lost(self, frame: Frame) -> Measurement:
         return Measurement(pose=None, covariance=LOST_COVARIANCE, quality=0.0, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp, lost=True)
+
+
+def _pnp_quality(est) -> float:
+    """The PnP part of a keypoint estimate's quality: inlier share × exp(−RMS / ``QUALITY_RMS`` of its
+    own crop side, so estimates at different crop sizes compare)."""
+    res, _, _, crop_px = est
+    return res.inlier_ratio * float(np.exp(-res.rms_px / (QUALITY_RMS * crop_px)))
 
 
 def _pass_rank(candidate) -> tuple:

@@ -963,6 +963,19 @@ def test_a_mirror_switch_returns_that_pose_with_the_verifiers_belief_in_its_qual
     assert reg.predict(frame).quality == pytest.approx(2 * m.quality)   # the belief, not the head's p, weighs it
 
 
+def _near_edge_on_view(truss, camera, R):
+    """A truss pose with rotation ``R`` and its box centre 0.8 m ahead, its rendered frame, and the PnP
+    result of its exact keypoints (a stand-in for a network's estimate: the tiny network's own would
+    be noise)."""
+    from hybridpose.render import Renderer
+
+    pose = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ truss.center)
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(pose).rgb, camera, 0.0)
+    p = (pose @ truss.keypoints) @ camera.K.T
+    return pose, frame, solve_pnp(p[:, :2] / p[:, 2:3], truss.keypoints, camera.K, threshold_px=4.0)
+
+
 def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoint, truss, camera, tmp_path):
     """The expert re-estimates where the first estimate is seen within ``expert_below_deg`` of edge-on,
     on the same detection, and its estimate is what the measurement carries; elsewhere it is not run;
@@ -973,7 +986,6 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
 
     from hybridpose.objects import view_elevation_deg
     from hybridpose.regressors.train import load_checkpoint, save_checkpoint
-    from hybridpose.render import Renderer
 
     assert CheckpointRegressor(tiny_checkpoint, edge_on_expert=None).expert is None
     with pytest.raises(ValueError, match="expert_below_deg"):
@@ -988,18 +1000,13 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
     # a checkpoint for other keypoints (a user's object) just goes without the shipped expert
     assert CheckpointRegressor(tmp_path / "other.pt", edge_on_expert="auto").expert is None
 
-    c = truss.center
     R = Rotation.from_euler("x", 80, degrees=True).as_matrix() @ Rotation.from_euler("z", 30, degrees=True).as_matrix()
-    near = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ c)
+    near, frame, res = _near_edge_on_view(truss, camera, R)
     elevation = view_elevation_deg(near, truss)
     assert 5 < elevation < 15
-    with Renderer(truss, camera) as r:
-        frame = Frame(r.render(near).rgb, camera, 0.0)
     reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False,
                               expert_rule="replace")
-    # a PnP result of exact keypoints (the tiny network's own would be noise)
-    p = (near @ reg.keypoints_m) @ camera.K.T
-    res = solve_pnp(p[:, :2] / p[:, 2:3], reg.keypoints_m, camera.K, threshold_px=4.0)
+    assert np.allclose(reg.keypoints_m, truss.keypoints)
     order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
     expert_pose = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
     calls = []
@@ -1065,15 +1072,7 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
 
     from scipy.spatial.transform import Rotation
 
-    from hybridpose.render import Renderer
-
-    c = truss.center
-    R = Rotation.from_euler("x", 85, degrees=True).as_matrix()
-    near = Pose(R, np.array([0.0, 0.0, 0.8]) - R @ c)
-    with Renderer(truss, camera) as r:
-        frame = Frame(r.render(near).rgb, camera, 0.0)
-    p = (near @ truss.keypoints) @ camera.K.T
-    res = solve_pnp(p[:, :2] / p[:, 2:3], truss.keypoints, camera.K, threshold_px=4.0)
+    near, frame, res = _near_edge_on_view(truss, camera, Rotation.from_euler("x", 85, degrees=True).as_matrix())
     order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
     other = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
     reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False,

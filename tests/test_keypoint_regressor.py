@@ -11,7 +11,8 @@ from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.calibration import nees, pnp_covariance
 from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax, widen_state_dict
 from hybridpose.regressors.keypoint_pnp import solve_pnp
-from hybridpose.regressors.predictor import CheckpointRegressor, detect_bright_object, twin_scores
+from hybridpose.regressors.predictor import (CheckpointRegressor, detect_bright_object, detect_dim_object,
+                                             twin_scores)
 from hybridpose.regressors.train import TrainConfig, train
 from hybridpose.registry import available, create
 
@@ -136,6 +137,23 @@ def test_detection_grows_from_a_glint_over_the_dim_object_but_not_over_noise():
     lit[60:160, 40:240] = 6
     lit[60:160, 40:200] = 150                    # mostly lit: a dim, shadowed end does not grow the box
     assert detect_bright_object(lit) == (40.0, 60.0, 160.0, 100.0)
+
+
+def test_detect_dim_object_finds_a_faint_object_without_glints_but_not_noise_or_specks():
+    rng = np.random.default_rng(1)
+    img = np.zeros((240, 320, 3), np.uint8)
+    img[60:160, 40:240] = 6                      # sun grazing the whole truss: no pixel over the bright threshold
+    assert detect_bright_object(img) is None
+    x, y, w, h = detect_dim_object(img)
+    assert abs(x - 40) <= 4 and abs(y - 60) <= 4 and abs(w - 200) <= 8 and abs(h - 100) <= 8
+    assert detect_dim_object(np.zeros_like(img)) is None
+    speck = np.zeros_like(img)
+    speck[100:106, 100:106] = 8                  # 36 px: a star or a hot cluster, not an object
+    assert detect_dim_object(speck) is None
+    for sigma in (2.0, 6.0):                     # sensor noise alone finds nothing
+        assert detect_dim_object(np.clip(rng.normal(0, sigma, img.shape), 0, 255).astype(np.uint8)) is None
+    with_noise = np.clip(img + rng.normal(0, 1.0, img.shape), 0, 255).astype(np.uint8)
+    assert detect_dim_object(with_noise) is not None   # below the noise-aware threshold only once noise drowns it
 
 
 @pytest.fixture(scope="module")

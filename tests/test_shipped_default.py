@@ -8,7 +8,7 @@ from hybridpose.core import Frame
 from hybridpose.geometry import Camera
 from hybridpose.metrics import rotation_error_deg, translation_error_m
 from hybridpose.registry import create
-from hybridpose.regressors.predictor import shipped_checkpoint
+from hybridpose.regressors.predictor import detect_bright_object, shipped_checkpoint
 from hybridpose.render import Renderer, SpaceLighting, random_poses
 from hybridpose.datasets.generate import sun_directions_in_cone
 
@@ -64,6 +64,25 @@ def test_shipped_default_finds_the_truss_without_a_prior(regressor, held_out, pa
     regressor.passes, regressor.turns = "auto", "auto"
     assert np.median(rot) < MEDIAN_ROT_DEG, f"median rotation error {np.median(rot):.2f}°"
     assert np.median(trans) < MEDIAN_TRANS_M, f"median translation error {np.median(trans):.3f} m"
+
+
+def test_a_faintly_lit_truss_is_found_by_the_dim_fallback(regressor, held_out):
+    """Grazing sun: the whole truss at most 10 grey levels, nothing the bright detection keeps. Measured
+    on these 24 views: none lost, median 6.9°; without the fallback all 24 are lost."""
+    dimmed = [(Frame(np.round(f.image * (10.0 / f.image.max())).astype(np.uint8), f.camera, f.timestamp, f.index), p)
+              for f, p in held_out]
+    assert all(detect_bright_object(f.image) is None for f, _ in dimmed)
+    try:
+        for fallback in (False, True):
+            regressor.dim_fallback = fallback
+            ms = [regressor.predict(f) for f, _ in dimmed]
+            if not fallback:
+                assert all(m.lost for m in ms)
+        assert not any(m.lost for m in ms)
+        rot = [rotation_error_deg(m.pose, p) for m, (_, p) in zip(ms, dimmed)]
+    finally:
+        regressor.dim_fallback = True
+    assert np.median(rot) < 20.0   # chance ≈ 120°
 
 
 def test_shipped_default_covariance_is_not_over_confident(truss, held_out):

@@ -48,6 +48,9 @@ DETECT_DIM_THRESHOLD = 3  # grey levels, after smoothing: the dim rest of an obj
 DETECT_GROW_RATIO = 2.0   # …used only when it makes the box this much larger (diagonal)
 DETECT_DIM_SIGMAS = 6.0   # …and only above this many σ of the smoothed sensor noise
 SMOOTH_NOISE_GAIN = 0.26  # noise σ after the 5×5 Gaussian (σ = 1.1 px): 1 / (2 √π · 1.1)
+# detect_dim_object: the dim parts kept (full-resolution pixels). A faint truss 1.2 m away covers
+# thousands; the leftovers of lost views with nothing there covered ≤ 52 (test seeds 128–138)
+DETECT_DIM_MIN_AREA_PX = 200
 REFINE_SEARCH_PX = 16
 REFINE_MIN_QUALITY = 0.5
 # The twin choice (see _refine). Tuned on test views 0–399, confirmed on 400–999 (benchmarks/RESULTS.md):
@@ -234,14 +237,7 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     is_kept = np.zeros(len(stats), bool)
     is_kept[keep] = True
     seeds = is_kept[labels]                                    # (bh, bw): the bright mask's box
-    # smoothed (5×5) and above the sensor noise, so that noise cannot chain dim pixels across the
-    # background: with noise the growth falls back to the bright box, what it was before
-    smooth = cv2.GaussianBlur(gray, (5, 5), 0)
-    # above the background (clipped noise lifts black by ≈ 0.4 σ; the median is the background while
-    # the object covers less than half the frame, and above it growing is pointless anyway)
-    dim_threshold = max(DETECT_DIM_THRESHOLD,
-                        float(np.median(smooth)) + DETECT_DIM_SIGMAS * SMOOTH_NOISE_GAIN * noise_sigma(gray))
-    dim = (smooth > dim_threshold).astype(np.uint8)
+    dim = _dim_mask(gray)
     dim[by:by + bh, bx:bx + bw] |= seeds
     dim_labels, dim_stats, (dx, dy, _, _) = _components(dim, include=(bx, by, bw, bh))
     seed_labels = dim_labels[by - dy:by - dy + bh, bx - dx:bx - dx + bw][seeds]
@@ -249,6 +245,37 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     # only a box that grows a lot is a fragment's: growing every box over its dim, shadowed
     # pixels gave crops the network had not learnt (benchmarks/RESULTS.md, session 9)
     return grown if np.hypot(*grown[2:]) > DETECT_GROW_RATIO * np.hypot(*box[2:]) else box
+
+
+def detect_dim_object(image: np.ndarray, min_area_px: int = DETECT_DIM_MIN_AREA_PX):
+    """Box ``(x, y, w, h)`` around an object lit too faintly for :func:`detect_bright_object`, or None.
+
+    Under grazing sun the whole truss can sit a few grey levels above black with no glint, or with
+    glints too small to keep (≈ 1 view in 1000 of the 40°-cone test sets): the pixels of the
+    smoothed image above the noise-aware dim threshold (:func:`_dim_mask`), parts smaller than
+    ``min_area_px`` (full-resolution pixels) dropped. With sensor noise the threshold rises with it,
+    so noise alone finds nothing. The predictor falls back to it only where the bright detection
+    found nothing or its box gave no plausible pose.
+    """
+    small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    found = _components(_dim_mask(cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)))
+    if found is None:
+        return None
+    _, stats, _ = found
+    keep = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] * 4 >= min_area_px)
+    return _union_box(stats[keep]) if len(keep) else None
+
+
+def _dim_mask(gray: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 mask of the pixels of a (half-resolution) grey image that are dimly lit: the
+    5×5-smoothed image above ``DETECT_DIM_THRESHOLD`` and above the sensor noise, so that noise cannot
+    chain dim pixels across the background."""
+    smooth = cv2.GaussianBlur(gray, (5, 5), 0)
+    # above the background (clipped noise lifts black by ≈ 0.4 σ; the median is the background while
+    # the object covers less than half the frame, and above it a dim mask is pointless anyway)
+    dim_threshold = max(DETECT_DIM_THRESHOLD,
+                        float(np.median(smooth)) + DETECT_DIM_SIGMAS * SMOOTH_NOISE_GAIN * noise_sigma(gray))
+    return (smooth > dim_threshold).astype(np.uint8)
 
 
 def _components(mask: np.ndarray, include=None):
@@ -352,13 +379,16 @@ class CheckpointRegressor(PoseRegressor):
         expert_rule: ``"quality"`` (default): both estimates go through the twin choice and the edge
             fit, and the measurement of higher quality is returned; ``"replace"``: the expert's
             estimate replaces the first one.
+        dim_fallback: keypoint models without a ``roi`` — where :func:`detect_bright_object` finds
+            nothing, or its box gives no plausible pose, look for a faintly lit object
+            (:func:`detect_dim_object`) and estimate on its box (default True).
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
                  mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
-                 expert_rule: str = "quality") -> None:
+                 expert_rule: str = "quality", dim_fallback: bool = True) -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -429,6 +459,7 @@ class CheckpointRegressor(PoseRegressor):
         if expert_rule not in EXPERT_RULES:
             raise ValueError(f"expert_rule: expected one of {', '.join(EXPERT_RULES)}, got {expert_rule!r}")
         self.expert_rule = expert_rule
+        self.dim_fallback = bool(dim_fallback)
         self.expert_object = None  # the object whose view elevation gates the expert
         self.expert = self._load_expert(edge_on_expert, object)
 
@@ -628,9 +659,12 @@ class CheckpointRegressor(PoseRegressor):
         expert's instead (``expert_rule="replace"``) or the first and the expert's (``"quality"``);
         the first alone where the expert finds nothing; [] where nothing is found."""
         seen = roi if roi is not None else detect_bright_object(image)
-        if seen is None:
-            return []
-        est = self._estimate_in(image, cam, seen, sun_turn)
+        est = None if seen is None else self._estimate_in(image, cam, seen, sun_turn)
+        if est is None and roi is None and self.dim_fallback:
+            # nothing bright, or its box gave no plausible pose: the faintly lit object, if any
+            dim = detect_dim_object(image)
+            if dim is not None and dim != seen:
+                seen, est = dim, self._estimate_in(image, cam, dim, sun_turn)
         if est is None:
             return []
         if self.expert is None or view_elevation_deg(est[0].pose, self.expert_object) >= self.expert_below_deg:

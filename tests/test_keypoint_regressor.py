@@ -1112,3 +1112,57 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
         assert len(measured) == (2 if want is other else 1), (rms, crop_px)
         q = np.exp(-(rms if want is other else 2.0) / (0.02 * (crop_px if want is other else 64))) * 0.97
         assert m.quality == pytest.approx(q)
+
+
+@pytest.mark.parametrize("wrong_first", [False, True])
+def test_pooled_rule_returns_the_best_scored_twin_of_both_estimates_with_fewer_fits(
+        tiny_checkpoint, truss, camera, monkeypatch, wrong_first):
+    """expert_rule="pooled": of the four box twins of both estimates, the candidate of highest
+    log p_head + w_edge · log q_fit + w_verifier · log p_verifier + log q_pnp is returned — the same one
+    that fitting all eight and scoring them gives — after fitting only until no other can win. With
+    ``wrong_first`` both heads favour an end-for-end twin of the truth, whose edges do not fit."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    import hybridpose.trackers.edges as edges
+    from hybridpose.regressors.predictor import (REFINE_MIN_QUALITY, REFINE_SEARCH_PX, VERIFIER_EDGE_WEIGHT,
+                                                 _pnp_quality)
+
+    near, frame, res = _near_edge_on_view(truss, camera, Rotation.from_euler("x", 84, degrees=True).as_matrix())
+    reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, expert_below_deg=90.0,
+                              expert_rule="pooled")
+    assert reg.verifier is not None and reg.twin_check is not None
+    turned = Pose(Rotation.from_rotvec([0.0, 0.0, 0.06]).as_matrix(), np.zeros(3)) @ near   # a 3.4° worse estimate
+    if wrong_first:   # the keypoints' pose is turned to the head's twin (order[0]), here a wrong one
+        twin = reg.twin_check.twins[0]
+        ests = [(replace(res, pose=near @ twin, rms_px=1.5), [1, 0, 2, 3], np.array([0.3, 0.6, 0.05, 0.05]), 64),
+                (replace(res, pose=turned @ twin, rms_px=0.8), [1, 0, 2, 3], np.array([0.25, 0.7, 0.03, 0.02]), 64)]
+    else:
+        ests = [(replace(res, pose=near, rms_px=1.5), [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01]), 64),
+                (replace(res, pose=turned, rms_px=0.8), [1, 0, 2, 3], np.array([0.1, 0.4, 0.3, 0.2]), 64)]
+    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[0]
+    reg.expert._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[1]
+    # brute force: every candidate fitted and scored
+    best, best_score = None, -np.inf
+    for est in ests:
+        pose, order, prob, _ = est[0].pose, est[1], est[2], est[3]
+        starts = reg._twin_starts(pose, order)
+        head = [prob[k] for k in order]
+        ver = reg.verifier.probabilities(frame.image, camera.K, starts)
+        for j, start in enumerate(starts):
+            fit = edges.fit_edges(reg.twin_check.view, frame, start, search_px=REFINE_SEARCH_PX)
+            score = (twin_scores([head[j]], [0.0 if fit is None else fit.quality], edge_weight=VERIFIER_EDGE_WEIGHT,
+                                 verifier_prob=[ver[j]])[0] + np.log(_pnp_quality(est) + 1e-3))
+            if score > best_score:
+                out = fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else start
+                best, best_score = (out, _pnp_quality(est) * head[j]), score
+    fits = []
+    real_fit = edges.fit_edges
+    monkeypatch.setattr(edges, "fit_edges", lambda *a, **k: fits.append(1) or real_fit(*a, **k))
+    m = reg.predict(frame, roi=(200, 150, 240, 180))
+    assert m.pose.allclose(best[0], atol=1e-9)
+    assert m.quality == pytest.approx(best[1])
+    assert (2 if wrong_first else 1) <= len(fits) < 8
+    if wrong_first:
+        assert rotation_error_deg(m.pose, near) < 5.0, "the edges overrule both heads' wrong twin"

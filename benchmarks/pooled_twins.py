@@ -10,10 +10,12 @@ default network's and the edge-on expert's) with four box twins each. For every 
 every candidate the predictor weighs: per estimate and twin, the twin head's probability, the twin
 verifier's probability, the edge fit's quality, and the rotation error of the pose the predictor would
 return for that twin (the edge-fitted one where the fit reaches ``REFINE_MIN_QUALITY``), plus each
-estimate's PnP quality. Rules that choose one candidate are then replayed on those numbers: the shipped
-one (twin per estimate by ``log p + 8 log q + log p_verifier``, estimate by measurement quality) and the
-ones listed in ``RULES``; the rule is chosen on ``--tune`` and compared with the shipped one on the other
-groups (McNemar on the > 30° views, paired bootstrap of the mean).
+estimate's PnP quality. Both rules are replayed on those numbers (exactly what the predictor returns):
+the quality rule (twin per estimate by ``log p + 8 log q + log p_verifier``, then the estimate of higher
+measurement quality) and the pooled rule (``expert_rule="pooled"``: the best of all eight candidates by
+that score plus ``POOLED_PNP_WEIGHT · log q_pnp``), compared view by view on each group of sets (McNemar
+on the > 30° views, paired bootstrap of the mean); ``--tune`` (the sets the weight was chosen on) also
+shows other weights. The dim fallback is off here (it only adds views neither rule differs on).
 """
 from __future__ import annotations
 
@@ -28,21 +30,24 @@ from hybridpose.core import Frame
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import view_elevation_deg
-from hybridpose.regressors.predictor import (REFINE_MIN_QUALITY, REFINE_SEARCH_PX, VERIFIER_EDGE_WEIGHT,
-                                             VERIFIER_SURE, CheckpointRegressor, _pnp_quality, shipped_checkpoint,
-                                             twin_scores)
+from _common import PAIRED_HEADER, environment, paired_cells, update_results_md, write_json
+from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
+from hybridpose.regressors.predictor import (POOLED_PNP_WEIGHT, REFINE_MIN_QUALITY, REFINE_SEARCH_PX,
+                                             VERIFIER_EDGE_WEIGHT, VERIFIER_SURE, CheckpointRegressor, _pnp_quality,
+                                             shipped_checkpoint, twin_scores)
 from hybridpose.trackers.edges import fit_edges, to_gray
 
 N_TWINS = 4
 
 
-def measure(data: str, checkpoint: str, limit=None) -> dict:
+def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dict:
     """Per view of ``data`` (arrays over views; ``[:, e, k]``: estimate e (0 the default's, 1 the
     expert's), twin k in that estimate's head order): ``n_est`` (0–2), ``elevation`` (first estimate's
     view elevation, °), ``pnp_quality`` (V, 2), ``head`` / ``verifier`` / ``fit_quality`` (V, 2, 4),
     ``err`` (V, 2, 4: rotation error of the pose returned for that twin, °), ``shipped`` (the shipped
     predictor's error; 180 where lost) and ``seconds`` (its time)."""
-    reg = CheckpointRegressor(checkpoint, threads=1)
+    reg = CheckpointRegressor(checkpoint, threads=1, edge_on_expert=expert, expert_rule="quality",
+                              dim_fallback=False)
     view = reg.twin_check.view
     V = lambda: []  # noqa: E731
     rows = {k: V() for k in ("n_est", "elevation", "pnp_quality", "head", "verifier", "fit_quality", "err",
@@ -86,15 +91,16 @@ def measure(data: str, checkpoint: str, limit=None) -> dict:
     return {k: np.asarray(v, dtype=float) for k, v in rows.items()}
 
 
-def cached(folder, data: str, checkpoint: str, limit=None) -> dict:
-    """:func:`measure`, kept in ``folder`` (one .npz per set, checkpoint and limit) when given."""
+def cached(folder, data: str, checkpoint: str, expert: str = "auto", limit=None) -> dict:
+    """:func:`measure`, kept in ``folder`` (one .npz per set, checkpoint, expert and limit) when given."""
     if folder is None:
-        return measure(data, checkpoint, limit)
-    path = Path(folder) / f"{Path(data).name}__{Path(checkpoint).stem}__{limit}.npz"
+        return measure(data, checkpoint, expert, limit)
+    tag = "" if expert == "auto" else f"__{Path(expert).stem}"
+    path = Path(folder) / f"{Path(data).name}__{Path(checkpoint).stem}{tag}__{limit}.npz"
     if path.is_file():
         with np.load(path) as f:
             return {k: f[k] for k in f.files}
-    m = measure(data, checkpoint, limit)
+    m = measure(data, checkpoint, expert, limit)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(path.with_suffix(".tmp.npz"), **m)
     path.with_suffix(".tmp.npz").replace(path)
@@ -120,19 +126,64 @@ def errors_of(m: dict, est: np.ndarray, twin: np.ndarray) -> np.ndarray:
     return np.where(m["n_est"] > 0, err, 180.0)
 
 
+def pooled_choice(m: dict, pnp_weight: float = POOLED_PNP_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
+    """(estimate, twin) per view under ``expert_rule="pooled"``: where both estimates exist, the best
+    of their eight candidates by ``twin_scores(head, q_fit, verifier) + pnp_weight · log q_pnp`` (the
+    predictor prunes its fits but returns this same candidate); elsewhere the shipped choice."""
+    scores = (twin_scores(m["head"], m["fit_quality"], edge_weight=VERIFIER_EDGE_WEIGHT, verifier_prob=m["verifier"])
+              + pnp_weight * np.log(m["pnp_quality"] + 1e-3)[..., None]).reshape(len(m["n_est"]), -1)
+    best = scores.argmax(1)
+    est, twin = shipped_choice(m)
+    both = m["n_est"] == 2
+    return np.where(both, best // N_TWINS, est), np.where(both, best % N_TWINS, twin)
+
+
+def pooled(sets: list[dict]) -> dict:
+    return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--data", nargs="+", required=True)
+    ap.add_argument("--tune", nargs="+", required=True, help="sets the rule's weights were chosen on")
+    ap.add_argument("--confirm", nargs="*", default=[], help="sets lit like the training data, not used to choose")
+    ap.add_argument("--wide", nargs="*", default=[], help="sets lit from within 85° of the optical axis")
+    ap.add_argument("--side", nargs="*", default=[], help="sets lit from within 120° (side- and back-light)")
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
+    ap.add_argument("--expert", default="auto", help="edge-on expert checkpoint (default: the shipped one)")
+    ap.add_argument("--pnp-weights", type=float, nargs="*", default=[0.0, 0.5, 2.0],
+                    help="other weights of log q_pnp shown on --tune beside the shipped one")
     ap.add_argument("--limit", type=int, default=None)
-    ap.add_argument("--cache", default="runs/twin_cache")
+    ap.add_argument("--cache", default=None, help="folder keeping each set's per-view numbers (reused when present)")
     args = ap.parse_args()
-    for d in args.data:
-        t0 = time.time()
-        m = cached(args.cache, d, args.checkpoint, args.limit)
-        replayed = errors_of(m, *shipped_choice(m))
-        print(d, f"{time.time() - t0:.0f} s", "shipped mean", m["shipped"].mean(), "replayed", replayed.mean(),
-              "differ", int(np.sum(np.abs(replayed - m["shipped"]) > 0.01)), flush=True)
+    groups = {"tune": args.tune, "confirm": args.confirm, "wide": args.wide, "side": args.side}
+    measured = {g: pooled([cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs])
+                for g, dirs in groups.items() if dirs}
+    out = {"env": environment(), "checkpoint": args.checkpoint, "expert": args.expert, "sets": groups,
+           "pnp_weight": POOLED_PNP_WEIGHT, "groups": {}}
+    lines = ["## Pooled twin choice of the shipped keypoint regressor (`benchmarks/pooled_twins.py`)", "",
+             f"Checkpoint `{Path(args.checkpoint).name}`, edge-on expert `{args.expert}`. A = the quality rule "
+             "(each estimate's twin by head, edge fit and verifier, then the estimate of higher measurement "
+             "quality), B = the pooled rule (the best-scored of every twin of both estimates, log q_pnp "
+             f"weighted {POOLED_PNP_WEIGHT:g}); they differ only where both estimates exist (first estimate "
+             "within the expert's gate). Oracle: the best candidate by true error.", "",
+             f"| sets | views | both estimates | rule B | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} | oracle mean ° |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for g, m in measured.items():
+        a = errors_of(m, *shipped_choice(m))
+        valid = np.arange(2)[None, :, None] < m["n_est"][:, None, None]
+        oracle = np.where(m["n_est"] > 0, np.where(valid, m["err"], np.inf).reshape(len(a), -1).min(1), 180.0)
+        weights = [POOLED_PNP_WEIGHT] + (args.pnp_weights if g == "tune" else [])
+        out["groups"][g] = {"views": len(a), "both": int(np.sum(m["n_est"] == 2)), "oracle_mean_deg": float(oracle.mean()),
+                            "rules": {}}
+        for w in weights:
+            c = paired_comparison(a, errors_of(m, *pooled_choice(m, w)))
+            out["groups"][g]["rules"][f"pooled pnp_weight={w:g}"] = c
+            name = f"pooled, log q_pnp × {w:g}" + (" (shipped weight)" if w == POOLED_PNP_WEIGHT else "")
+            lines.append(f"| {g} ({len(groups[g])}) | {len(a)} | {int(np.sum(m['n_est'] == 2))} | {name} | "
+                         f"{paired_cells(c)} | {oracle.mean():.2f} |")
+    write_json("pooled_twins", out)
+    update_results_md("pooled-twins", "\n".join(lines))
+    print("\n".join(lines))
 
 
 if __name__ == "__main__":

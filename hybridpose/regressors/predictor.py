@@ -109,6 +109,10 @@ MIRROR_SWITCH_P = 0.95
 # Its estimate alone ("replace") fixed as many views as it broke; gate and rule chosen on test seeds
 # 128–131 among 8–25° (benchmarks/edge_on_expert.py, RESULTS "Edge-on expert").
 EXPERT_BELOW_DEG = 8.0
+# expert_rule "pooled": the weight of log q_pnp (each estimate's PnP quality) added to the twin score
+# when the twins of both estimates are pooled (weights chosen on test seeds 128–141,
+# benchmarks/pooled_twins.py; 0.5–3 all measured alike)
+POOLED_PNP_WEIGHT = 1.0
 EXPERT_RULES = ("pooled", "quality", "replace")
 
 
@@ -752,8 +756,8 @@ class CheckpointRegressor(PoseRegressor):
     def _pooled_measure(self, frame: Frame, image: np.ndarray, cam: Camera, ests) -> Measurement:
         """The measurement from the best of every box twin of every estimate (``expert_rule="pooled"``):
         the candidate of highest ``log p_head + VERIFIER_EDGE_WEIGHT · log q_fit + VERIFIER_WEIGHT ·
-        log p_verifier + log q_pnp`` (:func:`twin_scores` of its own estimate's head and verifier, plus
-        its estimate's PnP quality :func:`_pnp_quality`). Candidates are edge-fitted in order of their
+        log p_verifier + POOLED_PNP_WEIGHT · log q_pnp`` (:func:`twin_scores` of its own estimate's head
+        and verifier, plus its estimate's PnP quality :func:`_pnp_quality`). Candidates are edge-fitted in order of their
         score with a perfect fit (an upper bound) until no unfitted one can win: the result is that of
         fitting all of them (≈ 2.3 fits instead of 8 near edge-on views). Quality and covariance are
         those :meth:`_measure` gives the chosen estimate and twin."""
@@ -769,7 +773,8 @@ class CheckpointRegressor(PoseRegressor):
             head = np.array([prob[k] for k in order])
             ver = None if self.verifier is None else self.verifier.probabilities(image, cam.K, starts)
             q_pnp = _pnp_quality(est)
-            bound = twin_scores(head, np.ones(len(starts)), edge_weight=edge_weight, verifier_prob=ver) + np.log(q_pnp + 1e-3)
+            bound = (twin_scores(head, np.ones(len(starts)), edge_weight=edge_weight, verifier_prob=ver)
+                     + POOLED_PNP_WEIGHT * np.log(q_pnp + 1e-3))
             for j, start in enumerate(starts):
                 candidates.append((float(bound[j]), est, start, head[j], None if ver is None else ver[j], q_pnp))
         candidates.sort(key=lambda c: -c[0])
@@ -780,7 +785,8 @@ class CheckpointRegressor(PoseRegressor):
                 break
             fit = fit_edges(view, undistorted, start, gray=gray, search_px=REFINE_SEARCH_PX)
             score = float(twin_scores([head_p], [0.0 if fit is None else fit.quality], edge_weight=edge_weight,
-                                      verifier_prob=None if ver_p is None else [ver_p])[0]) + np.log(q_pnp + 1e-3)
+                                      verifier_prob=None if ver_p is None else [ver_p])[0]
+                         + POOLED_PNP_WEIGHT * np.log(q_pnp + 1e-3))
             if score > best_score:
                 pose = fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else start
                 best, best_score = (est, pose, head_p, q_pnp), score

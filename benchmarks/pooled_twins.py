@@ -1,8 +1,9 @@
 """The twin choice of the shipped keypoint regressor, measured candidate by candidate.
 
 Usage:
-    python benchmarks/pooled_twins.py --tune data/truss_test128 ... --confirm data/truss_test146 ... \
-        [--wide data/truss_wide218 ...] [--side data/truss_side242 ...] [--cache runs/twin_cache]
+    python benchmarks/pooled_twins.py --tune data/truss_test128 ... --confirm data/truss_test142 ... \
+        --fresh data/truss_test146 ... [--wide data/truss_wide216 ...] [--side data/truss_side240 ...] \
+        [--cache runs/twin_cache]
 
 Most views > 30° off on the 40°-cone test sets are end-for-end twins of the truth (errors near 180°), and
 most of them lie within a few degrees of edge-on, where the shipped predictor has two estimates (the
@@ -146,6 +147,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--tune", nargs="+", required=True, help="sets the rule's weights were chosen on")
     ap.add_argument("--confirm", nargs="*", default=[], help="sets lit like the training data, not used to choose")
+    ap.add_argument("--fresh", nargs="*", default=[], help="sets lit alike, rendered after the rule was written")
     ap.add_argument("--wide", nargs="*", default=[], help="sets lit from within 85° of the optical axis")
     ap.add_argument("--side", nargs="*", default=[], help="sets lit from within 120° (side- and back-light)")
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
@@ -155,7 +157,7 @@ def main() -> None:
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--cache", default=None, help="folder keeping each set's per-view numbers (reused when present)")
     args = ap.parse_args()
-    groups = {"tune": args.tune, "confirm": args.confirm, "wide": args.wide, "side": args.side}
+    groups = {"tune": args.tune, "confirm": args.confirm, "fresh": args.fresh, "wide": args.wide, "side": args.side}
     measured = {g: pooled([cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs])
                 for g, dirs in groups.items() if dirs}
     out = {"env": environment(), "checkpoint": args.checkpoint, "expert": args.expert, "sets": groups,

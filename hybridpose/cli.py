@@ -218,7 +218,8 @@ def cmd_eval(args) -> int:
                             pnp_outliers=args.pnp_outliers, sun_known=args.sun_known,
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier,
                             mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier,
-                            edge_on_expert=None if args.edge_on_expert == "none" else args.edge_on_expert)
+                            edge_on_expert=None if args.edge_on_expert == "none" else args.edge_on_expert,
+                            expert_rule=args.expert_rule, dim_fallback=not args.no_dim_fallback)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -413,6 +414,12 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--edge-on-expert", default="auto",
                    help="keypoint models: a second keypoint checkpoint trained on near edge-on views that re-estimates "
                         "the pose where the first estimate is near edge-on, 'auto' (the shipped one, if any) or 'none'")
+    e.add_argument("--expert-rule", choices=("quality", "pooled", "replace"), default="quality",
+                   help="keypoint models with an edge-on expert: return the measurement of higher quality (quality, the "
+                        "default), the best-scored box twin of both estimates (pooled) or the expert's (replace)")
+    e.add_argument("--no-dim-fallback", action="store_true",
+                   help="keypoint models: report a view lost where nothing bright is found, instead of looking for a "
+                        "faintly lit object")
     e.add_argument("--sun-known", action="store_true",
                    help="keypoint models: give the regressor each image's sun as the dataset records it (what a "
                         "caller with a sun sensor can do: the crop is turned so the light crosses it as in training)")

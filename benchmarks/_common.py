@@ -20,6 +20,32 @@ def environment() -> dict:
             "cpus": os.cpu_count(), "processor": platform.processor()}
 
 
+def cached_npz(folder, key: str, compute) -> dict:
+    """``compute()`` (a dict of arrays), kept in ``folder``/``key``.npz and read back from there when
+    present (written atomically); no cache when ``folder`` is None. For benchmarks that measure each
+    view once and replay rules on the numbers."""
+    import numpy as np
+
+    if folder is None:
+        return compute()
+    path = Path(folder) / f"{key}.npz"
+    if path.is_file():
+        with np.load(path) as f:
+            return {k: f[k] for k in f.files}
+    m = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path.with_suffix(".tmp.npz"), **m)
+    path.with_suffix(".tmp.npz").replace(path)
+    return m
+
+
+def concat_sets(sets: list[dict]) -> dict:
+    """Per-view arrays of several test sets (dicts with the same keys) joined into one."""
+    import numpy as np
+
+    return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
+
+
 def write_json(name: str, payload: dict) -> Path:
     path = BENCH_DIR / "results" / f"{name}.json"
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from _common import PAIRED_HEADER, environment, paired_cells, update_results_md, write_json
+from _common import PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, update_results_md, write_json
 from hybridpose.core import Frame
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.metrics import rotation_error_deg
@@ -78,17 +78,8 @@ def measure(data: str, checkpoint: str, expert: str, limit=None) -> dict:
 
 def cached(folder, data: str, checkpoint: str, expert: str, limit=None) -> dict:
     """:func:`measure`, kept in ``folder`` (one .npz per set, checkpoint, expert and limit) when given."""
-    if folder is None:
-        return measure(data, checkpoint, expert, limit)
-    path = Path(folder) / f"{Path(data).name}__{Path(checkpoint).stem}__{Path(expert).stem}__{limit}.npz"
-    if path.is_file():
-        with np.load(path) as f:
-            return {k: f[k] for k in f.files}
-    m = measure(data, checkpoint, expert, limit)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path.with_suffix(".tmp.npz"), **m)
-    path.with_suffix(".tmp.npz").replace(path)
-    return m
+    key = f"{Path(data).name}__{Path(checkpoint).stem}__{Path(expert).stem}__{limit}"
+    return cached_npz(folder, key, lambda: measure(data, checkpoint, expert, limit))
 
 
 def replay(m: dict, gate_deg: float, rule: str = "replace") -> tuple[np.ndarray, np.ndarray]:
@@ -98,10 +89,6 @@ def replay(m: dict, gate_deg: float, rule: str = "replace") -> tuple[np.ndarray,
     ran = m["elevation"] < gate_deg
     use = ran if rule == "replace" else ran & (m["quality_expert"] > m["quality_base"])
     return np.where(use, m["expert"], m["base"]), ran
-
-
-def pooled(sets: list[dict]) -> dict:
-    return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
 
 
 def main() -> None:
@@ -119,14 +106,14 @@ def main() -> None:
     groups = {"tune": args.tune, "confirm": args.confirm, "wide": args.wide, "side": args.side}
     measured = {g: [cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs]
                 for g, dirs in groups.items() if dirs}
-    tune = pooled(measured["tune"])
+    tune = concat_sets(measured["tune"])
     variants = [("replace", 0.0)] + [(rule, g) for rule in RULES for g in GATES_DEG if g > 0]
     chosen = min(variants, key=lambda v: (replay(tune, v[1], v[0])[0].mean(), v[1]))
     rows, out = [], {"env": environment(), "checkpoint": args.checkpoint, "expert": args.expert, "sets": groups,
                      "chosen": {"rule": chosen[0], "gate_deg": chosen[1]}, "shipped_gate_deg": EXPERT_BELOW_DEG,
                      "groups": {}}
     for g, sets in measured.items():
-        m = pooled(sets)
+        m = concat_sets(sets)
         group = {"views": len(m["base"]), "variants": {}}
         for rule, gate in variants:
             err, ran = replay(m, gate, rule)

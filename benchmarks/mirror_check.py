@@ -27,7 +27,7 @@ import time
 import numpy as np
 import torch
 
-from _common import PAIRED_HEADER, environment, paired_cells, update_results_md, write_json
+from _common import PAIRED_HEADER, concat_sets, environment, paired_cells, update_results_md, write_json
 from hybridpose.core import Frame
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.metrics import rotation_error_deg
@@ -75,10 +75,6 @@ def replay(m: dict, threshold: float) -> tuple[np.ndarray, np.ndarray]:
     return np.where(switch, m["switched"], m["base"]), switch
 
 
-def pooled(sets: list[dict]) -> dict:
-    return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--tune", nargs="+", required=True, help="sets that choose the threshold")
@@ -92,14 +88,14 @@ def main() -> None:
     groups = {"tune": args.tune, "confirm": args.confirm, "wide": args.wide}
     measured = {g: [measure(d, args.checkpoint, args.mirror_verifier, args.limit) for d in dirs]
                 for g, dirs in groups.items() if dirs}
-    tune = pooled(measured["tune"])
+    tune = concat_sets(measured["tune"])
     by_threshold = {t: replay(tune, t)[0] for t in THRESHOLDS}
     chosen = min(THRESHOLDS, key=lambda t: (by_threshold[t].mean(), -t))
     rows, out = [], {"env": environment(), "checkpoint": args.checkpoint, "mirror_verifier": args.mirror_verifier,
                      "sets": groups, "below_elevation_deg": MIRROR_BELOW_DEG, "chosen_threshold": chosen,
                      "shipped_threshold": MIRROR_SWITCH_P, "groups": {}}
     for g, sets in measured.items():
-        m = pooled(sets)
+        m = concat_sets(sets)
         checked = m["top"] >= 0
         group = {"views": len(m["base"]), "checked_share": float(checked.mean()),
                  "check_ms_per_checked_view": float(1e3 * m["seconds"][checked].mean()) if checked.any() else 0.0,

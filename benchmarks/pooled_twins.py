@@ -31,7 +31,8 @@ from hybridpose.core import Frame
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import view_elevation_deg
-from _common import PAIRED_HEADER, environment, paired_cells, update_results_md, write_json
+from _common import (PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, update_results_md,
+                     write_json)
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import (POOLED_PNP_WEIGHT, REFINE_MIN_QUALITY, REFINE_SEARCH_PX,
                                              VERIFIER_EDGE_WEIGHT, VERIFIER_SURE, CheckpointRegressor, _pnp_quality,
@@ -94,18 +95,9 @@ def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dic
 
 def cached(folder, data: str, checkpoint: str, expert: str = "auto", limit=None) -> dict:
     """:func:`measure`, kept in ``folder`` (one .npz per set, checkpoint, expert and limit) when given."""
-    if folder is None:
-        return measure(data, checkpoint, expert, limit)
     tag = "" if expert == "auto" else f"__{Path(expert).stem}"
-    path = Path(folder) / f"{Path(data).name}__{Path(checkpoint).stem}{tag}__{limit}.npz"
-    if path.is_file():
-        with np.load(path) as f:
-            return {k: f[k] for k in f.files}
-    m = measure(data, checkpoint, expert, limit)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path.with_suffix(".tmp.npz"), **m)
-    path.with_suffix(".tmp.npz").replace(path)
-    return m
+    key = f"{Path(data).name}__{Path(checkpoint).stem}{tag}__{limit}"
+    return cached_npz(folder, key, lambda: measure(data, checkpoint, expert, limit))
 
 
 def shipped_choice(m: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -139,10 +131,6 @@ def pooled_choice(m: dict, pnp_weight: float = POOLED_PNP_WEIGHT) -> tuple[np.nd
     return np.where(both, best // N_TWINS, est), np.where(both, best % N_TWINS, twin)
 
 
-def pooled(sets: list[dict]) -> dict:
-    return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--tune", nargs="+", required=True, help="sets the rule's weights were chosen on")
@@ -158,7 +146,7 @@ def main() -> None:
     ap.add_argument("--cache", default=None, help="folder keeping each set's per-view numbers (reused when present)")
     args = ap.parse_args()
     groups = {"tune": args.tune, "confirm": args.confirm, "fresh": args.fresh, "wide": args.wide, "side": args.side}
-    measured = {g: pooled([cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs])
+    measured = {g: concat_sets([cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs])
                 for g, dirs in groups.items() if dirs}
     out = {"env": environment(), "checkpoint": args.checkpoint, "expert": args.expert, "sets": groups,
            "pnp_weight": POOLED_PNP_WEIGHT, "groups": {}}

@@ -110,8 +110,9 @@ MIRROR_SWITCH_P = 0.95
 # 128–131 among 8–25° (benchmarks/edge_on_expert.py, RESULTS "Edge-on expert").
 EXPERT_BELOW_DEG = 8.0
 # expert_rule "pooled": the weight of log q_pnp (each estimate's PnP quality) added to the twin score
-# when the twins of both estimates are pooled (weights chosen on test seeds 128–141,
-# benchmarks/pooled_twins.py; 0.5–3 all measured alike)
+# when the twins of both estimates are pooled (chosen on test seeds 128–141, where 0–2 measured alike:
+# 4.56° → 4.23° mean; on fresh seeds 146–149 it did not pay, 4.55° → 4.58°, so "quality" stays the
+# default: benchmarks/pooled_twins.py, RESULTS "Pooled twin choice")
 POOLED_PNP_WEIGHT = 1.0
 EXPERT_RULES = ("pooled", "quality", "replace")
 
@@ -794,13 +795,16 @@ class CheckpointRegressor(PoseRegressor):
         checked = self._mirror_check(undistorted, pose)
         if checked is not None and checked[2] > 0:
             pose, belief, _ = checked
-        quality *= belief
-        res = est[0]
+        return self._keypoint_measurement(frame, est[0], pose, quality * belief)
+
+    def _keypoint_measurement(self, frame: Frame, res, pose: Pose, quality: float) -> Measurement:
+        """The measurement of ``pose`` from the PnP result ``res``: the calibrated PnP covariance times
+        the factor of ``quality``'s band (poorer measurements spread wider than their PnP covariance
+        says: calibration.quality_scale)."""
         cal = self.calibration or uncalibrated_record(self.kind)
         cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
-        cov = cov * quality_factor(cal, quality)
-        return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
-                           timestamp=frame.timestamp)
+        return Measurement(pose=pose, covariance=cov * quality_factor(cal, quality), quality=quality,
+                           source=f"regressor:{self.name}", timestamp=frame.timestamp)
 
     def _quality_bound(self, est) -> float:
         """An upper bound of the quality :meth:`_measure` gives ``est``: its PnP terms times the twin
@@ -812,8 +816,6 @@ class CheckpointRegressor(PoseRegressor):
         """The measurement from one keypoint estimate on the undistorted ``image`` (camera ``cam``):
         twin choice, edge fit, mirror check, calibrated covariance, quality."""
         res, order, prob, _ = est
-        cal = self.calibration or uncalibrated_record(self.kind)
-        cov = pnp_covariance(res.information, res.rms_px, cal["scale"], cal.get("sigma_floor_px", SIGMA_FLOOR_PX))
         quality = _pnp_quality(est)
         pose, twin = res.pose, order[0]
         # the covariance cannot say "maybe turned end for end" (a 180° mode, not a Gaussian spread): the
@@ -836,10 +838,7 @@ class CheckpointRegressor(PoseRegressor):
             belief = float(prob[twin])
         if belief is not None:
             quality *= belief
-        # poorer measurements spread wider than their PnP covariance says (calibration.quality_scale)
-        cov = cov * quality_factor(cal, quality)
-        return Measurement(pose=pose, covariance=cov, quality=quality, source=f"regressor:{self.name}",
-                           timestamp=frame.timestamp)
+        return self._keypoint_measurement(frame, res, pose, quality)
 
     def _refine(self, frame: Frame, pose: Pose, order, prob=None) -> tuple[Pose, int]:
         """Edge fit from the CNN pose and, with ``check_twins``, from its box twins: (pose, the

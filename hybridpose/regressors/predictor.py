@@ -768,11 +768,13 @@ class CheckpointRegressor(PoseRegressor):
         view = self.twin_check.view
         edge_weight = TWIN_EDGE_WEIGHT if self.verifier is None else VERIFIER_EDGE_WEIGHT
         candidates = []  # (upper bound, estimate, start pose, head p, verifier p, q_pnp)
-        for est in ests:
-            res, order, prob, _ = est
-            starts = self._twin_starts(res.pose, order)
+        starts_of = [self._twin_starts(est[0].pose, est[1]) for est in ests]
+        # both estimates' twins in one verifier batch
+        vers = (self.verifier.probabilities_of_sets(image, cam.K, starts_of) if self.verifier is not None
+                else [None] * len(ests))
+        for est, starts, ver in zip(ests, starts_of, vers):
+            _, order, prob, _ = est
             head = np.array([prob[k] for k in order])
-            ver = None if self.verifier is None else self.verifier.probabilities(image, cam.K, starts)
             q_pnp = _pnp_quality(est)
             bound = (twin_scores(head, np.ones(len(starts)), edge_weight=edge_weight, verifier_prob=ver)
                      + POOLED_PNP_WEIGHT * np.log(q_pnp + 1e-3))

@@ -181,9 +181,19 @@ class TwinVerifier:
         object's true orientation rather than a twin. ``image``: the undistorted frame, (H, W, 3)
         uint8 RGB or (H, W) uint8 grey; ``K``: its (3, 3) intrinsics; ``strip_pose``: the pose the
         strip is cut along (default: the first candidate)."""
-        if not candidates:
-            raise ValueError("candidates: expected at least one pose")
-        strip, drawings = verifier_inputs(to_gray(image), np.asarray(K, float), candidates, self.obj, self.renderer,
-                                          strip_pose)
-        logits = self.net(pairs_tensor(strip, drawings))[0]
-        return torch.softmax(logits, 0).numpy().astype(np.float64)
+        return self.probabilities_of_sets(image, K, [candidates], None if strip_pose is None else [strip_pose])[0]
+
+    @torch.no_grad()
+    def probabilities_of_sets(self, image: np.ndarray, K: np.ndarray, candidate_sets: list[list[Pose]],
+                              strip_poses: list[Pose] | None = None) -> np.ndarray:
+        """:meth:`probabilities` of several sets of candidates of one frame in one network batch
+        (the pooled twin choice scores both estimates' twins): (S, C) softmax over each set's C
+        candidates (every set the same size); ``strip_poses``: each set's strip pose (default: its
+        first candidate)."""
+        if not candidate_sets or any(len(c) != len(candidate_sets[0]) or not c for c in candidate_sets):
+            raise ValueError("candidate_sets: expected one or more non-empty sets of poses, all the same size")
+        gray, K = to_gray(image), np.asarray(K, float)
+        strip_poses = strip_poses or [None] * len(candidate_sets)
+        pairs = torch.cat([pairs_tensor(*verifier_inputs(gray, K, c, self.obj, self.renderer, sp))
+                           for c, sp in zip(candidate_sets, strip_poses)])
+        return torch.softmax(self.net(pairs), 1).numpy().astype(np.float64)

@@ -1,7 +1,7 @@
 """The twin choice of the shipped keypoint regressor, measured candidate by candidate.
 
 Usage:
-    python benchmarks/pooled_twins.py --tune data/truss_test128 ... --confirm data/truss_test142 ... \
+    python benchmarks/pooled_twins.py --seen data/truss_test128 ... --confirm data/truss_test142 ... \
         --fresh data/truss_test146 ... [--wide data/truss_wide216 ...] [--side data/truss_side240 ...] \
         [--cache runs/twin_cache]
 
@@ -15,8 +15,8 @@ estimate's PnP quality. Both rules are replayed on those numbers (exactly what t
 the quality rule (twin per estimate by ``log p + 8 log q + log p_verifier``, then the estimate of higher
 measurement quality) and the pooled rule (``expert_rule="pooled"``: the best of all eight candidates by
 that score plus ``POOLED_PNP_WEIGHT · log q_pnp``), compared view by view on each group of sets (McNemar
-on the > 30° views, paired bootstrap of the mean); ``--tune`` (the sets the weight was chosen on) also
-shows other weights. The dim fallback is off here (it only adds views neither rule differs on).
+on the > 30° views, paired bootstrap of the mean); ``--seen`` (sets looked at before the rule being
+confirmed was written) also shows other weights. The dim fallback is off here (it only adds views neither rule differs on).
 """
 from __future__ import annotations
 
@@ -133,7 +133,8 @@ def pooled_choice(m: dict, pnp_weight: float = POOLED_PNP_WEIGHT) -> tuple[np.nd
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--tune", nargs="+", required=True, help="sets the rule's weights were chosen on")
+    ap.add_argument("--seen", nargs="+", required=True,
+                    help="sets looked at before the rule was written (its weight was chosen on seeds 128-141)")
     ap.add_argument("--confirm", nargs="*", default=[], help="sets lit like the training data, not used to choose")
     ap.add_argument("--fresh", nargs="*", default=[], help="sets lit alike, rendered after the rule was written")
     ap.add_argument("--wide", nargs="*", default=[], help="sets lit from within 85° of the optical axis")
@@ -141,11 +142,11 @@ def main() -> None:
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
     ap.add_argument("--expert", default="auto", help="edge-on expert checkpoint (default: the shipped one)")
     ap.add_argument("--pnp-weights", type=float, nargs="*", default=[0.0, 0.5, 2.0],
-                    help="other weights of log q_pnp shown on --tune beside the shipped one")
+                    help="other weights of log q_pnp shown on --seen beside the chosen one")
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--cache", default=None, help="folder keeping each set's per-view numbers (reused when present)")
     args = ap.parse_args()
-    groups = {"tune": args.tune, "confirm": args.confirm, "fresh": args.fresh, "wide": args.wide, "side": args.side}
+    groups = {"seen": args.seen, "confirm": args.confirm, "fresh": args.fresh, "wide": args.wide, "side": args.side}
     measured = {g: concat_sets([cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs])
                 for g, dirs in groups.items() if dirs}
     out = {"env": environment(), "checkpoint": args.checkpoint, "expert": args.expert, "sets": groups,
@@ -162,13 +163,13 @@ def main() -> None:
         a = errors_of(m, *shipped_choice(m))
         valid = np.arange(2)[None, :, None] < m["n_est"][:, None, None]
         oracle = np.where(m["n_est"] > 0, np.where(valid, m["err"], np.inf).reshape(len(a), -1).min(1), 180.0)
-        weights = [POOLED_PNP_WEIGHT] + (args.pnp_weights if g == "tune" else [])
+        weights = [POOLED_PNP_WEIGHT] + (args.pnp_weights if g == "seen" else [])
         out["groups"][g] = {"views": len(a), "both": int(np.sum(m["n_est"] == 2)), "oracle_mean_deg": float(oracle.mean()),
                             "rules": {}}
         for w in weights:
             c = paired_comparison(a, errors_of(m, *pooled_choice(m, w)))
             out["groups"][g]["rules"][f"pooled pnp_weight={w:g}"] = c
-            name = f"pooled, log q_pnp × {w:g}" + (" (shipped weight)" if w == POOLED_PNP_WEIGHT else "")
+            name = f"pooled, log q_pnp × {w:g}" + (" (chosen weight)" if w == POOLED_PNP_WEIGHT else "")
             lines.append(f"| {g} ({len(groups[g])}) | {len(a)} | {int(np.sum(m['n_est'] == 2))} | {name} | "
                          f"{paired_cells(c)} | {oracle.mean():.2f} |")
     write_json("pooled_twins", out)

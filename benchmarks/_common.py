@@ -46,6 +46,18 @@ def concat_sets(sets: list[dict]) -> dict:
     return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
 
 
+def test_views(data: str, limit=None):
+    """(frame, ground truth) of each view of the BOP folder ``data`` in order, the first ``limit`` only
+    when given: ``Frame(rgb, camera, 0.0, image id)`` and its ``BopImage`` (pose T_cam_obj, camera)."""
+    from hybridpose.core import Frame
+    from hybridpose.datasets.bop import BopScene, find_scenes
+
+    items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids][:limit]
+    for scene, im_id in items:
+        gt = scene.image(im_id)
+        yield Frame(scene.rgb(im_id), gt.camera, 0.0, im_id), gt
+
+
 def write_json(name: str, payload: dict) -> Path:
     path = BENCH_DIR / "results" / f"{name}.json"
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -21,9 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from _common import PAIRED_HEADER, environment, paired_cells, update_results_md, write_json
-from hybridpose.core import Frame
-from hybridpose.datasets.bop import BopScene, find_scenes
+from _common import PAIRED_HEADER, environment, paired_cells, test_views, update_results_md, write_json
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint
@@ -33,13 +31,10 @@ def measure(data: str, checkpoint: str, limit=None) -> dict:
     """Rotation errors (°) per view of ``data`` without the fallback and with it (``FAILED_ROT_DEG``
     where lost), and the quality of the measurements the fallback made."""
     reg = CheckpointRegressor(checkpoint, threads=1, dim_fallback=False)
-    items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids][:limit]
     without, rescued_quality = [], []
     with torch.no_grad():
         frames = []
-        for scene, im_id in items:
-            gt = scene.image(im_id)
-            frame = Frame(scene.rgb(im_id), gt.camera, 0.0, im_id)
+        for frame, gt in test_views(data, limit):
             m = reg.predict(frame)
             without.append(FAILED_ROT_DEG if m.lost else rotation_error_deg(m.pose, gt.pose))
             frames.append((frame, gt.pose) if m.lost else None)

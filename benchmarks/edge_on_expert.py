@@ -29,9 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from _common import PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, update_results_md, write_json
-from hybridpose.core import Frame
-from hybridpose.datasets.bop import BopScene, find_scenes
+from _common import PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, test_views, update_results_md, write_json
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import view_elevation_deg
 from hybridpose.regressors.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, paired_comparison
@@ -52,11 +50,8 @@ def measure(data: str, checkpoint: str, expert: str, limit=None) -> dict:
     obj = with_expert.expert_object
     rows = {"base": [], "elevation": [], "expert": [], "seconds_base": [], "seconds_expert": [],
             "quality_base": [], "quality_expert": []}
-    items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids][:limit]
     with torch.no_grad():
-        for scene, im_id in items:
-            gt = scene.image(im_id)
-            frame = Frame(scene.rgb(im_id), gt.camera, 0.0, im_id)
+        for frame, gt in test_views(data, limit):
             t0 = time.perf_counter()
             m = plain.predict(frame)
             rows["seconds_base"].append(time.perf_counter() - t0)

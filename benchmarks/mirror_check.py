@@ -27,9 +27,7 @@ import time
 import numpy as np
 import torch
 
-from _common import PAIRED_HEADER, concat_sets, environment, paired_cells, update_results_md, write_json
-from hybridpose.core import Frame
-from hybridpose.datasets.bop import BopScene, find_scenes
+from _common import PAIRED_HEADER, concat_sets, environment, paired_cells, test_views, update_results_md, write_json
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import view_elevation_deg
 from hybridpose.regressors.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, paired_comparison
@@ -48,12 +46,9 @@ def measure(data: str, checkpoint: str, mirror_verifier: str, limit=None) -> dic
     checker = CheckpointRegressor(checkpoint, threads=1, mirror_verifier=mirror_verifier)
     # every threshold is replayed from one check at p ≥ 0 (the favourite and its probability)
     base, switched, p_top, top, seconds = [], [], [], [], []
-    items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids][:limit]
     obj = checker.twin_check.view.object
     with torch.no_grad():
-        for scene, im_id in items:
-            gt = scene.image(im_id)
-            frame = Frame(scene.rgb(im_id), gt.camera, 0.0, im_id)
+        for frame, gt in test_views(data, limit):
             m = reg.predict(frame)
             err = FAILED_ROT_DEG if m.lost else rotation_error_deg(m.pose, gt.pose)
             base.append(err)

@@ -28,10 +28,9 @@ import numpy as np
 import torch
 
 from hybridpose.core import Frame
-from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import view_elevation_deg
-from _common import (PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, update_results_md,
+from _common import (PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, test_views, update_results_md,
                      write_json)
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import (POOLED_PNP_WEIGHT, REFINE_MIN_QUALITY, REFINE_SEARCH_PX,
@@ -51,14 +50,10 @@ def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dic
     reg = CheckpointRegressor(checkpoint, threads=1, edge_on_expert=expert, expert_rule="quality",
                               dim_fallback=False)
     view = reg.twin_check.view
-    V = lambda: []  # noqa: E731
-    rows = {k: V() for k in ("n_est", "elevation", "pnp_quality", "head", "verifier", "fit_quality", "err",
+    rows = {k: [] for k in ("n_est", "elevation", "pnp_quality", "head", "verifier", "fit_quality", "err",
                              "shipped", "seconds", "twin_gap")}
-    items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids][:limit]
     with torch.no_grad():
-        for scene, im_id in items:
-            gt = scene.image(im_id)
-            frame = Frame(scene.rgb(im_id), gt.camera, 0.0, im_id)
+        for frame, gt in test_views(data, limit):
             t0 = time.perf_counter()
             m = reg.predict(frame)
             rows["seconds"].append(time.perf_counter() - t0)
@@ -69,7 +64,7 @@ def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dic
             pq, head, ver, fq, err = np.zeros(2), np.zeros(shape), np.zeros(shape), np.zeros(shape), np.full(shape, 180.0)
             gap = np.full((N_TWINS, N_TWINS), 180.0)
             gray = to_gray(image)
-            und = Frame(image, cam, 0.0, im_id)
+            und = Frame(image, cam, 0.0, frame.index)
             all_starts = []
             for e, est in enumerate(ests):
                 res, order, prob, _ = est

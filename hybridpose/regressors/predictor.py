@@ -227,8 +227,7 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     640 × 480, ``benchmarks/detection_speed.py``).
     """
     # at half resolution (4× fewer pixels to label; a 1.2 m-away beam is still 3–4 px wide)
-    small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
-    gray = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+    gray = _half_gray(image)
     bright = (gray > threshold).astype(np.uint8)
     found = _components(bright)
     if found is None:
@@ -262,13 +261,18 @@ def detect_dim_object(image: np.ndarray, min_area_px: int = DETECT_DIM_MIN_AREA_
     so noise alone finds nothing. The predictor falls back to it only where the bright detection
     found nothing or its box gave no plausible pose.
     """
-    small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
-    found = _components(_dim_mask(cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)))
+    found = _components(_dim_mask(_half_gray(image)))
     if found is None:
         return None
     _, stats, _ = found
     keep = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] * 4 >= min_area_px)
     return _union_box(stats[keep]) if len(keep) else None
+
+
+def _half_gray(image: np.ndarray) -> np.ndarray:
+    """(H/2, W/2) uint8 grey of an (H, W, 3) uint8 RGB frame: what both detections label."""
+    small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
 
 
 def _dim_mask(gray: np.ndarray) -> np.ndarray:
@@ -656,15 +660,17 @@ class CheckpointRegressor(PoseRegressor):
         (PnP result turned to the head's twin, twin order, twin probabilities, crop side in pixels),
         or None when nothing is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for
         order and probabilities; ``sun_turn``: its crop turn, °). With an edge-on expert: its
-        estimate under ``expert_rule="replace"``, the first one under ``"quality"``."""
+        estimate under ``expert_rule="replace"``, the first one under ``"quality"`` and ``"pooled"``."""
         ests = self._keypoint_estimates(image, cam, roi, sun_turn)
         return ests[0] if ests else None
 
     def _keypoint_estimates(self, image: np.ndarray, cam: Camera, roi, sun_turn: float = 0.0) -> list:
-        """The estimates (as :meth:`_keypoint_estimate`) a measurement is made from: the first one;
-        where an edge-on expert runs (the first estimate within ``expert_below_deg`` of edge-on) the
-        expert's instead (``expert_rule="replace"``) or the first and the expert's (``"quality"``);
-        the first alone where the expert finds nothing; [] where nothing is found."""
+        """The estimates (as :meth:`_keypoint_estimate`) a measurement is made from: the first one
+        (on the bright detection or ``roi``; with ``dim_fallback``, on :func:`detect_dim_object`'s box
+        where that gave none); where an edge-on expert runs (the first estimate within
+        ``expert_below_deg`` of edge-on) the expert's instead (``expert_rule="replace"``) or the first
+        and the expert's (``"quality"``, ``"pooled"``); the first alone where the expert finds nothing;
+        [] where nothing is found."""
         seen = roi if roi is not None else detect_bright_object(image)
         est = None if seen is None else self._estimate_in(image, cam, seen, sun_turn)
         if est is None and roi is None and self.dim_fallback:
@@ -736,10 +742,10 @@ class CheckpointRegressor(PoseRegressor):
         ests = self._keypoint_estimates(image, cam, roi, sun_turn)
         if not ests:
             return self._lost(frame)
-        # with the expert's estimate too (expert_rule "quality"): the measurement of higher quality, the first on a
-        # tie; an estimate whose quality cannot exceed the best one's is not edge-fitted at all (same result)
         if len(ests) == 2 and self.expert_rule == "pooled" and self._can_pool(ests):
             return self._pooled_measure(frame, image, cam, ests)
+        # with the expert's estimate too (expert_rule "quality"): the measurement of higher quality, the first on a
+        # tie; an estimate whose quality cannot exceed the best one's is not edge-fitted at all (same result)
         best = None
         for est in ests:
             if best is not None and self._quality_bound(est) <= best.quality:

@@ -88,11 +88,33 @@ def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dic
     return {k: np.asarray(v, dtype=float) for k, v in rows.items()}
 
 
-def cached(folder, data: str, checkpoint: str, expert: str = "auto", limit=None) -> dict:
-    """:func:`measure`, kept in ``folder`` (one .npz per set, checkpoint, expert and limit) when given."""
+def cached(folder, data: str, checkpoint: str, expert: str = "auto", limit=None, verifier: str | None = None) -> dict:
+    """:func:`measure` (with ``verifier``: :func:`verifier_column` of that verifier), kept in ``folder``
+    (one .npz per set, checkpoint, expert, limit and verifier) when given."""
     tag = "" if expert == "auto" else f"__{Path(expert).stem}"
     key = f"{Path(data).name}__{Path(checkpoint).stem}{tag}__{limit}"
+    if verifier is not None:
+        return cached_npz(folder, f"{key}__verifier_{Path(verifier).parent.name}_{Path(verifier).stem}",
+                          lambda: verifier_column(data, checkpoint, verifier, expert, limit))
     return cached_npz(folder, key, lambda: measure(data, checkpoint, expert, limit))
+
+
+def verifier_column(data: str, checkpoint: str, verifier: str, expert: str = "auto", limit=None) -> dict:
+    """``{"verifier": (V, 2, 4)}``: another twin verifier's probabilities of the candidates
+    :func:`measure` records (same estimates, same twin order; zeros where an estimate is missing), so
+    the shipped choice can be replayed with that verifier in its place (every other number is
+    unchanged: the verifier only weighs the candidates)."""
+    reg = CheckpointRegressor(checkpoint, threads=1, edge_on_expert=expert, expert_rule="quality",
+                              dim_fallback=False, verifier=verifier)
+    rows = []
+    with torch.no_grad():
+        for frame, _ in test_views(data, limit):
+            image, cam = reg._undistorted(frame)
+            ver = np.zeros((2, N_TWINS))
+            for e, (res, order, _, _) in enumerate(reg._keypoint_estimates(image, cam, None)):
+                ver[e] = reg.verifier.probabilities(image, cam.K, reg._twin_starts(res.pose, order))
+            rows.append(ver)
+    return {"verifier": np.asarray(rows, dtype=float)}
 
 
 def shipped_choice(m: dict) -> tuple[np.ndarray, np.ndarray]:

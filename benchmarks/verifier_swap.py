@@ -1,0 +1,74 @@
+"""Another twin verifier in the shipped predictor's place, compared view by view on the same candidates.
+
+Usage:
+    python benchmarks/verifier_swap.py --verifier runs/tv4/best.pt --cone data/truss_test154 ... \
+        [--wide data/truss_wide222 ...] [--side data/truss_side244 ...] --cache runs/twin_cache
+
+The twin verifier only weighs the box twins the predictor has already made (``benchmarks/pooled_twins.py``
+records every one: head, verifier, edge fit, PnP quality, true error), so swapping it changes nothing else.
+Per set this takes the recorded candidates once and the candidate verifier's probabilities of the same
+candidates (:func:`pooled_twins.verifier_column`), and replays the shipped twin choice (the quality rule,
+exactly what ``predict`` returns: 0 differences on 23 000 views, session 25) and the pooled rule with each
+verifier. A = the shipped verifier, B = the candidate; McNemar on the views > 30° off, paired bootstrap of
+the mean rotation error. Same network size, so the same cost per call.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from _common import PAIRED_HEADER, concat_sets, environment, paired_cells, update_results_md, write_json
+from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
+from hybridpose.regressors.predictor import shipped_checkpoint
+from pooled_twins import cached, errors_of, pooled_choice, shipped_choice
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--verifier", required=True, help="candidate twin-verifier checkpoint (train-verifier best.pt)")
+    ap.add_argument("--cone", nargs="*", default=[], help="sets lit from the 40° cone (as most training data)")
+    ap.add_argument("--wide", nargs="*", default=[], help="sets lit from within 85° of the optical axis")
+    ap.add_argument("--side", nargs="*", default=[], help="sets lit from within 120° (side- and back-light)")
+    ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
+    ap.add_argument("--expert", default="auto", help="edge-on expert checkpoint (default: the shipped one)")
+    ap.add_argument("--limit", type=int, default=None)
+    ap.add_argument("--cache", default=None, help="folder keeping each set's per-view numbers (reused when present)")
+    ap.add_argument("--section", default="verifier-swap", help="RESULTS.md section to (re)write")
+    args = ap.parse_args()
+    groups = {g: d for g, d in (("cone", args.cone), ("wide", args.wide), ("side", args.side)) if d}
+    if not groups:
+        ap.error("give at least one of --cone, --wide, --side")
+    out = {"env": environment(), "checkpoint": args.checkpoint, "expert": args.expert, "verifier": args.verifier,
+           "sets": groups, "groups": {}}
+    lines = [f"## Twin verifier `{args.verifier}` in the shipped one's place (`benchmarks/verifier_swap.py`)", "",
+             "A = shipped `twin_verifier.pt`, B = the candidate, on the same recorded candidates (everything but the "
+             "verifier's probabilities unchanged); rule = the predictor's twin and estimate choice replayed.", "",
+             f"| sets | views | rule | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} |", "|---|---|---|---|---|---|---|---|"]
+    per_view = {}
+    for g, dirs in groups.items():
+        a = concat_sets([cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs])
+        b = dict(a, **concat_sets([cached(args.cache, d, args.checkpoint, args.expert, args.limit, verifier=args.verifier)
+                                   for d in dirs]))
+        out["groups"][g] = {"views": len(a["n_est"])}
+        for rule, choose in (("quality (shipped)", shipped_choice), ("pooled", pooled_choice)):
+            ea, eb = errors_of(a, *choose(a)), errors_of(b, *choose(b))
+            if rule.startswith("quality"):
+                per_view[g] = (ea, eb)
+            c = paired_comparison(ea, eb)
+            out["groups"][g][rule] = c
+            lines.append(f"| {g} ({', '.join(Path(d).name.split('_')[-1] for d in dirs)}) | {len(ea)} | {rule} | "
+                         f"{paired_cells(c)} |")
+    if len(per_view) > 1:
+        ea, eb = (np.concatenate([v[i] for v in per_view.values()]) for i in (0, 1))
+        c = paired_comparison(ea, eb)
+        out["all_quality"] = c
+        lines.append(f"| all | {len(ea)} | quality (shipped) | {paired_cells(c)} |")
+    write_json(args.section.replace("-", "_"), out)
+    update_results_md(args.section, "\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

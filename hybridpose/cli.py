@@ -219,7 +219,8 @@ def cmd_eval(args) -> int:
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier,
                             mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier,
                             edge_on_expert=None if args.edge_on_expert == "none" else args.edge_on_expert,
-                            expert_rule=args.expert_rule, dim_fallback=not args.no_dim_fallback)
+                            expert_rule=args.expert_rule, dim_fallback=not args.no_dim_fallback,
+                            max_depth_m=None if args.max_depth == "none" else args.max_depth)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -420,6 +421,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--no-dim-fallback", action="store_true",
                    help="keypoint models: report a view lost where nothing bright is found, instead of looking for a "
                         "faintly lit object")
+    e.add_argument("--max-depth", default="auto", metavar="M",
+                   help="keypoint models: refuse estimates deeper than M metres along the optical axis, 'auto' "
+                        "(3x the far end of the training depths the checkpoint records) or 'none'")
     e.add_argument("--sun-known", action="store_true",
                    help="keypoint models: give the regressor each image's sun as the dataset records it (what a "
                         "caller with a sun sensor can do: the crop is turned so the light crosses it as in training)")

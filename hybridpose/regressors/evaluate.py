@@ -51,7 +51,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
                         device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
                         sun_known: bool = False, mirror_verifier="auto",
-                        edge_on_expert="auto", expert_rule: str = "quality", dim_fallback: bool = True) -> dict:
+                        edge_on_expert="auto", expert_rule: str = "quality", dim_fallback: bool = True,
+                        max_depth_m="auto") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
     ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in
@@ -64,13 +65,14 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     image's sun as the dataset records it (``predict(..., sun_direction_cam=...)``: what a caller
     with a sun sensor can do). ``mirror_verifier``: the edge-on mirror check (``"auto"``, a path or
     None, as ``verifier``); ``edge_on_expert``: the edge-on expert (``"auto"``, a path or None, ditto);
-    ``expert_rule`` and ``dim_fallback``: :class:`CheckpointRegressor`'s arguments.
+    ``expert_rule``, ``dim_fallback`` and ``max_depth_m``: :class:`CheckpointRegressor`'s arguments.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier,
                               turns=turns, pnp_outliers=pnp_outliers, mirror_verifier=mirror_verifier,
-                              edge_on_expert=edge_on_expert, expert_rule=expert_rule, dim_fallback=dim_fallback)
+                              edge_on_expert=edge_on_expert, expert_rule=expert_rule, dim_fallback=dim_fallback,
+                              max_depth_m=max_depth_m)
     scenes = [BopScene(p) for p in find_scenes(data)]
     items = [(s, i) for s in scenes for i in s.image_ids]
     if not items:
@@ -112,6 +114,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         "mirror_check": reg.mirror_verifier is not None,
         "edge_on_expert": None if reg.expert is None else str(reg.expert.path),
         "expert_rule": None if reg.expert is None else reg.expert_rule, "dim_fallback": reg.dim_fallback,
+        "max_depth_m": reg.max_depth_m if reg.kind == "keypoints" else None,
         "device": str(reg.device),
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "gross_error_share": float(np.mean(rot > GROSS_ERROR_DEG)), "speed_score": float(np.mean([r["speed"] for r in rows])),

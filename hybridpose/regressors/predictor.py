@@ -77,6 +77,12 @@ SECOND_PASS_BELOW = 0.9
 # (13 m for a truss at 1 m in the seed-101 test set): a pose whose projected keypoints span more
 # than this factor less (or more) than the box the network was shown is not a measurement
 SIZE_RATIO_MAX = 3.0
+# Depth gate (max_depth_m="auto"): an end-on truss near the camera and the truss lying across the view far
+# away fill the same small box, and PnP on those keypoints can land on the far one (18.4 m for a truss at
+# 1.19 m on seed 155): size_ratio cannot tell them apart. A keypoint network sees scale-normalised crops
+# and still works somewhat beyond the depths it was trained on, so only a pose deeper than this factor
+# times the far end of the training depths (recorded in the checkpoint) is refused
+DEPTH_BEYOND_TRAINED = 3.0
 PASSES = (1, 2, "auto")
 # turns="auto": where the first pass's PnP keeps fewer than TURNS_BELOW_INLIERS of the keypoints, the
 # network also sees its crop turned in-plane by TURNS_DEG (one batch) and the pass whose PnP keeps the
@@ -393,13 +399,18 @@ class CheckpointRegressor(PoseRegressor):
         dim_fallback: keypoint models without a ``roi`` — where :func:`detect_bright_object` finds
             nothing, or its box gives no plausible pose, look for a faintly lit object
             (:func:`detect_dim_object`) and estimate on its box (default True).
+        max_depth_m: keypoint models — an estimate whose object origin lies deeper than this (metres
+            along the optical axis) is no plausible pose (like one whose size does not fit the box):
+            ``"auto"`` (default) ``DEPTH_BEYOND_TRAINED`` × the far end of the depths the checkpoint
+            was trained on, where it records them (``dataset["distance_range_m"]``), else no limit;
+            None: no limit. The edge-on expert uses the same limit.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
                  mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
-                 expert_rule: str = "quality", dim_fallback: bool = True) -> None:
+                 expert_rule: str = "quality", dim_fallback: bool = True, max_depth_m="auto") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -471,8 +482,24 @@ class CheckpointRegressor(PoseRegressor):
             raise ValueError(f"expert_rule: expected one of {', '.join(EXPERT_RULES)}, got {expert_rule!r}")
         self.expert_rule = expert_rule
         self.dim_fallback = bool(dim_fallback)
+        self.max_depth_m = self._depth_limit(max_depth_m)
         self.expert_object = None  # the object whose view elevation gates the expert
         self.expert = self._load_expert(edge_on_expert, object)
+
+    def _depth_limit(self, max_depth_m) -> float | None:
+        """The depth gate in metres (None: none) from the ``max_depth_m`` argument (checked)."""
+        if max_depth_m is None:
+            return None
+        if isinstance(max_depth_m, str) and max_depth_m == "auto":
+            trained = self.dataset.get("distance_range_m")
+            return None if not trained else DEPTH_BEYOND_TRAINED * float(max(trained))
+        try:
+            limit = float(max_depth_m)
+        except (TypeError, ValueError):
+            limit = float("nan")
+        if not np.isfinite(limit) or limit <= 0 or isinstance(max_depth_m, bool):
+            raise ValueError(f"max_depth_m: expected a positive depth in metres, 'auto' or None, got {max_depth_m!r}")
+        return limit
 
     def _load_expert(self, expert, obj) -> "CheckpointRegressor | None":
         """The edge-on expert as a bare keypoint estimator (no twin check, edge fit or verifiers of its
@@ -492,7 +519,7 @@ class CheckpointRegressor(PoseRegressor):
         path = Path(expert)
         reg = CheckpointRegressor(path, object=obj, check_twins=False, refine_edges=False, passes=self.passes,
                                   device=self.device, verifier=None, turns=self.turns, pnp_outliers=self.pnp_outliers,
-                                  mirror_verifier=None, edge_on_expert=None)
+                                  mirror_verifier=None, edge_on_expert=None, max_depth_m=self.max_depth_m)
         same = (reg.kind == "keypoints" and reg.keypoints_m is not None and self.keypoints_m is not None
                 and reg.keypoints_m.shape == self.keypoints_m.shape and np.allclose(reg.keypoints_m, self.keypoints_m)
                 and len(reg.twins) == len(self.twins)
@@ -701,6 +728,8 @@ class CheckpointRegressor(PoseRegressor):
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):
                 res, order, prob = res2, order2, prob2
         if res is None or size_ratio(res.pose, self.keypoints_m, cam, seen) > SIZE_RATIO_MAX:
+            return None
+        if self.max_depth_m is not None and res.pose.t[2] > self.max_depth_m:
             return None
         return res, order, prob, self.image_size
 

@@ -259,9 +259,10 @@ def kw_for_checkpoint(kw: dict) -> dict:
 
 
 def dataset_info(root, obj=None) -> dict:
-    """What the training data was: object name/diameter and camera (checked again at inference), and
-    its sun (``lighting``: the direction the light travels, camera frame, and the cone each image's
-    sun was drawn in; what a keypoint model's sun turn aligns to)."""
+    """What the training data was: object name/diameter and camera (checked again at inference), its
+    sun (``lighting``: the direction the light travels, camera frame, and the cone each image's sun
+    was drawn in; what a keypoint model's sun turn aligns to) and its depths (``distance_range_m``:
+    near, far metres along the optical axis; what the predictor's depth gate scales)."""
     from ..io import read_json
 
     config = Path(root) / "hybridpose.json"
@@ -270,6 +271,8 @@ def dataset_info(root, obj=None) -> dict:
     sun = (info.get("lighting") or {}).get("sun_direction_cam")
     if sun is not None:
         out["lighting"] = {"sun_direction_cam": [float(x) for x in sun], "sun_cone_deg": float(info.get("sun_cone_deg", 0.0))}
+    if info.get("distance_range_m") is not None:
+        out["distance_range_m"] = [float(x) for x in info["distance_range_m"]]
     if obj is not None:
         out["diameter_m"] = float(obj.diameter)
     return out

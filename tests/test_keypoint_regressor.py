@@ -215,6 +215,40 @@ def test_regressor_refuses_a_pose_that_does_not_fit_the_box(tiny_checkpoint, tru
     assert m.lost and m.pose is None and m.quality == 0.0
 
 
+def test_depth_gate_refuses_estimates_far_beyond_the_trained_depths(tiny_checkpoint, truss, camera, monkeypatch):
+    """The end-on truss near the camera and the truss across the view far away fill the same box, so
+    size_ratio passes both; an estimate deeper than the gate is no plausible pose. "auto" is 3x the far
+    end of the depths train recorded from the dataset (0.3-1.2 m here)."""
+    from hybridpose.regressors import predictor
+    from hybridpose.regressors.keypoint_pnp import PnPResult
+    from hybridpose.render import Renderer
+
+    ck = torch.load(tiny_checkpoint, weights_only=False)
+    assert ck["dataset"]["distance_range_m"] == [0.3, 1.2]
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(Pose.from_quat_t([1, 0, 0, 0], [0.0, 0.0, 0.6])).rgb, camera, 0.0)
+    depth = {"z": 5.0}
+
+    def pnp_at_depth(points_2d, points_m, K, **kw):
+        return PnPResult(pose=Pose(np.eye(3), [0.0, 0.0, depth["z"]]), inliers=np.ones(len(points_2d), bool),
+                         rms_px=1.0, information=np.eye(6))
+
+    monkeypatch.setattr(predictor, "solve_pnp", pnp_at_depth)
+    monkeypatch.setattr(predictor, "size_ratio", lambda *a: 1.0)
+    kw = dict(checkpoint=tiny_checkpoint, object=truss, refine_edges=False, check_twins=False)
+    auto = create("regressor", "default", **kw)
+    assert auto.max_depth_m == pytest.approx(predictor.DEPTH_BEYOND_TRAINED * 1.2)
+    assert auto.predict(frame).lost                                     # 5 m > 3.6 m
+    assert not create("regressor", "default", max_depth_m=None, **kw).predict(frame).lost
+    assert create("regressor", "default", max_depth_m=4.0, **kw).predict(frame).lost
+    depth["z"] = 2.0                                                    # beyond 1.2 m, within the gate
+    m = auto.predict(frame)
+    assert not m.lost and m.pose.t[2] == pytest.approx(2.0)
+    for bad in (-1.0, 0, "far", True, float("nan")):
+        with pytest.raises(ValueError, match="max_depth_m: expected a positive depth in metres"):
+            create("regressor", "default", max_depth_m=bad, **kw)
+
+
 def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path):
     import trimesh
 

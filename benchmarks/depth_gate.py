@@ -8,7 +8,8 @@ Usage:
 An end-on truss close to the camera and the truss lying across the view far away fill the same small
 box; PnP on near-collinear keypoints sometimes lands on the far one (18.4 m for a truss at 1.19 m), which
 the size check (``size_ratio``) cannot refuse. With ``max_depth_m`` an estimate deeper than the limit is no
-plausible pose: the view is reported lost (or the other estimate is used). Every view runs through the
+plausible pose: the view is reported lost (an edge-on expert's estimate beyond it is dropped and the first
+one kept). An option, off by default: rule 13 (session 26) was not met. Every view runs through the
 shipped path without the gate (A) and with it (B). Errors as ``hybridpose eval`` counts them: a lost view is
 ``FAILED_ROT_DEG`` (180°) and ``FAILED_TRANS_M`` (1 m). Also counted: views within 30° without the gate
 that it loses (a gate that refuses good poses is too tight).

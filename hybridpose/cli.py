@@ -421,9 +421,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--no-dim-fallback", action="store_true",
                    help="keypoint models: report a view lost where nothing bright is found, instead of looking for a "
                         "faintly lit object")
-    e.add_argument("--max-depth", default="auto", metavar="M",
+    e.add_argument("--max-depth", default="none", metavar="M",
                    help="keypoint models: refuse estimates deeper than M metres along the optical axis, 'auto' "
-                        "(3x the far end of the training depths the checkpoint records) or 'none'")
+                        "(3x the far end of the training depths the checkpoint records) or 'none' (default)")
     e.add_argument("--sun-known", action="store_true",
                    help="keypoint models: give the regressor each image's sun as the dataset records it (what a "
                         "caller with a sun sensor can do: the crop is turned so the light crosses it as in training)")

@@ -236,7 +236,8 @@ def test_depth_gate_refuses_estimates_far_beyond_the_trained_depths(tiny_checkpo
     monkeypatch.setattr(predictor, "solve_pnp", pnp_at_depth)
     monkeypatch.setattr(predictor, "size_ratio", lambda *a: 1.0)
     kw = dict(checkpoint=tiny_checkpoint, object=truss, refine_edges=False, check_twins=False)
-    auto = create("regressor", "default", **kw)
+    assert create("regressor", "default", **kw).max_depth_m is None   # off unless asked for
+    auto = create("regressor", "default", max_depth_m="auto", **kw)
     assert auto.max_depth_m == pytest.approx(predictor.DEPTH_BEYOND_TRAINED * 1.2)
     assert auto.predict(frame).lost                                     # 5 m > 3.6 m
     assert not create("regressor", "default", max_depth_m=None, **kw).predict(frame).lost

@@ -81,7 +81,10 @@ SIZE_RATIO_MAX = 3.0
 # away fill the same small box, and PnP on those keypoints can land on the far one (18.4 m for a truss at
 # 1.19 m on seed 155): size_ratio cannot tell them apart. A keypoint network sees scale-normalised crops
 # and still works somewhat beyond the depths it was trained on, so only a pose deeper than this factor
-# times the far end of the training depths (recorded in the checkpoint) is refused
+# times the far end of the training depths (recorded in the checkpoint) is refused. An option, off by
+# default: on fresh sets (rule 13) it changed nothing under the 40° cone and, under side- and back-light,
+# cut the mean translation error 0.22 → 0.14 m but lost 28 more views (one of them within 30°), +0.84°
+# mean rotation as a lost view counts 180° (benchmarks/depth_gate.py, RESULTS "Depth gate")
 DEPTH_BEYOND_TRAINED = 3.0
 PASSES = (1, 2, "auto")
 # turns="auto": where the first pass's PnP keeps fewer than TURNS_BELOW_INLIERS of the keypoints, the
@@ -401,16 +404,17 @@ class CheckpointRegressor(PoseRegressor):
             (:func:`detect_dim_object`) and estimate on its box (default True).
         max_depth_m: keypoint models — an estimate whose object origin lies deeper than this (metres
             along the optical axis) is no plausible pose (like one whose size does not fit the box):
-            ``"auto"`` (default) ``DEPTH_BEYOND_TRAINED`` × the far end of the depths the checkpoint
-            was trained on, where it records them (``dataset["distance_range_m"]``), else no limit;
-            None: no limit. The edge-on expert uses the same limit.
+            None (default): no limit; ``"auto"``: ``DEPTH_BEYOND_TRAINED`` × the far end of the depths
+            the checkpoint was trained on, where it records them (``dataset["distance_range_m"]``;
+            checkpoints trained since session 26), else no limit. The edge-on expert uses the same
+            limit. Trades translation outliers for lost views: see ``DEPTH_BEYOND_TRAINED``.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
                  mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
-                 expert_rule: str = "quality", dim_fallback: bool = True, max_depth_m="auto") -> None:
+                 expert_rule: str = "quality", dim_fallback: bool = True, max_depth_m=None) -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)

@@ -65,6 +65,37 @@ def write_json(name: str, payload: dict) -> Path:
     return path
 
 
+def publish(name: str, section: str, payload: dict, lines: list[str]) -> None:
+    """Write ``payload`` to ``results/name.json`` and ``lines`` as the RESULTS.md ``section``, and print them."""
+    write_json(name, payload)
+    update_results_md(section, "\n".join(lines))
+    print("\n".join(lines))
+
+
+LIGHTING_GROUPS = (("cone", "sets lit from the 40° cone (as most training data)"),
+                   ("wide", "sets lit from within 85° of the optical axis"),
+                   ("side", "sets lit from within 120° (side- and back-light)"))
+
+
+def add_lighting_groups(ap) -> None:
+    """``--cone``, ``--wide``, ``--side``: the test sets of each lighting (BOP folders)."""
+    for name, help_text in LIGHTING_GROUPS:
+        ap.add_argument(f"--{name}", nargs="*", default=[], help=help_text)
+
+
+def lighting_groups(ap, args) -> dict:
+    """{group: [sets]} of the lightings given (:func:`add_lighting_groups`); an argparse error if none."""
+    groups = {name: getattr(args, name) for name, _ in LIGHTING_GROUPS if getattr(args, name)}
+    if not groups:
+        ap.error("give at least one of " + ", ".join(f"--{name}" for name, _ in LIGHTING_GROUPS))
+    return groups
+
+
+def set_names(dirs) -> str:
+    """``test154, test155`` for ``data/truss_test154 data/truss_test155`` (table cells)."""
+    return ", ".join(Path(d).name.split("_")[-1] for d in dirs)
+
+
 def update_results_md(section: str, markdown: str) -> None:
     """Replace the block between ``<!-- BEGIN section -->`` and ``<!-- END section -->`` (append if absent)."""
     begin, end = f"<!-- BEGIN {section} -->", f"<!-- END {section} -->"

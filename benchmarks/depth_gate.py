@@ -17,12 +17,12 @@ that it loses (a gate that refuses good poses is too tight).
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from _common import PAIRED_HEADER, environment, paired_cells, test_views, update_results_md, write_json
+from _common import (PAIRED_HEADER, add_lighting_groups, environment, lighting_groups, paired_cells, publish, set_names,
+                     test_views)
 from hybridpose.metrics import rotation_error_deg, translation_error_m
 from hybridpose.regressors.evaluate import FAILED_ROT_DEG, FAILED_TRANS_M, GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import DEPTH_BEYOND_TRAINED, CheckpointRegressor, shipped_checkpoint
@@ -55,17 +55,13 @@ def measure(data: str, checkpoint: str, max_depth_m: float, limit=None) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cone", nargs="*", default=[], help="sets lit from the 40° cone (as most training data)")
-    ap.add_argument("--wide", nargs="*", default=[], help="sets lit from within 85° of the optical axis")
-    ap.add_argument("--side", nargs="*", default=[], help="sets lit from within 120° (side- and back-light)")
+    add_lighting_groups(ap)
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
     ap.add_argument("--max-depth", type=float, default=DEPTH_BEYOND_TRAINED * TRAINED_FAR_M,
                     help="the gate, metres along the optical axis (default: what 'auto' gives the shipped default)")
     ap.add_argument("--limit", type=int, default=None)
     args = ap.parse_args()
-    groups = {g: d for g, d in (("cone", args.cone), ("wide", args.wide), ("side", args.side)) if d}
-    if not groups:
-        ap.error("give at least one of --cone, --wide, --side")
+    groups = lighting_groups(ap, args)
     out = {"env": environment(), "checkpoint": args.checkpoint, "max_depth_m": args.max_depth, "sets": groups,
            "groups": {}}
     lines = ["## Depth gate of the shipped keypoint regressor (`benchmarks/depth_gate.py`)", "",
@@ -85,13 +81,11 @@ def main() -> None:
                             "lost": [int(lost_a.sum()), int(lost_b.sum())], "good_views_lost": good_lost,
                             "changed": int(np.sum(m["rot_a"] != m["rot_b"])), "rotation": c,
                             "per_view": {k: v.tolist() for k, v in m.items()}}
-        lines.append(f"| {g} ({', '.join(Path(d).name.split('_')[-1] for d in dirs)}) | {len(m['rot_a'])} | "
+        lines.append(f"| {g} ({set_names(dirs)}) | {len(m['rot_a'])} | "
                      f"{m['trans_a'].mean():.4f} → {m['trans_b'].mean():.4f} | {np.median(m['trans_a']):.4f} → "
                      f"{np.median(m['trans_b']):.4f} | {int(lost_a.sum())} → {int(lost_b.sum())} | {good_lost} | "
                      f"{paired_cells(c)} |")
-    write_json("depth_gate", out)
-    update_results_md("depth-gate", "\n".join(lines))
-    print("\n".join(lines))
+    publish("depth_gate", "depth-gate", out, lines)
 
 
 if __name__ == "__main__":

@@ -30,8 +30,7 @@ import torch
 from hybridpose.core import Frame
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import view_elevation_deg
-from _common import (PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, test_views, update_results_md,
-                     write_json)
+from _common import PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, publish, test_views
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import (POOLED_PNP_WEIGHT, REFINE_MIN_QUALITY, REFINE_SEARCH_PX,
                                              VERIFIER_EDGE_WEIGHT, VERIFIER_SURE, CheckpointRegressor, _pnp_quality,
@@ -189,9 +188,7 @@ def main() -> None:
             name = f"pooled, log q_pnp × {w:g}" + (" (chosen weight)" if w == POOLED_PNP_WEIGHT else "")
             lines.append(f"| {g} ({len(groups[g])}) | {len(a)} | {int(np.sum(m['n_est'] == 2))} | {name} | "
                          f"{paired_cells(c)} | {oracle.mean():.2f} |")
-    write_json("pooled_twins", out)
-    update_results_md("pooled-twins", "\n".join(lines))
-    print("\n".join(lines))
+    publish("pooled_twins", "pooled-twins", out, lines)
 
 
 if __name__ == "__main__":

@@ -15,11 +15,11 @@ the mean rotation error. Same network size, so the same cost per call.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
-from _common import PAIRED_HEADER, concat_sets, environment, paired_cells, update_results_md, write_json
+from _common import (PAIRED_HEADER, add_lighting_groups, concat_sets, environment, lighting_groups, paired_cells, publish,
+                     set_names)
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import shipped_checkpoint
 from pooled_twins import cached, errors_of, pooled_choice, shipped_choice
@@ -28,18 +28,14 @@ from pooled_twins import cached, errors_of, pooled_choice, shipped_choice
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--verifier", required=True, help="candidate twin-verifier checkpoint (train-verifier best.pt)")
-    ap.add_argument("--cone", nargs="*", default=[], help="sets lit from the 40° cone (as most training data)")
-    ap.add_argument("--wide", nargs="*", default=[], help="sets lit from within 85° of the optical axis")
-    ap.add_argument("--side", nargs="*", default=[], help="sets lit from within 120° (side- and back-light)")
+    add_lighting_groups(ap)
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
     ap.add_argument("--expert", default="auto", help="edge-on expert checkpoint (default: the shipped one)")
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--cache", default=None, help="folder keeping each set's per-view numbers (reused when present)")
     ap.add_argument("--section", default="verifier-swap", help="RESULTS.md section to (re)write")
     args = ap.parse_args()
-    groups = {g: d for g, d in (("cone", args.cone), ("wide", args.wide), ("side", args.side)) if d}
-    if not groups:
-        ap.error("give at least one of --cone, --wide, --side")
+    groups = lighting_groups(ap, args)
     out = {"env": environment(), "checkpoint": args.checkpoint, "expert": args.expert, "verifier": args.verifier,
            "sets": groups, "groups": {}}
     lines = [f"## Twin verifier `{args.verifier}` in the shipped one's place (`benchmarks/verifier_swap.py`)", "",
@@ -58,16 +54,14 @@ def main() -> None:
                 per_view[g] = (ea, eb)
             c = paired_comparison(ea, eb)
             out["groups"][g][rule] = c
-            lines.append(f"| {g} ({', '.join(Path(d).name.split('_')[-1] for d in dirs)}) | {len(ea)} | {rule} | "
+            lines.append(f"| {g} ({set_names(dirs)}) | {len(ea)} | {rule} | "
                          f"{paired_cells(c)} |")
     if len(per_view) > 1:
         ea, eb = (np.concatenate([v[i] for v in per_view.values()]) for i in (0, 1))
         c = paired_comparison(ea, eb)
         out["all_quality"] = c
         lines.append(f"| all | {len(ea)} | quality (shipped) | {paired_cells(c)} |")
-    write_json(args.section.replace("-", "_"), out)
-    update_results_md(args.section, "\n".join(lines))
-    print("\n".join(lines))
+    publish(args.section.replace("-", "_"), args.section, out, lines)
 
 
 if __name__ == "__main__":

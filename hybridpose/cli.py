@@ -415,9 +415,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--edge-on-expert", default="auto",
                    help="keypoint models: a second keypoint checkpoint trained on near edge-on views that re-estimates "
                         "the pose where the first estimate is near edge-on, 'auto' (the shipped one, if any) or 'none'")
-    e.add_argument("--expert-rule", choices=("quality", "pooled", "replace"), default="quality",
+    e.add_argument("--expert-rule", choices=("quality", "pooled", "pooled-unsure", "replace"), default="quality",
                    help="keypoint models with an edge-on expert: return the measurement of higher quality (quality, the "
-                        "default), the best-scored box twin of both estimates (pooled) or the expert's (replace)")
+                        "default), the best-scored box twin of both estimates (pooled; pooled-unsure: only where a twin head is unsure) "
+                        "or the expert's (replace)")
     e.add_argument("--no-dim-fallback", action="store_true",
                    help="keypoint models: report a view lost where nothing bright is found, instead of looking for a "
                         "faintly lit object")

@@ -123,7 +123,10 @@ EXPERT_BELOW_DEG = 8.0
 # 4.56° → 4.23° mean; on fresh seeds 146–149 it did not pay, 4.55° → 4.58°, so "quality" stays the
 # default: benchmarks/pooled_twins.py, RESULTS "Pooled twin choice")
 POOLED_PNP_WEIGHT = 1.0
-EXPERT_RULES = ("pooled", "quality", "replace")
+# expert_rule "pooled-unsure": pooled only where a twin head is unsure (below VERIFIER_SURE, TWIN_SURE without a
+# verifier), the quality rule elsewhere: where both heads are sure the pooled rule's verifier batch is the cost
+# that put it over 20 ms, and it changes little there (replayed on 34 000 recorded views, session 26)
+EXPERT_RULES = ("pooled", "pooled-unsure", "quality", "replace")
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -397,8 +400,9 @@ class CheckpointRegressor(PoseRegressor):
         expert_rule: ``"quality"`` (default): both estimates go through the twin choice and the edge
             fit, and the measurement of higher quality is returned; ``"pooled"``: the best-scored of
             every box twin of both estimates (:meth:`_pooled_measure`; falls back to ``"quality"``
-            without edge fits or a twin head); ``"replace"``: the expert's estimate replaces the first
-            one.
+            without edge fits or a twin head); ``"pooled-unsure"``: pooled where either twin head
+            is below ``VERIFIER_SURE`` (``TWIN_SURE`` without a verifier), the quality rule elsewhere;
+            ``"replace"``: the expert's estimate replaces the first one.
         dim_fallback: keypoint models without a ``roi`` — where :func:`detect_bright_object` finds
             nothing, or its box gives no plausible pose, look for a faintly lit object
             (:func:`detect_dim_object`) and estimate on its box (default True).
@@ -775,7 +779,7 @@ class CheckpointRegressor(PoseRegressor):
         ests = self._keypoint_estimates(image, cam, roi, sun_turn)
         if not ests:
             return self._lost(frame)
-        if len(ests) == 2 and self.expert_rule == "pooled" and self._can_pool(ests):
+        if len(ests) == 2 and self._pools(ests):
             return self._pooled_measure(frame, image, cam, ests)
         # with the expert's estimate too (expert_rule "quality"): the measurement of higher quality, the first on a
         # tie; an estimate whose quality cannot exceed the best one's is not edge-fitted at all (same result)
@@ -787,6 +791,13 @@ class CheckpointRegressor(PoseRegressor):
             if best is None or m.quality > best.quality:
                 best = m
         return best
+
+    def _pools(self, ests) -> bool:
+        """Whether ``expert_rule`` pools these two estimates' twins (see ``EXPERT_RULES``)."""
+        if self.expert_rule == "pooled-unsure":
+            sure = TWIN_SURE if self.verifier is None else VERIFIER_SURE
+            return self._can_pool(ests) and any(float(np.max(est[2])) < sure for est in ests)
+        return self.expert_rule == "pooled" and self._can_pool(ests)
 
     def _can_pool(self, ests) -> bool:
         """Whether the pooled twin choice applies: edge fits and a twin head on every estimate."""

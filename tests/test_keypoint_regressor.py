@@ -1204,3 +1204,34 @@ def test_pooled_rule_returns_the_best_scored_twin_of_both_estimates_with_fewer_f
     assert (2 if wrong_first else 1) <= len(fits) < 8
     if wrong_first:
         assert rotation_error_deg(m.pose, near) < 5.0, "the edges overrule both heads' wrong twin"
+
+
+def test_pooled_unsure_pools_only_where_a_twin_head_is_unsure(tiny_checkpoint, truss, camera):
+    """expert_rule="pooled-unsure": both heads sure (≥ VERIFIER_SURE) → the quality rule's measurement;
+    either unsure → the pooled rule's. The cases are ones where the two rules return different
+    measurements, so each comparison can fail."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from hybridpose.regressors.predictor import VERIFIER_SURE
+
+    near, frame, res = _near_edge_on_view(truss, camera, Rotation.from_euler("x", 84, degrees=True).as_matrix())
+    turned = Pose(Rotation.from_rotvec([0.0, 0.0, 0.06]).as_matrix(), np.zeros(3)) @ near
+    twin = CheckpointRegressor(tiny_checkpoint).twin_check.twins[0]
+    # the second estimate's sure head favours the end-for-end twin; the first head is sure, then unsure
+    for first_prob, pooled in ((np.array([0.98, 0.01, 0.005, 0.005]), False), (np.array([0.93, 0.04, 0.02, 0.01]), True)):
+        assert (first_prob.max() < VERIFIER_SURE) == pooled
+        ests = [(replace(res, pose=near, rms_px=1.5), [0, 1, 2, 3], first_prob, 64),
+                (replace(res, pose=turned @ twin, rms_px=0.8), [1, 0, 2, 3], np.array([0.01, 0.98, 0.005, 0.005]), 64)]
+        out = {}
+        for rule in ("pooled-unsure", "pooled", "quality"):
+            reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, expert_below_deg=90.0,
+                                      expert_rule=rule)
+            reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[0]
+            reg.expert._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[1]
+            out[rule] = reg.predict(frame, roi=(200, 150, 240, 180))
+        assert out["pooled"].quality != pytest.approx(out["quality"].quality)
+        same = out["pooled" if pooled else "quality"]
+        assert out["pooled-unsure"].pose.allclose(same.pose, atol=1e-12)
+        assert out["pooled-unsure"].quality == same.quality

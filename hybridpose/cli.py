@@ -415,9 +415,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--edge-on-expert", default="auto",
                    help="keypoint models: a second keypoint checkpoint trained on near edge-on views that re-estimates "
                         "the pose where the first estimate is near edge-on, 'auto' (the shipped one, if any) or 'none'")
-    e.add_argument("--expert-rule", choices=("quality", "pooled", "pooled-unsure", "replace"), default="quality",
-                   help="keypoint models with an edge-on expert: return the measurement of higher quality (quality, the "
-                        "default), the best-scored box twin of both estimates (pooled; pooled-unsure: only where a twin head is unsure) "
+    e.add_argument("--expert-rule", choices=("quality", "pooled", "pooled-unsure", "replace"),
+                   default="pooled-unsure",
+                   help="keypoint models with an edge-on expert: the best-scored box twin of both estimates where a "
+                        "twin head is unsure, else the measurement of higher quality (pooled-unsure, the default), "
+                        "always the measurement of higher quality (quality), always the best-scored twin (pooled), "
                         "or the expert's (replace)")
     e.add_argument("--no-dim-fallback", action="store_true",
                    help="keypoint models: report a view lost where nothing bright is found, instead of looking for a "

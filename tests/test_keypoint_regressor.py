@@ -1132,8 +1132,8 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
     order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
     other = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
     reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False,
-                              expert_below_deg=90.0)
-    assert reg.expert_rule == "quality"
+                              expert_below_deg=90.0, expert_rule="quality")
+    assert CheckpointRegressor(tiny_checkpoint).expert_rule == "pooled-unsure"   # the default since session 26
     assert res.inlier_ratio == 1.0
     first = replace(res, pose=near, rms_px=2.0)
     reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (first, order, prob, 64)

@@ -229,7 +229,7 @@ def test_the_twin_verifier_ships_and_is_used_by_default(regressor, truss):
 
 def test_the_edge_on_expert_ships_and_measures_near_edge_on_views(regressor, truss):
     """`weights/edge_on_expert.pt` (benchmarks/RESULTS.md, "Edge-on expert": confirmed on 4000 fresh
-    views) loads by default with the quality rule at EXPERT_BELOW_DEG, can be turned off, runs only
+    views) loads by default with the pooled-unsure rule (session 26) at EXPERT_BELOW_DEG, can be turned off, runs only
     where the first estimate is near edge-on, and finds a near edge-on truss by itself."""
     from scipy.spatial.transform import Rotation
 
@@ -240,7 +240,7 @@ def test_the_edge_on_expert_ships_and_measures_near_edge_on_views(regressor, tru
     path = WEIGHTS_DIR / "edge_on_expert.pt"
     assert path.stat().st_size < 12 * 2**20
     assert regressor.expert is not None and regressor.expert.path == path
-    assert regressor.expert_rule == "quality" and regressor.expert_below_deg == EXPERT_BELOW_DEG
+    assert regressor.expert_rule == "pooled-unsure" and regressor.expert_below_deg == EXPERT_BELOW_DEG
     assert create("regressor", "default", object=truss, edge_on_expert=None).expert is None
     camera = Camera.default()
     R = Rotation.from_euler("x", 86, degrees=True).as_matrix() @ Rotation.from_euler("z", 25, degrees=True).as_matrix()

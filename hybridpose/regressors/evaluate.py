@@ -51,7 +51,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
                         device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
                         sun_known: bool = False, mirror_verifier="auto",
-                        edge_on_expert="auto", expert_rule: str = "quality", dim_fallback: bool = True,
+                        edge_on_expert="auto", expert_rule: str = "pooled-unsure", dim_fallback: bool = True,
                         max_depth_m=None) -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 

@@ -123,9 +123,12 @@ EXPERT_BELOW_DEG = 8.0
 # 4.56° → 4.23° mean; on fresh seeds 146–149 it did not pay, 4.55° → 4.58°, so "quality" stays the
 # default: benchmarks/pooled_twins.py, RESULTS "Pooled twin choice")
 POOLED_PNP_WEIGHT = 1.0
-# expert_rule "pooled-unsure": pooled only where a twin head is unsure (below VERIFIER_SURE, TWIN_SURE without a
-# verifier), the quality rule elsewhere: where both heads are sure the pooled rule's verifier batch is the cost
-# that put it over 20 ms, and it changes little there (replayed on 34 000 recorded views, session 26)
+# expert_rule "pooled-unsure" (the default since session 26): pooled only where a twin head is unsure (below
+# VERIFIER_SURE, TWIN_SURE without a verifier), the quality rule elsewhere: where both heads are sure the pooled
+# rule's verifier batch is the cost that put it over 20 ms, and it changes little there. Shipped by rule 14
+# (commit 16da16f) on 8000 fresh views: 10.69° → 10.27° mean (CI −0.69…−0.15; 40° cone 5.46° → 4.78°), 24.1 →
+# 23.6 ms a view; seed 100 3.30° → 3.05° at 17.9 ms (benchmarks/pooled_unsure.py, RESULTS "Pooled twin
+# choice where a head is unsure")
 EXPERT_RULES = ("pooled", "pooled-unsure", "quality", "replace")
 
 
@@ -397,12 +400,12 @@ class CheckpointRegressor(PoseRegressor):
             one shipped in the package (``weights/edge_on_expert.pt``, default) when there is one for
             this object; None: none. The covariance stays this checkpoint's calibrated one.
         expert_below_deg: the view elevation (°, estimated) below which the expert runs.
-        expert_rule: ``"quality"`` (default): both estimates go through the twin choice and the edge
-            fit, and the measurement of higher quality is returned; ``"pooled"``: the best-scored of
-            every box twin of both estimates (:meth:`_pooled_measure`; falls back to ``"quality"``
-            without edge fits or a twin head); ``"pooled-unsure"``: pooled where either twin head
-            is below ``VERIFIER_SURE`` (``TWIN_SURE`` without a verifier), the quality rule elsewhere;
-            ``"replace"``: the expert's estimate replaces the first one.
+        expert_rule: ``"pooled-unsure"`` (default, session 26): ``"pooled"`` where either twin head
+            is below ``VERIFIER_SURE`` (``TWIN_SURE`` without a verifier), ``"quality"`` elsewhere;
+            ``"quality"``: both estimates go through the twin choice and the edge fit, and the
+            measurement of higher quality is returned; ``"pooled"``: the best-scored of every box
+            twin of both estimates (:meth:`_pooled_measure`; falls back to ``"quality"`` without edge
+            fits or a twin head); ``"replace"``: the expert's estimate replaces the first one.
         dim_fallback: keypoint models without a ``roi`` — where :func:`detect_bright_object` finds
             nothing, or its box gives no plausible pose, look for a faintly lit object
             (:func:`detect_dim_object`) and estimate on its box (default True).
@@ -418,7 +421,7 @@ class CheckpointRegressor(PoseRegressor):
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
                  mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
-                 expert_rule: str = "quality", dim_fallback: bool = True, max_depth_m=None) -> None:
+                 expert_rule: str = "pooled-unsure", dim_fallback: bool = True, max_depth_m=None) -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -695,7 +698,7 @@ class CheckpointRegressor(PoseRegressor):
         (PnP result turned to the head's twin, twin order, twin probabilities, crop side in pixels),
         or None when nothing is found or PnP gives no plausible pose (see :meth:`_keypoint_pass` for
         order and probabilities; ``sun_turn``: its crop turn, °). With an edge-on expert: its
-        estimate under ``expert_rule="replace"``, the first one under ``"quality"`` and ``"pooled"``."""
+        estimate under ``expert_rule="replace"``, the first one under the other rules."""
         ests = self._keypoint_estimates(image, cam, roi, sun_turn)
         return ests[0] if ests else None
 
@@ -704,7 +707,7 @@ class CheckpointRegressor(PoseRegressor):
         (on the bright detection or ``roi``; with ``dim_fallback``, on :func:`detect_dim_object`'s box
         where that gave none); where an edge-on expert runs (the first estimate within
         ``expert_below_deg`` of edge-on) the expert's instead (``expert_rule="replace"``) or the first
-        and the expert's (``"quality"``, ``"pooled"``); the first alone where the expert finds nothing;
+        and the expert's (the other rules); the first alone where the expert finds nothing;
         [] where nothing is found."""
         seen = roi if roi is not None else detect_bright_object(image)
         est = None if seen is None else self._estimate_in(image, cam, seen, sun_turn)
@@ -746,8 +749,8 @@ class CheckpointRegressor(PoseRegressor):
         probabilities), both in the head's order (most likely first), or None when the object is
         not found. What a twin verifier is shown at inference, so what it is trained on
         (``hybridpose train-verifier --estimates-from``). Keypoint models with a twin head only;
-        ``roi`` and ``sun_direction_cam`` as in :meth:`predict`. With an edge-on expert under the
-        quality rule these are the first network's twins (the expert's estimate gets its own)."""
+        ``roi`` and ``sun_direction_cam`` as in :meth:`predict`. With an edge-on expert (any rule but
+        "replace") these are the first network's twins (the expert's estimate gets its own)."""
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         self.require_twin_head()

@@ -147,6 +147,15 @@ def pooled_choice(m: dict, pnp_weight: float = POOLED_PNP_WEIGHT) -> tuple[np.nd
     return np.where(both, best // N_TWINS, est), np.where(both, best % N_TWINS, twin)
 
 
+def pooled_unsure_choice(m: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(estimate, twin) per view under ``expert_rule="pooled-unsure"`` (shipped since session 26): the pooled
+    choice where both estimates exist and either twin head is below ``VERIFIER_SURE``, else the quality rule's."""
+    est, twin = shipped_choice(m)
+    p_est, p_twin = pooled_choice(m)
+    pools = (m["n_est"] == 2) & (m["head"][:, :, 0] < VERIFIER_SURE).any(1)
+    return np.where(pools, p_est, est), np.where(pools, p_twin, twin)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seen", nargs="+", required=True,
@@ -170,9 +179,10 @@ def main() -> None:
     lines = ["## Pooled twin choice of the shipped keypoint regressor (`benchmarks/pooled_twins.py`)", "",
              f"Checkpoint `{Path(args.checkpoint).name}`, edge-on expert `{args.expert}`. A = the quality rule "
              "(each estimate's twin by head, edge fit and verifier, then the estimate of higher measurement "
-             "quality), B = the pooled rule (the best-scored of every twin of both estimates, log q_pnp "
-             f"weighted {POOLED_PNP_WEIGHT:g}); they differ only where both estimates exist (first estimate "
-             "within the expert's gate). Oracle: the best candidate by true error.", "",
+             "quality; the default before session 26), B = the pooled rule (the best-scored of every twin of both "
+             f"estimates, log q_pnp weighted {POOLED_PNP_WEIGHT:g}), or it only where a twin head is unsure; they "
+             "differ only where both estimates exist (first estimate within the expert's gate). Oracle: the best "
+             "candidate by true error.", "",
              f"| sets | views | both estimates | rule B | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} | oracle mean ° |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for g, m in measured.items():
@@ -188,6 +198,10 @@ def main() -> None:
             name = f"pooled, log q_pnp × {w:g}" + (" (chosen weight)" if w == POOLED_PNP_WEIGHT else "")
             lines.append(f"| {g} ({len(groups[g])}) | {len(a)} | {int(np.sum(m['n_est'] == 2))} | {name} | "
                          f"{paired_cells(c)} | {oracle.mean():.2f} |")
+        c = paired_comparison(a, errors_of(m, *pooled_unsure_choice(m)))
+        out["groups"][g]["rules"]["pooled-unsure"] = c
+        lines.append(f"| {g} ({len(groups[g])}) | {len(a)} | {int(np.sum(m['n_est'] == 2))} | pooled where a head is "
+                     f"unsure (the default since session 26) | {paired_cells(c)} | {oracle.mean():.2f} |")
     publish("pooled_twins", "pooled-twins", out, lines)
 
 

@@ -9,7 +9,8 @@ Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (
 no roi: detection, a network pass (the crop turned by ±20°/±40° too where PnP drops keypoints, a
 second pass where the twin head is unsure), PnP dropping the worst keypoint, twin head + verifier +
 edge check), without the crop turns, with RANSAC for PnP's outliers, without the twin verifier, without the
-edge-on expert (where one is shipped), without the final edge refinement, with always one and always two passes, and
+edge-on expert (where one is shipped), with the expert's quality rule (the default before session 26),
+without the final edge refinement, with always one and always two passes, and
 what a quality gate keeps (accuracy by quality); copies its plots to ``benchmarks/results/`` and
 writes the "regressor-accuracy" section of RESULTS.md.
 """
@@ -41,6 +42,7 @@ def main() -> None:
                 (", 2 passes", {"passes": 2})]
     if (WEIGHTS_DIR / "edge_on_expert.pt").is_file():
         variants.insert(4, (", no edge-on expert", {"edge_on_expert": None}))
+        variants.insert(5, (", quality rule (the default before session 26)", {"expert_rule": "quality"}))
     runs = [(n + suffix, p, options) for suffix, options in variants for n, p in pairs]
     for name, path, options in runs:
         tmp = Path(tempfile.mkdtemp())

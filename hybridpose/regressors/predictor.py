@@ -120,8 +120,9 @@ MIRROR_SWITCH_P = 0.95
 EXPERT_BELOW_DEG = 8.0
 # expert_rule "pooled": the weight of log q_pnp (each estimate's PnP quality) added to the twin score
 # when the twins of both estimates are pooled (chosen on test seeds 128–141, where 0–2 measured alike:
-# 4.56° → 4.23° mean; on fresh seeds 146–149 it did not pay, 4.55° → 4.58°, so "quality" stays the
-# default: benchmarks/pooled_twins.py, RESULTS "Pooled twin choice")
+# 4.56° → 4.23° mean; with the first expert it did not pay on fresh seeds 146–149, 4.55° → 4.58°; with
+# today's it did, but cost ≈ 1 ms more: benchmarks/pooled_twins.py, RESULTS "Pooled twin choice"). Used by
+# "pooled" and "pooled-unsure" (below)
 POOLED_PNP_WEIGHT = 1.0
 # expert_rule "pooled-unsure" (the default since session 26): pooled only where a twin head is unsure (below
 # VERIFIER_SURE, TWIN_SURE without a verifier), the quality rule elsewhere: where both heads are sure the pooled

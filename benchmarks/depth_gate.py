@@ -21,7 +21,7 @@ import argparse
 import numpy as np
 import torch
 
-from _common import (PAIRED_HEADER, add_lighting_groups, environment, lighting_groups, paired_cells, publish, set_names,
+from _common import (PAIRED_HEADER, add_lighting_groups, concat_sets, environment, lighting_groups, paired_cells, publish, set_names,
                      test_views)
 from hybridpose.metrics import rotation_error_deg, translation_error_m
 from hybridpose.regressors.evaluate import FAILED_ROT_DEG, FAILED_TRANS_M, GROSS_ERROR_DEG, paired_comparison
@@ -71,8 +71,7 @@ def main() -> None:
              f"| sets | views | mean trans m A → B | median trans m | lost A → B | good views lost | "
              f"{PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for g, dirs in groups.items():
-        per_set = [measure(d, args.checkpoint, args.max_depth, args.limit) for d in dirs]
-        m = {k: np.concatenate([s[k] for s in per_set]) for k in per_set[0]}
+        m = concat_sets([measure(d, args.checkpoint, args.max_depth, args.limit) for d in dirs])
         lost_a, lost_b = m["rot_a"] >= FAILED_ROT_DEG, m["rot_b"] >= FAILED_ROT_DEG
         good_lost = int(np.sum((m["rot_a"] <= GROSS_ERROR_DEG) & lost_b))
         c = paired_comparison(m["rot_a"], m["rot_b"])

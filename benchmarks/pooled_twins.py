@@ -44,8 +44,9 @@ def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dic
     """Per view of ``data`` (arrays over views; ``[:, e, k]``: estimate e (0 the default's, 1 the
     expert's), twin k in that estimate's head order): ``n_est`` (0–2), ``elevation`` (first estimate's
     view elevation, °), ``pnp_quality`` (V, 2), ``head`` / ``verifier`` / ``fit_quality`` (V, 2, 4),
-    ``err`` (V, 2, 4: rotation error of the pose returned for that twin, °), ``shipped`` (the shipped
-    predictor's error; 180 where lost) and ``seconds`` (its time)."""
+    ``err`` (V, 2, 4: rotation error of the pose returned for that twin, °), ``shipped`` (the predictor's
+    error under the quality rule, shipped until session 26 (the key name is kept for existing caches); 180
+    where lost) and ``seconds`` (its time)."""
     reg = CheckpointRegressor(checkpoint, threads=1, edge_on_expert=expert, expert_rule="quality",
                               dim_fallback=False)
     view = reg.twin_check.view
@@ -57,18 +58,14 @@ def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dic
             m = reg.predict(frame)
             rows["seconds"].append(time.perf_counter() - t0)
             rows["shipped"].append(180.0 if m.lost else rotation_error_deg(m.pose, gt.pose))
-            image, cam = reg._undistorted(frame)
-            ests = reg._keypoint_estimates(image, cam, None)
+            image, cam, ests, all_starts = estimates_and_twins(reg, frame)
             shape = (2, N_TWINS)
             pq, head, ver, fq, err = np.zeros(2), np.zeros(shape), np.zeros(shape), np.zeros(shape), np.full(shape, 180.0)
             gap = np.full((N_TWINS, N_TWINS), 180.0)
             gray = to_gray(image)
             und = Frame(image, cam, 0.0, frame.index)
-            all_starts = []
-            for e, est in enumerate(ests):
-                res, order, prob, _ = est
-                starts = reg._twin_starts(res.pose, order)
-                all_starts.append(starts)
+            for e, (est, starts) in enumerate(zip(ests, all_starts)):
+                _, order, prob, _ = est
                 pq[e] = _pnp_quality(est)
                 head[e] = [prob[k] for k in order]
                 ver[e] = reg.verifier.probabilities(image, cam.K, starts)
@@ -87,6 +84,14 @@ def measure(data: str, checkpoint: str, expert: str = "auto", limit=None) -> dic
     return {k: np.asarray(v, dtype=float) for k, v in rows.items()}
 
 
+def estimates_and_twins(reg: CheckpointRegressor, frame: Frame):
+    """(undistorted image, its camera, the predictor's estimates of ``frame``, each estimate's box twins in
+    its head's order): the candidates :func:`measure` and :func:`verifier_column` record."""
+    image, cam = reg._undistorted(frame)
+    ests = reg._keypoint_estimates(image, cam, None)
+    return image, cam, ests, [reg._twin_starts(res.pose, order) for res, order, _, _ in ests]
+
+
 def cached(folder, data: str, checkpoint: str, expert: str = "auto", limit=None, verifier: str | None = None) -> dict:
     """:func:`measure` (with ``verifier``: :func:`verifier_column` of that verifier), kept in ``folder``
     (one .npz per set, checkpoint, expert, limit and verifier) when given."""
@@ -101,24 +106,24 @@ def cached(folder, data: str, checkpoint: str, expert: str = "auto", limit=None,
 def verifier_column(data: str, checkpoint: str, verifier: str, expert: str = "auto", limit=None) -> dict:
     """``{"verifier": (V, 2, 4)}``: another twin verifier's probabilities of the candidates
     :func:`measure` records (same estimates, same twin order; zeros where an estimate is missing), so
-    the shipped choice can be replayed with that verifier in its place (every other number is
+    the twin choice can be replayed with that verifier in its place (every other number is
     unchanged: the verifier only weighs the candidates)."""
     reg = CheckpointRegressor(checkpoint, threads=1, edge_on_expert=expert, expert_rule="quality",
                               dim_fallback=False, verifier=verifier)
     rows = []
     with torch.no_grad():
         for frame, _ in test_views(data, limit):
-            image, cam = reg._undistorted(frame)
+            image, cam, _, all_starts = estimates_and_twins(reg, frame)
             ver = np.zeros((2, N_TWINS))
-            for e, (res, order, _, _) in enumerate(reg._keypoint_estimates(image, cam, None)):
-                ver[e] = reg.verifier.probabilities(image, cam.K, reg._twin_starts(res.pose, order))
+            for e, starts in enumerate(all_starts):
+                ver[e] = reg.verifier.probabilities(image, cam.K, starts)
             rows.append(ver)
     return {"verifier": np.asarray(rows, dtype=float)}
 
 
-def shipped_choice(m: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(estimate, twin) per view that the shipped predictor returns, replayed from :func:`measure`'s
-    numbers: per estimate the head's twin where it is sure (≥ ``VERIFIER_SURE``), else the best
+def quality_choice(m: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(estimate, twin) per view that the predictor returns under ``expert_rule="quality"`` (the default
+    until session 26), replayed from :func:`measure`'s numbers: per estimate the head's twin where it is sure (≥ ``VERIFIER_SURE``), else the best
     :func:`twin_scores` over every twin; then the estimate of higher measurement quality (PnP quality ×
     the head's probability of its twin), the default's on a tie."""
     scores = twin_scores(m["head"], m["fit_quality"], edge_weight=VERIFIER_EDGE_WEIGHT, verifier_prob=m["verifier"])
@@ -138,11 +143,11 @@ def errors_of(m: dict, est: np.ndarray, twin: np.ndarray) -> np.ndarray:
 def pooled_choice(m: dict, pnp_weight: float = POOLED_PNP_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
     """(estimate, twin) per view under ``expert_rule="pooled"``: where both estimates exist, the best
     of their eight candidates by ``twin_scores(head, q_fit, verifier) + pnp_weight · log q_pnp`` (the
-    predictor prunes its fits but returns this same candidate); elsewhere the shipped choice."""
+    predictor prunes its fits but returns this same candidate); elsewhere the quality rule's."""
     scores = (twin_scores(m["head"], m["fit_quality"], edge_weight=VERIFIER_EDGE_WEIGHT, verifier_prob=m["verifier"])
               + pnp_weight * np.log(m["pnp_quality"] + 1e-3)[..., None]).reshape(len(m["n_est"]), -1)
     best = scores.argmax(1)
-    est, twin = shipped_choice(m)
+    est, twin = quality_choice(m)
     both = m["n_est"] == 2
     return np.where(both, best // N_TWINS, est), np.where(both, best % N_TWINS, twin)
 
@@ -150,7 +155,7 @@ def pooled_choice(m: dict, pnp_weight: float = POOLED_PNP_WEIGHT) -> tuple[np.nd
 def pooled_unsure_choice(m: dict) -> tuple[np.ndarray, np.ndarray]:
     """(estimate, twin) per view under ``expert_rule="pooled-unsure"`` (shipped since session 26): the pooled
     choice where both estimates exist and either twin head is below ``VERIFIER_SURE``, else the quality rule's."""
-    est, twin = shipped_choice(m)
+    est, twin = quality_choice(m)
     p_est, p_twin = pooled_choice(m)
     pools = (m["n_est"] == 2) & (m["head"][:, :, 0] < VERIFIER_SURE).any(1)
     return np.where(pools, p_est, est), np.where(pools, p_twin, twin)
@@ -186,7 +191,7 @@ def main() -> None:
              f"| sets | views | both estimates | rule B | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} | oracle mean ° |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for g, m in measured.items():
-        a = errors_of(m, *shipped_choice(m))
+        a = errors_of(m, *quality_choice(m))
         valid = np.arange(2)[None, :, None] < m["n_est"][:, None, None]
         oracle = np.where(m["n_est"] > 0, np.where(valid, m["err"], np.inf).reshape(len(a), -1).min(1), 180.0)
         weights = [POOLED_PNP_WEIGHT] + (args.pnp_weights if g == "seen" else [])

@@ -21,7 +21,7 @@ import time
 import numpy as np
 import torch
 
-from _common import (PAIRED_HEADER, add_lighting_groups, environment, lighting_groups, paired_cells, publish, set_names,
+from _common import (PAIRED_HEADER, add_lighting_groups, concat_sets, environment, lighting_groups, paired_cells, publish, set_names,
                      test_views)
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, paired_comparison
@@ -60,8 +60,7 @@ def main() -> None:
              "|---|---|---|---|---|---|---|---|"]
     every = []
     for g, dirs in groups.items():
-        per_set = [measure(d, regs, args.limit) for d in dirs]
-        m = {k: np.concatenate([s[k] for s in per_set]) for k in per_set[0]}
+        m = concat_sets([measure(d, regs, args.limit) for d in dirs])
         every.append(m)
         c = paired_comparison(m["rot_quality"], m["rot_pooled-unsure"])
         ms = [1000 * float(m[f"seconds_{n}"].mean()) for n in regs]
@@ -69,7 +68,7 @@ def main() -> None:
                             "per_view": {k: v.tolist() for k, v in m.items()}}
         lines.append(f"| {g} ({set_names(dirs)}) | {len(m['rot_quality'])} | {ms[0]:.1f} → {ms[1]:.1f} | {paired_cells(c)} |")
     if len(every) > 1:
-        m = {k: np.concatenate([s[k] for s in every]) for k in every[0]}
+        m = concat_sets(every)
         c = paired_comparison(m["rot_quality"], m["rot_pooled-unsure"])
         ms = [1000 * float(m[f"seconds_{n}"].mean()) for n in regs]
         out["all"] = {"views": len(m["rot_quality"]), "ms_per_view": ms, "rotation": c}

@@ -7,9 +7,9 @@ Usage:
 The twin verifier only weighs the box twins the predictor has already made (``benchmarks/pooled_twins.py``
 records every one: head, verifier, edge fit, PnP quality, true error), so swapping it changes nothing else.
 Per set this takes the recorded candidates once and the candidate verifier's probabilities of the same
-candidates (:func:`pooled_twins.verifier_column`), and replays the shipped twin choice (the quality rule,
-exactly what ``predict`` returns: 0 differences on 23 000 views, session 25) and the pooled rule with each
-verifier. A = the shipped verifier, B = the candidate; McNemar on the views > 30° off, paired bootstrap of
+candidates (:func:`pooled_twins.verifier_column`), and replays each ``expert_rule``'s twin and estimate
+choice with each verifier: the quality rule (exactly what ``predict`` returns: 0 differences on 23 000 views,
+session 25; the default until session 26), the pooled rule and pooled-unsure (the default since). A = the shipped verifier, B = the candidate; McNemar on the views > 30° off, paired bootstrap of
 the mean rotation error. Same network size, so the same cost per call.
 """
 from __future__ import annotations
@@ -22,7 +22,9 @@ from _common import (PAIRED_HEADER, add_lighting_groups, concat_sets, environmen
                      set_names)
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import shipped_checkpoint
-from pooled_twins import cached, errors_of, pooled_choice, shipped_choice
+from pooled_twins import cached, errors_of, pooled_choice, pooled_unsure_choice, quality_choice
+
+RULES = (("quality", quality_choice), ("pooled", pooled_choice), ("pooled-unsure (shipped)", pooled_unsure_choice))
 
 
 def main() -> None:
@@ -42,25 +44,25 @@ def main() -> None:
              "A = shipped `twin_verifier.pt`, B = the candidate, on the same recorded candidates (everything but the "
              "verifier's probabilities unchanged); rule = the predictor's twin and estimate choice replayed.", "",
              f"| sets | views | rule | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} |", "|---|---|---|---|---|---|---|---|"]
-    per_view = {}
+    per_view = {rule: [] for rule, _ in RULES}
     for g, dirs in groups.items():
         a = concat_sets([cached(args.cache, d, args.checkpoint, args.expert, args.limit) for d in dirs])
         b = dict(a, **concat_sets([cached(args.cache, d, args.checkpoint, args.expert, args.limit, verifier=args.verifier)
                                    for d in dirs]))
         out["groups"][g] = {"views": len(a["n_est"])}
-        for rule, choose in (("quality (shipped)", shipped_choice), ("pooled", pooled_choice)):
+        for rule, choose in RULES:
             ea, eb = errors_of(a, *choose(a)), errors_of(b, *choose(b))
-            if rule.startswith("quality"):
-                per_view[g] = (ea, eb)
+            per_view[rule].append((ea, eb))
             c = paired_comparison(ea, eb)
             out["groups"][g][rule] = c
             lines.append(f"| {g} ({set_names(dirs)}) | {len(ea)} | {rule} | "
                          f"{paired_cells(c)} |")
-    if len(per_view) > 1:
-        ea, eb = (np.concatenate([v[i] for v in per_view.values()]) for i in (0, 1))
-        c = paired_comparison(ea, eb)
-        out["all_quality"] = c
-        lines.append(f"| all | {len(ea)} | quality (shipped) | {paired_cells(c)} |")
+    if len(groups) > 1:
+        for rule, pairs in per_view.items():
+            ea, eb = (np.concatenate([p[i] for p in pairs]) for i in (0, 1))
+            c = paired_comparison(ea, eb)
+            out[f"all {rule}"] = c
+            lines.append(f"| all | {len(ea)} | {rule} | {paired_cells(c)} |")
     publish(args.section.replace("-", "_"), args.section, out, lines)
 
 

@@ -54,7 +54,7 @@ def main() -> None:
     regs = {rule: CheckpointRegressor(args.checkpoint, threads=1, expert_rule=rule) for rule in ("quality", "pooled-unsure")}
     out = {"env": environment(), "checkpoint": args.checkpoint, "sets": groups, "groups": {}}
     lines = ["## Pooled twin choice where a head is unsure (`benchmarks/pooled_unsure.py`)", "",
-             "A = `expert_rule=\"quality\"` (the default), B = `\"pooled-unsure\"`; whole `predict` path, 1 thread, "
+             "A = `expert_rule=\"quality\"` (the default before session 26), B = `\"pooled-unsure\"` (the default since); whole `predict` path, 1 thread, "
              "both per view turn about in one process.", "",
              f"| sets | views | ms/view A → B | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} |",
              "|---|---|---|---|---|---|---|---|"]

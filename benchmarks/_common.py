@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 import subprocess
 from pathlib import Path
 
@@ -58,10 +59,20 @@ def test_views(data: str, limit=None):
         yield Frame(scene.rgb(im_id), gt.camera, 0.0, im_id), gt
 
 
+# a list of numbers only (JSON's NaN and ±Infinity included), as json.dumps(indent=2) lays it out
+_NUMBER_LIST = re.compile(r"\[\s*((?:-?(?:[0-9.eE+-]+|NaN|Infinity)\s*,\s*)*-?(?:[0-9.eE+-]+|NaN|Infinity))\s*\]")
+
+
 def write_json(name: str, payload: dict) -> Path:
+    """``payload`` as ``results/name.json`` (indented, but each list of numbers on one line: the per-view
+    lists would otherwise take a line a number), written to a temporary file and renamed."""
     path = BENCH_DIR / "results" / f"{name}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(payload, indent=2))
+    text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m.group(1).split(",")) + "]",
+                            json.dumps(payload, indent=2))
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
     return path
 
 

@@ -118,7 +118,9 @@ def update_results_md(section: str, markdown: str) -> None:
         text = head + block + tail
     else:
         text = text.rstrip() + "\n\n" + block + "\n"
-    RESULTS_MD.write_text(text)
+    tmp = RESULTS_MD.with_suffix(".md.tmp")  # a benchmark killed mid-write leaves the old file whole
+    tmp.write_text(text)
+    tmp.replace(RESULTS_MD)
 
 
 PAIRED_HEADER = ("mean rot ° without → with | Δ mean ° (95 % CI) | > {gross:.0f}° without → with | "

@@ -17,8 +17,11 @@ def environment() -> dict:
         git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=BENCH_DIR).stdout.strip()
     except OSError:
         git = ""
+    from hybridpose.machine import describe_cpu
+
+    # the CPU model and ISA: timings from different hosts differ ≈ 2× with the same code (hybridpose.machine)
     return {"git": git, "python": platform.python_version(), "machine": platform.machine(),
-            "cpus": os.cpu_count(), "processor": platform.processor()}
+            "processor": platform.processor(), **describe_cpu()}
 
 
 def cached_npz(folder, key: str, compute) -> dict:

@@ -22,6 +22,7 @@ import tempfile
 from pathlib import Path
 
 from _common import BENCH_DIR, environment, update_results_md, write_json
+from hybridpose.machine import cpu_label
 from hybridpose.regressors.evaluate import PAPER, covariance_lines, evaluate_checkpoint, quality_table
 from hybridpose.regressors.predictor import WEIGHTS_DIR, shipped_checkpoint
 
@@ -66,7 +67,7 @@ def main() -> None:
         f"first 100 views (the extra passes, turns and fits run only on hard views: a median would hide them), torch on "
         f"1 or 2 threads. *In 90 % ellipsoid*: share of the views with a pose whose error lies inside the 90 % χ²₆ "
         f"ellipsoid of the reported covariance, around the true pose (around the nearest box twin): ≈ 90 % when the "
-        f"covariance is calibrated, far below when over-confident. git {env['git']}, {env['cpus']} CPU cores.",
+        f"covariance is calibrated, far below when over-confident. git {env['git']}, {cpu_label(env)}.",
         "",
         "| model | mean rot ° | median rot ° | mean trans m | median trans m | SPEED | ADD-0.1d | > 30° | failures | "
         "in 90 % ellipsoid (twin) | ms/img 1 thr | ms/img 2 thr |",

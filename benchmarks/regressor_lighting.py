@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from _common import environment, update_results_md, write_json
+from hybridpose.machine import cpu_label
 from hybridpose.regressors.evaluate import PHASE_BINS_DEG, compare_reports, error_in_bins, evaluate_checkpoint
 from hybridpose.regressors.predictor import shipped_checkpoint
 from hybridpose.render import SpaceLighting
@@ -117,7 +118,7 @@ def main() -> None:
         "stage 9 (session 22) also with the sun anywhere within 85° of the optical axis. "
         "Sets: " + "; ".join(f"*{n}* `{d}`" for n, d in sets) + " (1000 rendered 640×480 views each, truss wholly in "
         "view, random pose 0.4–1.2 m; the sets' commands are in the script's docstring). Full inference path, no roi; "
-        f"> 30°: share of views off by more than 30° in rotation. git {env['git']}, {env['cpus']} CPU cores.",
+        f"> 30°: share of views off by more than 30° in rotation. git {env['git']}, {cpu_label(env)}.",
         "",
         "| checkpoint | set | mean rot ° | median rot ° | mean trans m | SPEED | ADD-0.1d | > 30° | failures |",
         "|---|---|---|---|---|---|---|---|---|",

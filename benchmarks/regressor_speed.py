@@ -15,6 +15,7 @@ import time
 import torch
 
 from _common import environment, update_results_md, write_json
+from hybridpose.machine import cpu_label
 from hybridpose.objects import load_object
 from hybridpose.regressors import available_models, build_model
 from hybridpose.regressors.models import MODEL_DEFAULTS, fold_batch_norm, model_kind
@@ -68,7 +69,7 @@ def main() -> None:
         "",
         f"Square input of the given side, batch 1, float32, channels-last, batch norm folded (as the regressor runs them), "
         f"torch {torch.__version__}, mean of {args.repeats} runs (30 for the keypoint nets) after a warm-up, "
-        f"git {env['git']}, {env['cpus']} CPU cores. Target for the shipped `default`: ≤ 20 ms on 1 thread.",
+        f"git {env['git']}, {cpu_label(env)}. Target for the shipped `default`: ≤ 20 ms on 1 thread.",
         "",
         "| model | input px | parameters (M) | ms/image, 1 thread | ms/image, 2 threads |",
         "|---|---|---|---|---|",

@@ -12,6 +12,7 @@ import time
 
 
 from _common import environment, update_results_md, write_json
+from hybridpose.machine import cpu_label
 from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
@@ -62,7 +63,7 @@ def main() -> None:
         "## Rendering throughput (`python benchmarks/render_throughput.py`)",
         "",
         f"Truss, random poses 0.3–1.2 m, one shadow-casting sun, {args.frames} frames per row, "
-        f"git {environment()['git']}, {environment()['cpus']} CPU cores, software EGL (no GPU).",
+        f"git {environment()['git']}, {cpu_label(environment())}, software EGL (no GPU).",
         "`MuJoCo RGB call` = one shaded pass + read-back, the floor; `render` = RGB pass + one segmented pass giving depth and visible mask; `+arm` adds the full-silhouette pass; "
         "`dataset job` = render + PNG encoding + atomic writes + JSON. With `mujoco.Renderer`'s separate depth and "
         "segmentation passes (first version) a 640×480 render took 23 ms; one segmented pass brought it to the figure below.",

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from _common import environment, update_results_md, write_json
+from hybridpose.machine import cpu_label
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.io import atomic_write_json
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, PAPER, evaluate_checkpoint
@@ -115,7 +116,7 @@ def markdown(results: dict, reference: dict, args, env: dict) -> str:
         "100 epochs on a GPU from ImageNet weights, on their data. So these runs say that every backend trains and "
         "evaluates end to end here, and how far equal CPU-minutes get each — not what the models reach after "
         "a full run (the shipped `default` took ≈ 6 h of this CPU: table above). "
-        f"git {env['git']}, {env['cpus']} CPUs.",
+        f"git {env['git']}, {cpu_label(env)}.",
         "",
         "| model | where, how long | images seen | val rot ° | mean rot ° | median rot ° | mean trans m | > 30° | ms/img 1 thr | ms/img 2 thr |",
         "|---|---|---|---|---|---|---|---|---|---|",

@@ -224,8 +224,8 @@ def cmd_eval(args) -> int:
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
-          f"ADD-0.1d {s['add_0.1d_recall']:.2f}, {s['failures']} failures, {ms.get('1_thread', 0):.1f} ms/img (1 thread) "
-          f"→ {Path(args.out) / 'report.md'}")
+          f"ADD-0.1d {s['add_0.1d_recall']:.2f}, {s['failures']} failures, {ms.get('1_thread', 0):.1f} ms/img (1 thread; "
+          f"the bare network {ms.get('network_1_thread', 0):.1f} ms a call on this CPU) → {Path(args.out) / 'report.md'}")
     return 0
 
 

@@ -1,4 +1,6 @@
 """Keypoint model pieces (soft-argmax, PnP, Jacobian, covariance) and the checkpoint regressor backend."""
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -328,7 +330,9 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert {"rot_mean_deg", "rot_median_deg", "trans_mean_m", "speed_score", "add_0.1d_recall", "failures"} <= set(s)
     rot = [r["rot_deg"] for r in rep["per_image"]]
     assert s["gross_error_share"] == pytest.approx(sum(r > 30 for r in rot) / 10)
-    assert set(s["ms_per_image"]) == {"1_thread", "2_threads"}
+    assert set(s["ms_per_image"]) == {"1_thread", "2_threads", "network_1_thread", "network_2_threads"}
+    assert s["ms_per_image"]["network_1_thread"] > 0
+    assert s["machine"]["cpus"] == os.cpu_count() and s["machine"]["cpu_model"]
     assert sum(b["n"] for b in s["error_vs_elevation"]) == 10
     assert all(0.0 <= r["elevation_deg"] <= 90.0 for r in rep["per_image"])
     # the dataset records its sun: errors per phase angle and light azimuth

@@ -23,6 +23,7 @@ from ..core import Frame
 from ..datasets.bop import BopScene, find_scenes
 from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text, write_image
+from ..machine import cpu_label, describe_cpu
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
@@ -115,7 +116,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         "edge_on_expert": None if reg.expert is None else str(reg.expert.path),
         "expert_rule": None if reg.expert is None else reg.expert_rule, "dim_fallback": reg.dim_fallback,
         "max_depth_m": reg.max_depth_m if reg.kind == "keypoints" else None,
-        "device": str(reg.device),
+        "device": str(reg.device), "machine": describe_cpu(),
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "gross_error_share": float(np.mean(rot > GROSS_ERROR_DEG)), "speed_score": float(np.mean([r["speed"] for r in rows])),
         "add_0.1d_recall": add_recall([r["add_m"] for r in rows], obj.diameter),
@@ -281,9 +282,29 @@ def time_inference(reg: CheckpointRegressor, items, threads=(1, 2), repeats: int
                     ms.append(1000 * (time.perf_counter() - t0))
                 means.append(float(np.mean(ms)))
             out[f"{n}_thread{'s' if n > 1 else ''}"] = min(means)
+            out[f"network_{n}_thread{'s' if n > 1 else ''}"] = network_call_ms(reg)
     finally:
         torch.set_num_threads(before)
     return out
+
+
+def network_call_ms(reg: CheckpointRegressor, calls: int = 20, repeats: int = 3) -> float:
+    """ms of one bare network call (batch 1, the model's input size, its device and memory layout) at
+    the current thread count, lowest of ``repeats`` means over ``calls``. The part of ``predict`` that
+    scales with the machine's arithmetic speed: beside the path's ms/image it tells a faster CPU from a
+    faster path (:mod:`hybridpose.machine`)."""
+    x = reg._tensor(np.zeros((reg.image_size, reg.image_size, 3), np.uint8))
+    means = []
+    with torch.inference_mode():
+        reg.net(x)  # warm-up
+        for _ in range(max(1, int(repeats))):
+            t0 = time.perf_counter()
+            for _ in range(max(1, int(calls))):
+                reg.net(x)
+            if reg.device.type == "cuda":
+                torch.cuda.synchronize()
+            means.append(1000 * (time.perf_counter() - t0) / max(1, int(calls)))
+    return float(min(means))
 
 
 def error_vs_distance(rows) -> list[dict]:
@@ -467,7 +488,12 @@ def report_markdown(s: dict) -> str:
                  f"{s['speed_score']:.3f} | {s['add_0.1d_recall']:.2f} | {s['gross_error_share']:.1%} | {s['failures']} | "
                  f"{ms.get('1_thread', float('nan')):.1f} | {ms.get('2_threads', float('nan')):.1f} |")
     lines += ["", "Failures (no pose) count as 180° / 1 m in the means. Error vs distance: `error_vs_distance.png`; "
-              "Grad-CAM of the best and worst predictions: `gradcam.png`.", ""]
+              "Grad-CAM of the best and worst predictions: `gradcam.png`."]
+    if "network_1_thread" in ms:
+        lines += ["", f"Timed on {cpu_label(s.get('machine', {}))}: ms/img is the whole `predict` path; one bare "
+                  f"network call (batch 1) takes {ms['network_1_thread']:.1f} ms on 1 thread here, "
+                  f"{ms.get('network_2_threads', float('nan')):.1f} ms on 2 (compare machines by it)."]
+    lines += [""]
     lines += ["| distance m | n | rot ° (mean ± σ) | trans m (mean ± σ) |", "|---|---|---|---|"]
     for b in s["error_vs_distance"]:
         lines.append(f"| {b['lo_m']:.1f}–{b['hi_m']:.1f} | {b['n']} | {b['rot_mean_deg']:.2f} ± {b['rot_std_deg']:.2f} | "

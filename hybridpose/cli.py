@@ -276,15 +276,18 @@ def cmd_train(args) -> int:
 
 def cmd_train_verifier(args) -> int:
     from .datasets.bop import dataset_object
-    from .regressors.train_verifier import build_pairs, train_verifier
+    from .regressors.train_verifier import build_pairs, check_estimators, estimator_folders, train_verifier
 
     if args.epochs < 1:  # before minutes of cutting pairs
         raise ValueError(f"--epochs: expected at least 1, got {args.epochs}")
     obj = dataset_object(args.data[0], args.object)
     # unset: build_pairs' own default (LABEL_MAX_DEG), so the bound is written down in one place
     bound = {} if args.label_max_deg is None else {"label_max_deg": args.label_max_deg}
-    pairs = build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers,
-                        estimates_from=args.estimates_from, mirrors=args.mirrors, **bound)
+    folders = estimator_folders(args.estimates_from)
+    check_estimators(ck for ck, _ in folders)
+    pairs = [build_pairs(args.data, args.out, obj, seed=args.seed, workers=args.workers, estimates_from=ck,
+                         mirrors=args.mirrors, folder=folder, **bound) for ck, folder in folders]
+    pairs = pairs[0] if len(pairs) == 1 else pairs
     best = train_verifier(pairs, args.out, obj, epochs=args.epochs, batch=args.batch, lr=args.lr, width=args.width,
                           seed=args.seed, resume=args.resume, init_from=args.init_from)
     hist = json.loads((Path(args.out) / "history.json").read_text())
@@ -364,9 +367,11 @@ def build_parser() -> argparse.ArgumentParser:
     tv.add_argument("--seed", type=int, default=0)
     tv.add_argument("--workers", type=int, default=1, help="processes that cut the pairs (the result does not depend on it)")
     tv.add_argument("--resume", action="store_true", help="continue from out/last.pt")
-    tv.add_argument("--estimates-from", default=None, metavar="CHECKPOINT",
+    tv.add_argument("--estimates-from", nargs="+", default=None, metavar="CHECKPOINT",
                     help="candidates from this keypoint regressor's own poses of the views (what the verifier sees "
-                         "at inference) instead of noise on the ground truth")
+                         "at inference) instead of noise on the ground truth; several: every view is cut once per "
+                         "checkpoint (out/pairs, out/pairs2, …: e.g. the default and its edge-on expert, whose twins "
+                         "the pooled rule scores too) and the verifier trains on all of them")
     tv.add_argument("--label-max-deg", type=float, default=None, metavar="DEG",
                     help="with --estimates-from: leave out views whose nearest twin is further off than this "
                          "(degrees; default train_verifier.LABEL_MAX_DEG, 20; wider teaches the views with "

@@ -279,3 +279,41 @@ def test_mirror_pairs_hold_the_twins_and_their_edge_on_mirrors(edge_on_views, vi
     near = sum(view_elevation_deg(s.image(i).pose, truss) < MIRROR_BELOW_DEG + 15 for s in scenes for i in s.image_ids)
     kept = load_pairs(build_pairs([views], tmp_path / "v", truss, seed=1, progress=False, mirrors=True))[2]
     assert len(kept) <= near < 8
+
+
+def test_estimator_folders_give_each_estimator_its_own_pairs():
+    from hybridpose.regressors.train_verifier import estimator_folders
+
+    assert estimator_folders(None) == [(None, "pairs")] and estimator_folders([]) == [(None, "pairs")]
+    assert estimator_folders("a.pt") == [("a.pt", "pairs")]
+    assert estimator_folders(["a.pt", "b.pt", "c.pt"]) == [("a.pt", "pairs"), ("b.pt", "pairs2"), ("c.pt", "pairs3")]
+    with pytest.raises(ValueError, match="the same checkpoint twice"):
+        estimator_folders(["a.pt", "a.pt"])
+
+
+def test_train_verifier_on_the_estimates_of_the_default_and_its_edge_on_expert(views, truss, tmp_path, capsys):
+    """hybridpose train-verifier --estimates-from A B: each view cut once per estimator, into its own
+    folder with its own record, and the verifier trained on both (the pooled rule scores the twins of
+    both estimates); a bad checkpoint among them fails before any pairs are cut."""
+    from hybridpose.cli import main
+    from hybridpose.regressors.predictor import shipped_checkpoint
+
+    default, expert = shipped_checkpoint("default"), shipped_checkpoint("edge_on_expert")
+    out = tmp_path / "tv"
+    assert main(["train-verifier", "--data", str(views), "--out", str(out), "--epochs", "1", "--width", "8",
+                 "--batch", "4", "--seed", "2", "--estimates-from", str(default), str(expert)]) == 0
+    assert "best validation accuracy" in capsys.readouterr().out
+    metas = [json.loads((out / f / "meta.json").read_text()) for f in ("pairs", "pairs2")]
+    assert [m["estimates_from"] for m in metas] == [str(default), str(expert)]
+    n = [len(load_pairs(out / f)[2]) for f in ("pairs", "pairs2")]
+    assert all(k >= 2 for k in n)
+    ck = torch.load(out / "best.pt", weights_only=False)
+    assert ck["pairs"] == [str(out / "pairs"), str(out / "pairs2")]
+    # the pairs of the default alone are the ones a one-estimator run cuts
+    alone = build_pairs([views], tmp_path / "alone", truss, seed=2, progress=False, estimates_from=default)
+    np.testing.assert_array_equal(load_pairs(alone)[1], load_pairs(out / "pairs")[1])
+    bad = tmp_path / "bad"
+    assert main(["train-verifier", "--data", str(views), "--out", str(bad), "--epochs", "1",
+                 "--estimates-from", str(default), str(tmp_path / "missing.pt")]) == 2
+    assert "missing.pt: checkpoint not found" in capsys.readouterr().err
+    assert not (bad / "pairs").exists()

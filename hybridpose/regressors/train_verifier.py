@@ -85,8 +85,8 @@ def _label_sets(dirs) -> list[tuple[Path, list, object]]:
 
 def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progress: bool = True,
                 workers: int = 1, chunk: int = CHUNK, estimates_from=None,
-                label_max_deg: float = LABEL_MAX_DEG, mirrors: bool = False) -> Path:
-    """Cut strips and drawings of every view in the datasets ``dirs`` into ``out/pairs`` (see module doc).
+                label_max_deg: float = LABEL_MAX_DEG, mirrors: bool = False, folder: str = "pairs") -> Path:
+    """Cut strips and drawings of every view in the datasets ``dirs`` into ``out/folder`` (see module doc).
 
     Chunks already there are kept (a killed run resumes) when ``out/pairs/meta.json`` records the same
     settings; pairs cut with other settings are refused (ValueError), not mixed. Each chunk is written
@@ -97,7 +97,8 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
     candidates (instead of noise on the ground truth; ≈ 15 ms more per view); ``label_max_deg``: with
     ``estimates_from``, views whose nearest twin is further off (degrees) are left out; ``mirrors``:
     eight candidates (the twins and the twins of the edge-on mirror) of the views estimated within
-    ``MIRROR_BELOW_DEG`` of edge-on only.
+    ``MIRROR_BELOW_DEG`` of edge-on only. ``folder``: the pairs directory's name in ``out`` (one per
+    estimator when the views are cut with several: :func:`estimator_folders`).
     """
     if chunk < 1 or workers < 1:
         raise ValueError(f"chunk, workers: expected positive counts, got {chunk}, {workers}")
@@ -106,7 +107,9 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
     if estimates_from is not None:
         estimates_from = str(estimates_from)
         _estimator(estimates_from)  # a bad checkpoint fails here, not in every worker
-    pairs = Path(out) / "pairs"
+    if not folder or Path(folder).name != folder:
+        raise ValueError(f"folder: expected a plain directory name inside out, got {folder!r}")
+    pairs = Path(out) / folder
     pairs.mkdir(parents=True, exist_ok=True)
     views = [(d, lab, cam) for d, labels, cam in _label_sets(dirs) for lab in labels][:limit]
     n_views = len(views)
@@ -139,6 +142,30 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
     if bar is not None:
         bar.close()
     return pairs
+
+
+def estimator_folders(estimates_from) -> list[tuple[str | None, str]]:
+    """(estimator checkpoint or None, pairs folder) for each estimator the views are cut with: ``pairs`` for
+    the first (or for noise on the ground truth when ``estimates_from`` is None or empty), ``pairs2``,
+    ``pairs3``… for the others. Several estimators: the predictor's pooled rule shows the verifier the box
+    twins of every estimate it pools (the default's and the edge-on expert's), so a verifier can be taught
+    on each's own errors; the folders keep their own records (``meta.json``) and resume on their own."""
+    if estimates_from is None or isinstance(estimates_from, (str, Path)):
+        estimates_from = [] if estimates_from is None else [estimates_from]
+    checkpoints = [str(c) for c in estimates_from]
+    if len(set(checkpoints)) != len(checkpoints):
+        raise ValueError(f"estimates_from: the same checkpoint twice in {checkpoints} (its pairs would count double)")
+    if not checkpoints:
+        return [(None, "pairs")]
+    return [(c, "pairs" if k == 0 else f"pairs{k + 1}") for k, c in enumerate(checkpoints)]
+
+
+def check_estimators(checkpoints) -> None:
+    """Load every estimator checkpoint (None entries skipped) before any pairs are cut: a missing file or a
+    regressor without a twin head fails at once, not after the first estimator's cut."""
+    for checkpoint in checkpoints:
+        if checkpoint is not None:
+            _estimator(str(checkpoint))
 
 
 def _open_pairs(pairs: Path, settings: dict, out) -> None:
@@ -347,7 +374,8 @@ def train_verifier(pairs, out, obj, epochs: int = 4, batch: int = 64, lr: float 
         history.append(row)
         log.info("twin verifier %s", row)
         payload = {"format": CHECKPOINT_FORMAT, "model": net.state_dict(), "width": width, "object": obj.name,
-                   "diameter_m": float(obj.diameter), "history": history, "pairs": str(pairs)}
+                   "diameter_m": float(obj.diameter), "history": history,
+                   "pairs": str(pairs) if isinstance(pairs, (str, Path)) else [str(d) for d in pairs]}
         if acc > best_acc:
             best_acc = acc
             save_checkpoint(out / "best.pt", payload)

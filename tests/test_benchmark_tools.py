@@ -1,0 +1,50 @@
+"""Helpers of the benchmark scripts that decide what their tables say (benchmarks/ is not a package)."""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+
+import paper_check  # noqa: E402
+import predict_stages  # noqa: E402
+from _common import test_views as views_of  # noqa: E402  (not a test: renamed so pytest does not collect it)
+from hybridpose.datasets import render_random_dataset  # noqa: E402
+from hybridpose.geometry import Camera  # noqa: E402
+from hybridpose.regressors import keypoint_net, predictor  # noqa: E402
+from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint  # noqa: E402
+
+
+def test_stage_timers_split_the_predict_path_and_put_every_function_back(truss, tmp_path):
+    render_random_dataset(tmp_path / "ds", truss, Camera.default().scaled((320, 240)), count=3, seed=5, in_view=True)
+    frames = [f for f, _ in views_of(tmp_path / "ds")]
+    originals = [(owner, attr, getattr(owner, attr)) for owner, attr, _ in predict_stages.STAGES]
+    forward = keypoint_net.KeypointNet.forward
+    rows = predict_stages.measure(CheckpointRegressor(shipped_checkpoint("default")), frames)
+    assert len(rows) == 3
+    for r in rows:
+        stages = sum(r[s] for s in predict_stages.STAGE_NAMES)
+        assert 0 < stages <= r["total"]                   # outermost calls only: nothing counted twice
+        assert r["network_calls"] >= 1 and r["network_images"] >= r["network_calls"] and r["detection"] > 0
+    g = predict_stages.summarise(rows)
+    assert g["views"] == 3 and g["ms_other"] >= 0
+    assert all(getattr(owner, attr) is fn for owner, attr, fn in originals)
+    assert keypoint_net.KeypointNet.forward is forward
+    with pytest.raises(RuntimeError, match="boom"):
+        with predict_stages.stage_timers():
+            assert predictor.solve_pnp is not originals[1][2]
+            raise RuntimeError("boom")
+    assert all(getattr(owner, attr) is fn for owner, attr, fn in originals)
+
+
+def test_paper_check_verdict_reads_the_interval_against_the_paper():
+    assert paper_check.verdict({"ci95": [3.9, 4.5]}, 4.61) == "below"
+    assert paper_check.verdict({"ci95": [3.9, 4.8]}, 4.61) == "level"
+    assert paper_check.verdict({"ci95": [4.7, 5.0]}, 4.61) == "above"
+    rng = np.random.default_rng(0)
+    c = paper_check.bootstrap(np.full(50, 2.0), np.mean, 200, rng)
+    assert c == {"estimate": 2.0, "ci95": [2.0, 2.0]}
+    x = rng.normal(5.0, 1.0, 400)
+    c = paper_check.bootstrap(x, np.mean, 2000, rng)
+    assert c["ci95"][0] < x.mean() < c["ci95"][1] and c["ci95"][1] - c["ci95"][0] == pytest.approx(4 * 1 / 20, rel=0.2)

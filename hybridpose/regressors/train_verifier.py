@@ -88,7 +88,7 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
                 label_max_deg: float = LABEL_MAX_DEG, mirrors: bool = False, folder: str = "pairs") -> Path:
     """Cut strips and drawings of every view in the datasets ``dirs`` into ``out/folder`` (see module doc).
 
-    Chunks already there are kept (a killed run resumes) when ``out/pairs/meta.json`` records the same
+    Chunks already there are kept (a killed run resumes) when ``out/folder/meta.json`` records the same
     settings; pairs cut with other settings are refused (ValueError), not mixed. Each chunk is written
     atomically. Chunk ``c``'s
     noise comes from the seed ``(seed, c)``, so the pairs do not depend on ``workers`` (processes).

@@ -24,6 +24,17 @@ def environment() -> dict:
             "processor": platform.processor(), **describe_cpu()}
 
 
+def weights_tag(*paths) -> str:
+    """8 hex digits of the files' contents (sha1): names which weights a cache or a table was made with, so
+    other weights under the same file name (a verifier shipped since, say) are told apart."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for path in paths:
+        h.update(Path(path).read_bytes())
+    return h.hexdigest()[:8]
+
+
 def cached_npz(folder, key: str, compute) -> dict:
     """``compute()`` (a dict of arrays), kept in ``folder``/``key``.npz and read back from there when
     present (written atomically); no cache when ``folder`` is None. For benchmarks that measure each

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import environment, publish, set_names
+from _common import environment, publish, set_names, weights_tag
 from hybridpose.machine import cpu_label
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, PAPER
 from hybridpose.regressors.predictor import shipped_checkpoint
@@ -48,13 +48,11 @@ def evaluate_set(job) -> str:
 
 
 def verifier_tag() -> str:
-    """The shipped twin verifier's file, named by 8 hex digits of its contents (the part of the path that
-    ships changed most often: the table says which one it measured)."""
-    import hashlib
-
+    """The shipped twin verifier's file and :func:`weights_tag` (the part of the path that ships changed most
+    often: the table says which one it measured)."""
     from hybridpose.regressors.predictor import WEIGHTS_DIR
 
-    return f"`twin_verifier.pt` {hashlib.sha256((WEIGHTS_DIR / 'twin_verifier.pt').read_bytes()).hexdigest()[:8]}"
+    return f"`twin_verifier.pt` {weights_tag(WEIGHTS_DIR / 'twin_verifier.pt')}"
 
 
 def bootstrap(values: np.ndarray, stat, resamples: int, rng) -> dict:

@@ -21,7 +21,6 @@ confirmed was written) also shows other weights. The dim fallback is off here (i
 from __future__ import annotations
 
 import argparse
-import hashlib
 import time
 from pathlib import Path
 
@@ -31,7 +30,7 @@ import torch
 from hybridpose.core import Frame
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import view_elevation_deg
-from _common import PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, publish, test_views
+from _common import PAIRED_HEADER, cached_npz, concat_sets, environment, paired_cells, publish, test_views, weights_tag
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import (POOLED_PNP_WEIGHT, REFINE_MIN_QUALITY, REFINE_SEARCH_PX,
                                              VERIFIER_EDGE_WEIGHT, VERIFIER_SURE, CheckpointRegressor, _pnp_quality,
@@ -93,19 +92,12 @@ def estimates_and_twins(reg: CheckpointRegressor, frame: Frame):
     return image, cam, ests, [reg._twin_starts(res.pose, order) for res, order, _, _ in ests]
 
 
-def weights_tag(*paths) -> str:
-    """8 hex digits of the files' contents: a cache made with other weights under the same names (a
-    verifier shipped since, say) gets another key instead of being replayed as if it were current."""
-    h = hashlib.sha1()
-    for path in paths:
-        h.update(Path(path).read_bytes())
-    return h.hexdigest()[:8]
-
-
 def cached(folder, data: str, checkpoint: str, expert: str = "auto", limit=None, verifier: str | None = None) -> dict:
     """:func:`measure` (with ``verifier``: :func:`verifier_column` of that verifier), kept in ``folder``
     (one .npz per set, checkpoint, expert, limit and verifier, keyed by their names and
-    :func:`weights_tag` of their files; the shipped verifier's where :func:`measure` records it) when given."""
+    :func:`weights_tag` of their files; the shipped verifier's where :func:`measure` records it) when given:
+    a cache made with other weights under the same names gets another key instead of being replayed as if
+    it were current."""
     tag = "" if expert == "auto" else f"__{Path(expert).stem}"
     expert_file = WEIGHTS_DIR / "edge_on_expert.pt" if expert == "auto" else expert
     key = f"{Path(data).name}__{Path(checkpoint).stem}{tag}__{limit}"

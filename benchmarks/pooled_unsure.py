@@ -58,21 +58,21 @@ def main() -> None:
              "both per view turn about in one process.", "",
              f"| sets | views | ms/view A → B | {PAIRED_HEADER.format(gross=GROSS_ERROR_DEG)} |",
              "|---|---|---|---|---|---|---|---|"]
+
+    def compare(label: str, m: dict) -> dict:
+        """The paired comparison and times of the views ``m``, its table row appended to ``lines``."""
+        c = paired_comparison(m["rot_quality"], m["rot_pooled-unsure"])
+        ms = [1000 * float(m[f"seconds_{n}"].mean()) for n in regs]
+        lines.append(f"| {label} | {len(m['rot_quality'])} | {ms[0]:.1f} → {ms[1]:.1f} | {paired_cells(c)} |")
+        return {"views": len(m["rot_quality"]), "ms_per_view": ms, "rotation": c}
+
     every = []
     for g, dirs in groups.items():
         m = concat_sets([measure(d, regs, args.limit) for d in dirs])
         every.append(m)
-        c = paired_comparison(m["rot_quality"], m["rot_pooled-unsure"])
-        ms = [1000 * float(m[f"seconds_{n}"].mean()) for n in regs]
-        out["groups"][g] = {"views": len(m["rot_quality"]), "ms_per_view": ms, "rotation": c,
-                            "per_view": {k: v.tolist() for k, v in m.items()}}
-        lines.append(f"| {g} ({set_names(dirs)}) | {len(m['rot_quality'])} | {ms[0]:.1f} → {ms[1]:.1f} | {paired_cells(c)} |")
+        out["groups"][g] = {**compare(f"{g} ({set_names(dirs)})", m), "per_view": {k: v.tolist() for k, v in m.items()}}
     if len(every) > 1:
-        m = concat_sets(every)
-        c = paired_comparison(m["rot_quality"], m["rot_pooled-unsure"])
-        ms = [1000 * float(m[f"seconds_{n}"].mean()) for n in regs]
-        out["all"] = {"views": len(m["rot_quality"]), "ms_per_view": ms, "rotation": c}
-        lines.append(f"| all | {len(m['rot_quality'])} | {ms[0]:.1f} → {ms[1]:.1f} | {paired_cells(c)} |")
+        out["all"] = compare("all", concat_sets(every))
     publish("pooled_unsure", "pooled-unsure", out, lines)
 
 

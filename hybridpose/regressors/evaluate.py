@@ -294,16 +294,17 @@ def network_call_ms(reg: CheckpointRegressor, calls: int = 20, repeats: int = 3)
     scales with the machine's arithmetic speed: beside the path's ms/image it tells a faster CPU from a
     faster path (:mod:`hybridpose.machine`)."""
     x = reg._tensor(np.zeros((reg.image_size, reg.image_size, 3), np.uint8))
+    calls, repeats = max(1, int(calls)), max(1, int(repeats))
     means = []
     with torch.inference_mode():
         reg.net(x)  # warm-up
-        for _ in range(max(1, int(repeats))):
+        for _ in range(repeats):
             t0 = time.perf_counter()
-            for _ in range(max(1, int(calls))):
+            for _ in range(calls):
                 reg.net(x)
             if reg.device.type == "cuda":
                 torch.cuda.synchronize()
-            means.append(1000 * (time.perf_counter() - t0) / max(1, int(calls)))
+            means.append(1000 * (time.perf_counter() - t0) / calls)
     return float(min(means))
 
 

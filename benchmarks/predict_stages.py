@@ -1,11 +1,11 @@
 """Where the shipped regressor's time goes: ms per view of each stage of ``predict``, 1 thread.
 
-Usage: python benchmarks/predict_stages.py --data data/truss_test100 [--limit 400] [--checkpoint CK]
+Usage: python benchmarks/predict_stages.py --data data/truss_test100 [--limit 400] [--checkpoint CK] [--engine E]
 Writes benchmarks/results/predict_stages.json and the "predict-stages" section of RESULTS.md.
 
 Each stage's function is timed where ``predict`` calls it (a stage called inside another is counted in
-the outer one): the keypoint network (every pass: first crop, the turned-crop batch, the second pass,
-the edge-on expert's), PnP, the edge fits (twin choice and refinement), the object detection and the
+the outer one): the keypoint network (every pass of the engine that runs it, torch or ONNX Runtime:
+first crop, the turned-crop batch, the second pass, the edge-on expert's), PnP, the edge fits (twin choice and refinement), the object detection and the
 twin verifier; *other* is the rest of ``predict`` (crops, twin candidates, covariance). Views are split
 by the network time they needed: *one pass* (one batch-1 call) and *more* (turned crops, second pass,
 expert). The bare network call (batch 1, :func:`hybridpose.regressors.evaluate.network_call_ms`) and the
@@ -25,14 +25,15 @@ import torch
 
 from _common import environment, publish, test_views
 from hybridpose.machine import cpu_label
-from hybridpose.regressors import keypoint_net, predictor, twin_verifier
+from hybridpose.regressors import engines, predictor, twin_verifier
 from hybridpose.regressors.evaluate import network_call_ms
 from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint
 from hybridpose.trackers import edges
 
 # (owner, attribute, stage): where predict looks each stage up when it runs (module globals are read at
 # call time, fit_edges is imported inside the methods that use it)
-STAGES = ((keypoint_net.KeypointNet, "forward", "network"), (predictor, "solve_pnp", "PnP"),
+ENGINE_CALLS = ((engines.TorchEngine, "__call__"), (engines.OnnxRuntimeEngine, "__call__"))
+STAGES = (*((owner, attr, "network") for owner, attr in ENGINE_CALLS), (predictor, "solve_pnp", "PnP"),
           (edges, "fit_edges", "edge fits"), (predictor, "detect_bright_object", "detection"),
           (predictor, "detect_dim_object", "detection"),
           (twin_verifier.TwinVerifier, "probabilities", "verifier"),
@@ -73,14 +74,17 @@ def stage_timers():
 def measure(reg: CheckpointRegressor, frames) -> list[dict]:
     """Per view: total and per-stage seconds, network calls and images through the network."""
     images_per_call = []
-    net_forward = keypoint_net.KeypointNet.forward
+    engine_calls = [(owner, attr, getattr(owner, attr)) for owner, attr in ENGINE_CALLS]
 
-    def counting_forward(self, x, *args, **kwargs):
-        images_per_call.append(int(x.shape[0]))
-        return net_forward(self, x, *args, **kwargs)
+    def counting(call):
+        def run(self, x):
+            images_per_call.append(int(x.shape[0]))
+            return call(self, x)
+        return run
 
     rows = []
-    keypoint_net.KeypointNet.forward = counting_forward
+    for owner, attr, call in engine_calls:
+        setattr(owner, attr, counting(call))
     try:
         with stage_timers() as (seconds, calls):
             reg.predict(frames[0])  # warm-up
@@ -94,7 +98,8 @@ def measure(reg: CheckpointRegressor, frames) -> list[dict]:
                 row["network_images"] = sum(images_per_call[n_before:])
                 rows.append(row)
     finally:
-        keypoint_net.KeypointNet.forward = net_forward
+        for owner, attr, call in engine_calls:
+            setattr(owner, attr, call)
     return rows
 
 
@@ -114,9 +119,10 @@ def main() -> None:
     ap.add_argument("--data", required=True)
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
     ap.add_argument("--limit", type=int, default=400)
+    ap.add_argument("--engine", default="auto", choices=engines.ENGINES)
     args = ap.parse_args()
     torch.set_num_threads(1)
-    reg = CheckpointRegressor(args.checkpoint)
+    reg = CheckpointRegressor(args.checkpoint, engine=args.engine)
     frames = [frame for frame, _ in test_views(args.data, args.limit)]
     rows = measure(reg, frames)
     one_pass = [r for r in rows if r["network_calls"] == 1 and r["network_images"] == 1]
@@ -127,17 +133,20 @@ def main() -> None:
     if more:
         groups["more passes (turns, second pass, expert)"] = summarise(more)
     env = environment()
-    bare_ms = network_call_ms(reg)
-    payload = {"env": env, "data": args.data, "checkpoint": args.checkpoint, "bare_network_ms": bare_ms,
+    bare_ms, engine_ms = network_call_ms(reg, on_torch=True), network_call_ms(reg)
+    payload = {"env": env, "data": args.data, "checkpoint": args.checkpoint, "engine": reg.engine.name,
+               "bare_network_ms": bare_ms, "engine_network_ms": engine_ms,
                "groups": groups, "per_view_ms": {k: [1e3 * r[k] for r in rows] for k in ("total",) + STAGE_NAMES}}
     total = groups["all views"]["ms_total"]
     lines = [
         "## Where the shipped regressor's time goes (`python benchmarks/predict_stages.py`)",
         "",
-        f"`{args.data}`, first {len(rows)} views, whole `predict` path (no roi), torch on 1 thread, one run; "
-        f"{cpu_label(env)}, git {env['git']}. One bare network call (batch 1, {reg.image_size} px) takes "
+        f"`{args.data}`, first {len(rows)} views, whole `predict` path (no roi), the network on {reg.engine.name}, "
+        "1 thread, one run; "
+        f"{cpu_label(env)}, git {env['git']}. One bare network call (batch 1, {reg.image_size} px, torch) takes "
         f"**{bare_ms:.1f} ms** on this CPU: timings from hosts whose bare call differs are not comparable (the "
-        "same code ran the path in 17.9 ms/view where the call took ≈ 3.5 ms). ms per view of each stage; "
+        f"same code ran the path in 17.9 ms/view where the call took ≈ 3.5 ms); on {reg.engine.name} it takes "
+        f"{engine_ms:.1f} ms. ms per view of each stage; "
         "*other*: crops, twin candidates, covariance, Python.",
         "",
         "| views | share | ms/view | network | PnP | edge fits | detection | verifier | other | network calls | images through it |",

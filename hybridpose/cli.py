@@ -220,12 +220,12 @@ def cmd_eval(args) -> int:
                             mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier,
                             edge_on_expert=None if args.edge_on_expert == "none" else args.edge_on_expert,
                             expert_rule=args.expert_rule, dim_fallback=not args.no_dim_fallback,
-                            max_depth_m=None if args.max_depth == "none" else args.max_depth)
+                            max_depth_m=None if args.max_depth == "none" else args.max_depth, engine=args.engine)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
           f"ADD-0.1d {s['add_0.1d_recall']:.2f}, {s['failures']} failures, {ms.get('1_thread', 0):.1f} ms/img (1 thread; "
-          f"the bare network {ms.get('network_1_thread', 0):.1f} ms a call on this CPU) → {Path(args.out) / 'report.md'}")
+          f"the bare network {ms.get('network_1_thread', 0):.1f} ms a call on {s['engine']} on this CPU) → {Path(args.out) / 'report.md'}")
     return 0
 
 
@@ -256,6 +256,15 @@ def cmd_calibrate(args) -> int:
     if bands:
         print("  then by quality band: " + ", ".join(f"≥ {e:.1f}: ×{f:.2f} ({n} poses)" for e, f, n in
                                                      zip(bands["edges"], bands["factors"], bands["poses"])))
+    return 0
+
+
+def cmd_quantize(args) -> int:
+    from .regressors.quantize import quantize_checkpoint
+
+    rec = quantize_checkpoint(args.checkpoint, args.data, args.out, crops=args.crops, progress=_progress("quantize"))
+    print(f"quantize: {rec['checkpoint']} calibrated on {rec['crops']} crops of {args.data} → {rec['path']} "
+          f"(use it with engine='onnxruntime-int8')")
     return 0
 
 
@@ -396,6 +405,15 @@ def build_parser() -> argparse.ArgumentParser:
                           "band of measurement quality, so poor measurements are not over-confident)")
     cal.set_defaults(func=cmd_calibrate)
 
+    qz = sub.add_parser("quantize", help="8-bit model of a keypoint checkpoint for ONNX Runtime (engine onnxruntime-int8), "
+                                         "calibrated on the crops the float network sees on rendered views")
+    qz.add_argument("--checkpoint", required=True, help="keypoint checkpoint (best.pt or an export)")
+    qz.add_argument("--data", required=True, help="BOP dataset to calibrate on (another seed than the test sets)")
+    qz.add_argument("--out", default=None, help="the .onnx file (default: beside the checkpoint, NAME.int8.onnx, "
+                                                "where engine='onnxruntime-int8' looks for it)")
+    qz.add_argument("--crops", type=int, default=300, help="calibration crops (default 300)")
+    qz.set_defaults(func=cmd_quantize)
+
     e = sub.add_parser("eval", help="evaluate a trained regressor: paper table, SPEED, ADD-0.1d, plots, Grad-CAM, ms/img")
     e.add_argument("--checkpoint", required=True, help="best.pt of a training run")
     e.add_argument("--data", required=True, help="held-out BOP dataset (e.g. hybridpose render --kind random --seed 100)")
@@ -412,6 +430,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keypoint models: PnP leaves the worst keypoint out until the rest agree (drop-worst, the "
                         "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
+    e.add_argument("--engine", choices=("auto", "torch", "onnxruntime", "onnxruntime-int8"), default="auto",
+                   help="keypoint models: what runs the network on the CPU: ONNX Runtime where installed (auto, "
+                        "default), torch, onnxruntime (an error where it cannot), or the 8-bit model made by "
+                        "hybridpose quantize (onnxruntime-int8)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")
     e.add_argument("--mirror-verifier", default="auto",

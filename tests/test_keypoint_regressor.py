@@ -10,6 +10,7 @@ from hybridpose.core import Frame
 from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera, Pose, projection_jacobian, random_quat
 from hybridpose.metrics import rotation_error_deg
+from hybridpose.regressors.engines import TorchEngine
 from hybridpose.regressors.calibration import nees, pnp_covariance
 from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax, widen_state_dict
 from hybridpose.regressors.keypoint_pnp import solve_pnp
@@ -693,7 +694,8 @@ def test_turned_crops_map_their_keypoints_back_to_the_crop(tiny_checkpoint):
     """A dot seen in crops turned by ±20°/±40° must come back where it is in the unturned crop (the
     turn's direction and centre convention checked against a known answer)."""
     reg = CheckpointRegressor(tiny_checkpoint)
-    reg.net = _BrightestPixelNet(len(reg.keypoints_m), len(reg.twins) + 1)
+    fake = _BrightestPixelNet(len(reg.keypoints_m), len(reg.twins) + 1)
+    reg.engine = TorchEngine(fake, torch.device("cpu"))
     S = reg.image_size
     crop = np.zeros((S, S, 3), np.uint8)
     dot = (44, 21)  # (x, y) crop pixels, off centre so that a wrong turn direction or centre shows
@@ -701,7 +703,7 @@ def test_turned_crops_map_their_keypoints_back_to_the_crop(tiny_checkpoint):
     crop = cv2.GaussianBlur(crop, (5, 5), 1.0)  # a turned dot stays the brightest pixel near its place
     K_crop = np.array([[100.0, 0, S / 2], [0, 100.0, S / 2], [0, 0, 1]])
     passes = reg._solve_turned(crop, K_crop, (0.0, 20.0, -20.0, 40.0, -40.0))
-    assert reg.net.seen == [5], "one batch for all turns"
+    assert fake.seen == [5], "one batch for all turns"
     for res, uv, order, prob in passes:
         assert res is None  # all keypoints on one pixel: no pose
         np.testing.assert_allclose(uv, np.tile(dot, (len(uv), 1)), atol=1.0)

@@ -164,16 +164,16 @@ def test_quality_carries_the_twin_heads_belief(truss, belief):
     with Renderer(truss, camera) as r:
         frame = Frame(r.render(truth).rgb, camera, 0.0)
     reg = create("regressor", "default", object=truss, refine_edges=False, passes=1)
-    net, sure = reg.net, 1.0 - 1e-9
+    engine, sure = reg.engine, 1.0 - 1e-9
     qualities = {}
     for p in (sure, belief):
-        def forced(x, with_twin=False, p=p):
-            uv, spread, twin = net(x, with_twin=True)
+        def forced(x, p=p):
+            uv, spread, twin = engine(x)
             prob = torch.full_like(twin, (1 - p) / (twin.shape[1] - 1))
             prob[0, int(twin[0].argmax())] = p  # the head's own choice, with the belief we set
             return uv, spread, torch.log(prob)
 
-        reg.net = forced
+        reg.engine = forced
         m = reg.predict(frame)
         assert m.pose is not None and rotation_error_deg(m.pose, truth) < 5.0
         qualities[p] = m.quality

@@ -53,7 +53,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
                         device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
                         sun_known: bool = False, mirror_verifier="auto",
                         edge_on_expert="auto", expert_rule: str = "pooled-unsure", dim_fallback: bool = True,
-                        max_depth_m=None) -> dict:
+                        max_depth_m=None, engine: str = "auto") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
     ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in
@@ -66,14 +66,15 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     image's sun as the dataset records it (``predict(..., sun_direction_cam=...)``: what a caller
     with a sun sensor can do). ``mirror_verifier``: the edge-on mirror check (``"auto"``, a path or
     None, as ``verifier``); ``edge_on_expert``: the edge-on expert (``"auto"``, a path or None, ditto);
-    ``expert_rule``, ``dim_fallback`` and ``max_depth_m``: :class:`CheckpointRegressor`'s arguments.
+    ``expert_rule``, ``dim_fallback``, ``max_depth_m`` and ``engine``: :class:`CheckpointRegressor`'s
+    arguments; the summary's ``engine`` names the one that ran the network.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier,
                               turns=turns, pnp_outliers=pnp_outliers, mirror_verifier=mirror_verifier,
                               edge_on_expert=edge_on_expert, expert_rule=expert_rule, dim_fallback=dim_fallback,
-                              max_depth_m=max_depth_m)
+                              max_depth_m=max_depth_m, engine=engine)
     scenes = [BopScene(p) for p in find_scenes(data)]
     items = [(s, i) for s in scenes for i in s.image_ids]
     if not items:
@@ -116,7 +117,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         "edge_on_expert": None if reg.expert is None else str(reg.expert.path),
         "expert_rule": None if reg.expert is None else reg.expert_rule, "dim_fallback": reg.dim_fallback,
         "max_depth_m": reg.max_depth_m if reg.kind == "keypoints" else None,
-        "device": str(reg.device), "machine": describe_cpu(),
+        "device": str(reg.device), "engine": reg.engine.name if reg.engine is not None else "torch",
+        "machine": describe_cpu(),
         "rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "trans_mean_m": float(trans.mean()),
         "trans_median_m": float(np.median(trans)), "gross_error_share": float(np.mean(rot > GROSS_ERROR_DEG)), "speed_score": float(np.mean([r["speed"] for r in rows])),
         "add_0.1d_recall": add_recall([r["add_m"] for r in rows], obj.diameter),
@@ -288,20 +290,25 @@ def time_inference(reg: CheckpointRegressor, items, threads=(1, 2), repeats: int
     return out
 
 
-def network_call_ms(reg: CheckpointRegressor, calls: int = 20, repeats: int = 3) -> float:
+def network_call_ms(reg: CheckpointRegressor, calls: int = 20, repeats: int = 3, on_torch: bool = False) -> float:
     """ms of one bare network call (batch 1, the model's input size, its device and memory layout) at
     the current thread count, lowest of ``repeats`` means over ``calls``. The part of ``predict`` that
     scales with the machine's arithmetic speed: beside the path's ms/image it tells a faster CPU from a
-    faster path (:mod:`hybridpose.machine`)."""
-    x = reg._tensor(np.zeros((reg.image_size, reg.image_size, 3), np.uint8))
+    faster path (:mod:`hybridpose.machine`). Keypoint models: on the engine ``predict`` uses (torch or
+    ONNX Runtime), or with ``on_torch`` on torch whatever the engine (the yardstick earlier records used)."""
+    image = np.zeros((reg.image_size, reg.image_size, 3), np.uint8)
+    if reg.engine is not None and not on_torch:
+        run, x = reg.engine, reg._batch(image)
+    else:
+        run, x = reg.net, reg._tensor(image)
     calls, repeats = max(1, int(calls)), max(1, int(repeats))
     means = []
     with torch.inference_mode():
-        reg.net(x)  # warm-up
+        run(x)  # warm-up
         for _ in range(repeats):
             t0 = time.perf_counter()
             for _ in range(calls):
-                reg.net(x)
+                run(x)
             if reg.device.type == "cuda":
                 torch.cuda.synchronize()
             means.append(1000 * (time.perf_counter() - t0) / calls)
@@ -492,7 +499,7 @@ def report_markdown(s: dict) -> str:
               "Grad-CAM of the best and worst predictions: `gradcam.png`."]
     if "network_1_thread" in ms:
         lines += ["", f"Timed on {cpu_label(s.get('machine', {}))}: ms/img is the whole `predict` path; one bare "
-                  f"network call (batch 1) takes {ms['network_1_thread']:.1f} ms on 1 thread here, "
+                  f"network call (batch 1, on {s.get('engine', 'torch')}) takes {ms['network_1_thread']:.1f} ms on 1 thread here, "
                   f"{ms.get('network_2_threads', float('nan')):.1f} ms on 2 (compare machines by it)."]
     lines += [""]
     lines += ["| distance m | n | rot ° (mean ± σ) | trans m (mean ± σ) |", "|---|---|---|---|"]

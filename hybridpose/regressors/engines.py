@@ -1,0 +1,130 @@
+"""Where a keypoint network runs at inference: torch, or ONNX Runtime on the CPU.
+
+ONNX Runtime's CPU kernels run the shipped 128-px keypoint network ≈ 1.6× as fast as torch's at
+batch 1 on one thread (4.4 vs 7.0 ms a call on an AVX2 EPYC; benchmarks/RESULTS.md, "Inference
+engines") with the same outputs to float rounding, and that call is half of ``predict``'s time. So
+``engine="auto"`` (the regressors' default) runs keypoint networks there on the CPU, and on torch
+where ONNX Runtime is missing, on a GPU, or where the export fails (logged once).
+
+The network is exported at load (torch's TorchScript-based ONNX exporter: ≈ 0.3 s for the shipped
+one; the newer torch.export-based one takes ≈ 6 s) and kept in memory: a checkpoint stays the one
+file a user trains, ships and hashes. ONNX Runtime sessions follow torch's thread count
+(``torch.set_num_threads``, the regressors' ``threads=``) at each call, so one knob sets both.
+"""
+from __future__ import annotations
+
+import io
+import logging
+import warnings
+
+import numpy as np
+import torch
+from torch import nn
+
+log = logging.getLogger(__name__)
+
+ENGINES = ("auto", "torch", "onnxruntime", "onnxruntime-int8")
+
+
+class _TwinOutputs(nn.Module):
+    """``net(x, with_twin=True)`` as a module of one tensor argument (what the exporter traces)."""
+
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor):
+        return self.net(x, with_twin=True)
+
+
+class TorchEngine:
+    """A keypoint network on torch: ``engine(x)`` → (uv (B, N, 2) crop pixels, spread (B, N) pixels, twin
+    logits (B, T) or None), float tensors on the CPU, from ``x`` (B, 3, S, S) float32 in [0, 1] on the CPU."""
+
+    name = "torch"
+
+    def __init__(self, net: nn.Module, device: torch.device, memory_format=torch.contiguous_format) -> None:
+        self.net, self.device, self.memory_format = net, device, memory_format
+
+    def __call__(self, x: torch.Tensor):
+        with torch.inference_mode():
+            uv, spread, twin = self.net(x.to(self.device).contiguous(memory_format=self.memory_format), with_twin=True)
+        return uv.float().cpu(), spread.float().cpu(), None if twin is None else twin.float().cpu()
+
+
+class OnnxRuntimeEngine:
+    """The same network exported to ONNX and run by ONNX Runtime's CPU provider; same call as
+    :class:`TorchEngine`. ``model``: an ONNX model of it to run instead (bytes; the 8-bit one of
+    :mod:`hybridpose.regressors.quantize`, whose ``name`` is then given). Raises RuntimeError (naming
+    the cause) when onnxruntime or onnx is missing or the export fails."""
+
+    def __init__(self, net: nn.Module, image_size: int, model: bytes | None = None, name: str = "onnxruntime") -> None:
+        try:
+            import onnxruntime
+        except ImportError as exc:
+            raise RuntimeError(f"engine={name!r} needs the onnxruntime package (pip install onnxruntime)") from exc
+        self._ort, self.name = onnxruntime, name
+        self.has_twin = getattr(net, "twin_head", None) is not None
+        self._sessions: dict[int, object] = {}
+        if model is not None:
+            self.model = model
+            return
+        example = torch.zeros(1, 3, int(image_size), int(image_size))
+        buffer = io.BytesIO()
+        try:
+            with warnings.catch_warnings():
+                # the TorchScript exporter is deprecated in favour of torch.export's, 20× slower here; its
+                # tracer warns about the net's input checks, which the regressor has made before any call
+                warnings.simplefilter("ignore")
+                torch.onnx.export(_TwinOutputs(net.cpu()).eval(), (example,), buffer, input_names=["x"],
+                                  output_names=["uv", "spread"] + (["twin"] if self.has_twin else []),
+                                  dynamic_axes={"x": {0: "batch"}}, opset_version=17, dynamo=False)
+        except Exception as exc:  # noqa: BLE001 — any exporter failure means: this net cannot run here
+            raise RuntimeError(f"engine='onnxruntime': exporting the network to ONNX failed ({exc})") from exc
+        self.model = buffer.getvalue()
+
+    def session(self, threads: int):
+        """The ONNX Runtime session running on ``threads`` intra-op threads (made on first use)."""
+        if threads not in self._sessions:
+            options = self._ort.SessionOptions()
+            options.intra_op_num_threads = int(threads)
+            options.inter_op_num_threads = 1
+            options.graph_optimization_level = self._ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+            self._sessions[threads] = self._ort.InferenceSession(self.model, options,
+                                                                 providers=["CPUExecutionProvider"])
+        return self._sessions[threads]
+
+    def __call__(self, x: torch.Tensor):
+        outs = self.session(torch.get_num_threads()).run(None, {"x": x.detach().cpu().contiguous().numpy()})
+        uv, spread = torch.from_numpy(outs[0]), torch.from_numpy(outs[1])
+        return uv, spread, torch.from_numpy(outs[2]) if self.has_twin else None
+
+
+def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_size: int,
+                    memory_format=torch.contiguous_format, checkpoint=None):
+    """The engine named ``engine`` (one of :data:`ENGINES`) for a keypoint ``net`` (eval mode, batch
+    norm folded) on ``device``. ``"auto"``: ONNX Runtime on the CPU where it is installed and the export
+    works, else torch (the reason logged). ``"onnxruntime-int8"``: the 8-bit model made from
+    ``checkpoint`` by ``hybridpose quantize`` (beside it, :func:`~hybridpose.regressors.quantize.int8_path`)."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
+    if engine.startswith("onnxruntime") and device.type != "cpu":
+        raise ValueError(f"engine={engine!r} runs on the CPU; the network is on {device} (use engine='torch')")
+    if engine == "onnxruntime-int8":
+        from .quantize import load_int8
+
+        if checkpoint is None:
+            raise ValueError("engine='onnxruntime-int8': needs the checkpoint the 8-bit model was made from")
+        model, record = load_int8(checkpoint)
+        if int(record.get("image_size", -1)) != int(image_size):
+            raise ValueError(f"engine='onnxruntime-int8': the 8-bit model of {checkpoint} takes "
+                             f"{record.get('image_size')} px crops, the network {image_size}")
+        return OnnxRuntimeEngine(net, image_size, model=model, name=engine)
+    if engine == "onnxruntime" or (engine == "auto" and device.type == "cpu"):
+        try:
+            return OnnxRuntimeEngine(net, image_size)
+        except RuntimeError as exc:
+            if engine == "onnxruntime":
+                raise
+            log.info("keypoint network on torch: %s", exc)
+    return TorchEngine(net, device, memory_format)

@@ -48,3 +48,26 @@ def test_paper_check_verdict_reads_the_interval_against_the_paper():
     x = rng.normal(5.0, 1.0, 400)
     c = paper_check.bootstrap(x, np.mean, 2000, rng)
     assert c["ci95"][0] < x.mean() < c["ci95"][1] and c["ci95"][1] - c["ci95"][0] == pytest.approx(4 * 1 / 20, rel=0.2)
+
+
+def test_engine_benchmark_runs_every_engine_on_every_view_in_rotating_order(truss, tmp_path):
+    import inference_engines
+
+    render_random_dataset(tmp_path / "ds", truss, Camera.default().scaled((320, 240)), count=3, seed=6, in_view=True)
+    order = []
+
+    class Logged:
+        def __init__(self, name):
+            self.name, self.reg = name, CheckpointRegressor(shipped_checkpoint("default"), engine=name)
+
+        def predict(self, frame):
+            order.append(self.name)
+            return self.reg.predict(frame)
+
+    regs = {n: Logged(n) for n in ("torch", "onnxruntime")}
+    rows = inference_engines.measure(regs, views_of(tmp_path / "ds"), block=2)
+    # after the warm-up: views 0-1 torch then onnxruntime, view 2 onnxruntime then torch
+    assert order[2:] == ["torch", "torch", "onnxruntime", "onnxruntime", "onnxruntime", "torch"]
+    for n in regs:
+        assert len(rows[n]["seconds"]) == len(rows[n]["rot_deg"]) == 3 and min(rows[n]["seconds"]) > 0
+    np.testing.assert_allclose(rows["onnxruntime"]["rot_deg"], rows["torch"]["rot_deg"], atol=0.05)

@@ -3,8 +3,12 @@ refused or replaced with a clear reason where it cannot run."""
 import logging
 import sys
 
+import numpy as np
 import pytest
 import torch
+
+from hybridpose.core import Frame
+from hybridpose.geometry import Camera
 
 from hybridpose.regressors.engines import ENGINES, OnnxRuntimeEngine, TorchEngine, keypoint_engine
 from hybridpose.regressors.keypoint_net import KeypointNet
@@ -77,8 +81,7 @@ def test_engine_bad_input(truss, tmp_path):
 
 def test_shipped_default_gives_the_same_pose_on_either_engine(truss):
     """The exact speed-up: both engines, one rendered view, the same measurement to float rounding."""
-    from hybridpose.core import Frame
-    from hybridpose.geometry import Camera, Pose
+    from hybridpose.geometry import Pose
     from hybridpose.render import Renderer
 
     camera = Camera.default().scaled((320, 240))
@@ -88,3 +91,51 @@ def test_shipped_default_gives_the_same_pose_on_either_engine(truss):
     assert m["onnxruntime"].pose is not None and m["torch"].pose is not None
     assert m["onnxruntime"].pose.allclose(m["torch"].pose, atol=1e-4)
     assert m["onnxruntime"].quality == pytest.approx(m["torch"].quality, abs=1e-4)
+
+
+def test_quantize_writes_an_8bit_model_the_int8_engine_runs(tiny_checkpoint, tmp_path):
+    from hybridpose.regressors.quantize import int8_path, quantize_checkpoint, read_record
+
+    ck = tmp_path / "net.pt"
+    ck.write_bytes(tiny_checkpoint.read_bytes())
+    data = tiny_checkpoint.parent.parent / "ds"
+    rec = quantize_checkpoint(ck, data, crops=12)
+    out = int8_path(ck)
+    assert out == tmp_path / "net.int8.onnx" and rec["path"] == str(out) and out.is_file()
+    assert not list(tmp_path.glob("*.tmp")) and (out.stat().st_mode & 0o044) == 0o044  # renamed, readable
+    assert read_record(out)["crops"] == rec["crops"] == 12 and len(rec["checkpoint_sha256"]) == 64
+    f32 = CheckpointRegressor(ck, engine="onnxruntime")
+    i8 = CheckpointRegressor(ck, engine="onnxruntime-int8")
+    assert i8.engine.name == "onnxruntime-int8" and len(out.read_bytes()) < 0.5 * len(f32.engine.model)
+    x = torch.rand(3, 3, f32.image_size, f32.image_size, generator=torch.Generator().manual_seed(0))
+    (uv8, spread8, twin8), (uv, spread, twin) = i8.engine(x), f32.engine(x)
+    assert uv8.shape == uv.shape and twin8.shape == twin.shape and torch.isfinite(uv8).all()
+    assert (uv8 - uv).abs().mean() < 0.05 * f32.image_size   # 8-bit noise, not another network
+    cam = Camera.default().scaled(160)
+    m = i8.predict(Frame(np.zeros((cam.height, cam.width, 3), np.uint8), cam, 0.0))
+    assert m.lost  # the whole path runs on it (nothing in a black frame)
+
+
+def test_int8_engine_refuses_a_missing_stale_or_foreign_file(tiny_checkpoint, tmp_path, capsys):
+    from hybridpose.cli import main
+    from hybridpose.regressors.quantize import int8_path, read_record
+
+    ck = tmp_path / "net.pt"
+    ck.write_bytes(tiny_checkpoint.read_bytes())
+    with pytest.raises(ValueError, match="no 8-bit model .*hybridpose quantize"):
+        CheckpointRegressor(ck, engine="onnxruntime-int8")
+    assert main(["quantize", "--checkpoint", str(ck), "--data", str(tiny_checkpoint.parent.parent / "ds"),
+                 "--crops", "4"]) == 0
+    assert "net.int8.onnx" in capsys.readouterr().out
+    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+
+    state = load_checkpoint(ck)
+    state["model"] = {k: v * 1.01 if v.is_floating_point() else v for k, v in state["model"].items()}
+    save_checkpoint(ck, state)                              # retrained since it was quantized
+    with pytest.raises(ValueError, match="quantized from another"):
+        CheckpointRegressor(ck, engine="onnxruntime-int8")
+    int8_path(ck).write_bytes(b"not a model")
+    with pytest.raises(ValueError, match="not an ONNX model"):
+        read_record(int8_path(ck))
+    assert main(["quantize", "--checkpoint", str(ck), "--data", str(tmp_path), "--crops", "0"]) == 2
+    assert "crops: expected at least 1" in capsys.readouterr().err

@@ -7,16 +7,14 @@ import pytest
 import torch
 
 from hybridpose.core import Frame
-from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera, Pose, projection_jacobian, random_quat
 from hybridpose.metrics import rotation_error_deg
-from hybridpose.regressors.engines import TorchEngine
 from hybridpose.regressors.calibration import nees, pnp_covariance
 from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax, widen_state_dict
+from hybridpose.regressors.engines import TorchEngine
 from hybridpose.regressors.keypoint_pnp import solve_pnp
 from hybridpose.regressors.predictor import (CheckpointRegressor, detect_bright_object, detect_dim_object,
                                              twin_scores)
-from hybridpose.regressors.train import TrainConfig, train
 from hybridpose.registry import available, create
 
 
@@ -157,17 +155,6 @@ def test_detect_dim_object_finds_a_faint_object_without_glints_but_not_noise_or_
         assert detect_dim_object(np.clip(rng.normal(0, sigma, img.shape), 0, 255).astype(np.uint8)) is None
     with_noise = np.clip(img + rng.normal(0, 1.0, img.shape), 0, 255).astype(np.uint8)
     assert detect_dim_object(with_noise) is not None   # below the noise-aware threshold only once noise drowns it
-
-
-@pytest.fixture(scope="module")
-def tiny_checkpoint(truss, tmp_path_factory):
-    """A `default`-architecture model trained for a few batches (mechanics, not accuracy)."""
-    root = tmp_path_factory.mktemp("kp")
-    render_random_dataset(root / "ds", truss, Camera.default().scaled(160), count=24, seed=0)
-    cfg = TrainConfig(model="default", data=str(root / "ds"), out=str(root / "run"), epochs=1, batch=8,
-                      lr=1e-3, image_size=64, patience=0, schedule="cosine")
-    train(cfg, progress=False)
-    return root / "run" / "best.pt"
 
 
 def test_regressor_backends_are_registered():

@@ -309,3 +309,13 @@ def test_a_known_sun_turns_the_crop_to_the_light_the_default_was_trained_with(re
         regressor.predict(frame, sun_direction_cam=[0.0, 0.0])
     with pytest.raises(ValueError, match="sun_direction_cam"):
         regressor.predict(frame, sun_direction_cam=[0.0, 0.0, 0.0])
+
+
+def test_shipped_8bit_models_belong_to_the_shipped_checkpoints():
+    """engine='onnxruntime-int8' works out of the box only while each .int8.onnx was made from the .pt
+    beside it: a retrained default must be quantized again (hybridpose quantize, weights/README.md)."""
+    from hybridpose.regressors.quantize import file_sha256, int8_path, read_record
+
+    for name in ("default", "edge_on_expert"):
+        ck = shipped_checkpoint(name)
+        assert read_record(int8_path(ck))["checkpoint_sha256"] == file_sha256(ck), name

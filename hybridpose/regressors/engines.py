@@ -1,10 +1,15 @@
-"""Where a keypoint network runs at inference: torch, or ONNX Runtime on the CPU.
+"""Where a keypoint network runs at inference: torch (the default), or ONNX Runtime on the CPU.
 
 ONNX Runtime's CPU kernels run the shipped 128-px keypoint network ≈ 1.6× as fast as torch's at
 batch 1 on one thread (4.4 vs 7.0 ms a call on an AVX2 EPYC; benchmarks/RESULTS.md, "Inference
-engines") with the same outputs to float rounding, and that call is half of ``predict``'s time. So
-``engine="auto"`` (the regressors' default) runs keypoint networks there on the CPU, and on torch
-where ONNX Runtime is missing, on a GPU, or where the export fails (logged once).
+engines") with the same outputs to float rounding, and that call is a third to a half of
+``predict``'s time. It is not the default: float rounding sends ≈ 1 % of views down another branch of
+the path (a keypoint just inside or outside a PnP threshold), and on 8000 fresh views that moved the
+mean rotation by +0.06° (95 % CI −0.05…+0.19°), past the +0.15° a rule written before the run allowed
+(RESULTS, "Inference engines"). ``engine="onnxruntime"`` asks for it (an error where it cannot run);
+``engine="auto"`` takes it on the CPU where it is installed and the export works, else torch (the reason
+logged). ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
+(:mod:`hybridpose.regressors.quantize`).
 
 The network is exported at load (torch's TorchScript-based ONNX exporter: ≈ 0.3 s for the shipped
 one; the newer torch.export-based one takes ≈ 6 s) and kept in memory: a checkpoint stays the one
@@ -62,7 +67,8 @@ class OnnxRuntimeEngine:
         try:
             import onnxruntime
         except ImportError as exc:
-            raise RuntimeError(f"engine={name!r} needs the onnxruntime package (pip install onnxruntime)") from exc
+            raise RuntimeError(f"engine={name!r} needs the onnxruntime package (pip install onnxruntime onnx, or "
+                               "pip install 'hybridpose[onnx]')") from exc
         self._ort, self.name = onnxruntime, name
         self.has_twin = getattr(net, "twin_head", None) is not None
         self._sessions: dict[int, object] = {}

@@ -418,10 +418,11 @@ class CheckpointRegressor(PoseRegressor):
             checkpoints trained since session 26), else no limit. The edge-on expert uses the same
             limit. Trades translation outliers for lost views: see ``DEPTH_BEYOND_TRAINED``.
         engine: keypoint models — what runs the network (:mod:`hybridpose.regressors.engines`):
-            ``"auto"`` (default): ONNX Runtime on the CPU where it is installed (≈ 1.6× as fast as torch
-            at batch 1, same outputs to float rounding), else torch; ``"torch"``; ``"onnxruntime"``
-            (CPU only; an error where it cannot run). The edge-on expert uses the same engine. Direct
-            models always run on torch.
+            ``"torch"`` (default); ``"onnxruntime"`` (CPU only, ≈ 1.6× as fast at batch 1, same outputs
+            to float rounding; an error where it cannot run); ``"auto"``: ONNX Runtime on the CPU where
+            installed, else torch; ``"onnxruntime-int8"``: the 8-bit model ``hybridpose quantize`` wrote
+            beside the checkpoint (shipped for the ``default`` and its expert). The edge-on expert uses
+            the same engine. Direct models always run on torch.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
@@ -429,7 +430,7 @@ class CheckpointRegressor(PoseRegressor):
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
                  mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
                  expert_rule: str = "pooled-unsure", dim_fallback: bool = True, max_depth_m=None,
-                 engine: str = "auto") -> None:
+                 engine: str = "torch") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)

@@ -1,6 +1,6 @@
 """The shipped default against the paper's best model on fresh test sets, with 95 % bootstrap intervals.
 
-Usage:
+Usage (``--engine onnxruntime-int8 --no-expert``: the fast settings, a regressor built with those options):
     for s in 180 181 182 183 184 185 186 187; do
       hybridpose render --object truss --kind random --count 1000 --size 640x480 --seed $s --in-view \
                         --sun-cone 40 --sun-range 0.7,1.3 --workers 2 --out data/truss_test$s
@@ -35,7 +35,7 @@ PAPER_BEST = "Parallel VGG-19"
 
 def evaluate_set(job) -> str:
     """Run ``hybridpose eval``'s path on one set (in a worker process); returns its report.json path."""
-    checkpoint, data, out, limit = job
+    checkpoint, data, out, limit, options = job
     report = Path(out) / "report.json"
     if not report.is_file():
         import torch
@@ -43,7 +43,7 @@ def evaluate_set(job) -> str:
         from hybridpose.regressors.evaluate import evaluate_checkpoint
 
         torch.set_num_threads(1)
-        evaluate_checkpoint(checkpoint, data, out, limit=limit, gradcam_count=0, timing_images=20)
+        evaluate_checkpoint(checkpoint, data, out, limit=limit, gradcam_count=0, timing_images=20, **options)
     return str(report)
 
 
@@ -78,8 +78,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--limit", type=int, default=None, help="views per set (a smoke run; the table says how many)")
     ap.add_argument("--section", default="paper-check", help="RESULTS.md section (and results JSON name) to (re)write")
+    ap.add_argument("--engine", default="torch", help="the regressor's engine (torch, onnxruntime, onnxruntime-int8)")
+    ap.add_argument("--no-expert", action="store_true", help="without the edge-on expert (edge_on_expert=None)")
     args = ap.parse_args()
-    jobs = [(args.checkpoint, d, str(Path(args.reports) / Path(d).name), args.limit) for d in args.data]
+    options = {"engine": args.engine, **({"edge_on_expert": None} if args.no_expert else {})}
+    label = "default" + "".join(f", {x}" for x in ([args.engine] if args.engine != "torch" else []) + ["no expert"] * args.no_expert)
+    jobs = [(args.checkpoint, d, str(Path(args.reports) / Path(d).name), args.limit, options) for d in args.data]
     if args.workers > 1 and len(jobs) > 1:
         import multiprocessing as mp
 
@@ -107,14 +111,15 @@ def main() -> None:
     paper = dict(zip(("rot_mean_deg", "rot_median_deg", "trans_mean_m"), PAPER[PAPER_BEST]))
     pooled["verdict"] = {k: verdict(pooled[k], paper[k]) for k in paper}
     env = environment()
-    payload = {"env": env, "checkpoint": args.checkpoint, "verifier": verifier_tag(), "sets": args.data, "resamples": args.resamples,
+    payload = {"env": env, "checkpoint": args.checkpoint, "options": options, "verifier": verifier_tag(), "sets": args.data,
+               "resamples": args.resamples,
                "seed": args.seed, "paper": {PAPER_BEST: paper}, "per_set": per_set, "pooled": pooled}
 
     def cell(c, fmt):
         return f"{c['estimate']:{fmt}} ({c['ci95'][0]:{fmt}}–{c['ci95'][1]:{fmt}})"
 
     lines = [
-        f"## The shipped default against the paper on fresh sets (`python benchmarks/paper_check.py`, twin verifier "
+        f"## The shipped {label} against the paper on fresh sets (`python benchmarks/paper_check.py`, twin verifier "
         f"{verifier_tag()})",
         "",
         f"{len(args.data)} fresh sets ({set_names(args.data)}) of {per_set[0]['views']} rendered 640×480 views each, rendered as the "
@@ -129,9 +134,9 @@ def main() -> None:
         f"{paper['rot_median_deg']:.2f} | {paper['trans_mean_m']:.2f} | – | – |",
     ]
     for s in per_set:
-        lines.append(f"| default, {Path(s['set']).name} | {s['views']} | {s['rot_mean_deg']:.2f} | {s['rot_median_deg']:.2f} | "
+        lines.append(f"| {label}, {Path(s['set']).name} | {s['views']} | {s['rot_mean_deg']:.2f} | {s['rot_median_deg']:.2f} | "
                      f"{s['trans_mean_m']:.3f} | {s['gross_share']:.2%} | {s['lost']} |")
-    lines.append(f"| **default, pooled** | {len(rot)} | **{cell(pooled['rot_mean_deg'], '.2f')}** | "
+    lines.append(f"| **{label}, pooled** | {len(rot)} | **{cell(pooled['rot_mean_deg'], '.2f')}** | "
                  f"**{cell(pooled['rot_median_deg'], '.2f')}** | **{cell(pooled['trans_mean_m'], '.3f')}** | "
                  f"{pooled['gross_share']:.2%} | {pooled['lost']} |")
     v = pooled["verdict"]

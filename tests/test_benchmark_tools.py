@@ -71,3 +71,13 @@ def test_engine_benchmark_runs_every_engine_on_every_view_in_rotating_order(trus
     for n in regs:
         assert len(rows[n]["seconds"]) == len(rows[n]["rot_deg"]) == 3 and min(rows[n]["seconds"]) > 0
     np.testing.assert_allclose(rows["onnxruntime"]["rot_deg"], rows["torch"]["rot_deg"], atol=0.05)
+
+
+def test_engine_benchmark_configurations_name_engine_and_cheaper_settings():
+    import inference_engines
+
+    assert inference_engines.regressor_options("torch") == {"engine": "torch"}
+    assert inference_engines.regressor_options("onnxruntime-int8/no-expert/no-turns") == {
+        "engine": "onnxruntime-int8", "edge_on_expert": None, "turns": "off"}
+    with pytest.raises(ValueError, match="unknown setting 'fast'"):
+        inference_engines.regressor_options("torch/fast")

@@ -5,7 +5,8 @@ Usage: python benchmarks/inference_engines.py --data data/truss_test100 [--limit
 A configuration is an engine, optionally with cheaper settings after slashes: ``torch``,
 ``onnxruntime-int8/no-expert`` (``edge_on_expert=None``), ``onnxruntime/no-turns`` (``turns="off"``).
 The first is the reference the others are paired with (default: torch, onnxruntime, onnxruntime-int8).
-Writes benchmarks/results/inference_engines.json and the "inference-engines" section of RESULTS.md.
+Writes benchmarks/results/inference_engines.json and the "inference-engines" section of RESULTS.md
+(``--section NAME``: results/NAME.json, with dashes as underscores, and that section).
 
 Every view is predicted by each engine, in blocks of 50 views that each engine runs in turn (the order
 rotating from block to block), on one thread, so a load that comes and goes on a shared machine falls
@@ -74,6 +75,7 @@ def main() -> None:
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
     ap.add_argument("--limit", type=int, default=1000)
     ap.add_argument("--block", type=int, default=50, help="views each engine runs in turn")
+    ap.add_argument("--section", default="inference-engines", help="RESULTS.md section (and results JSON name)")
     ap.add_argument("--configs", nargs="+", default=None, help="engine[/no-expert][/no-turns] …; the first is the "
                                                               "reference (default: the three engines)")
     args = ap.parse_args()
@@ -99,7 +101,7 @@ def main() -> None:
     lines = [
         "## Inference engines (`python benchmarks/inference_engines.py`)",
         "",
-        f"`{args.data}`, {payload['views']} views, the shipped `default` (with its edge-on expert and twin verifier) "
+        f"`{args.data}`, {payload['views']} views, the shipped `default` (with its twin verifier, and its edge-on expert but where `no-expert`) "
         f"in each configuration in turn ({args.block} views each, the order rotating), 1 thread, one run; {cpu_label(env)}, git {env['git']}, weights {payload['weights']}. "
         "ms/view is the whole `predict` path; the bare call is one batch-1 network call on that engine.",
         "",
@@ -111,7 +113,10 @@ def main() -> None:
         paired = paired_cells(s["vs_reference"]) if s["vs_reference"] else "– | – | – | – | –"
         lines.append(f"| {e} | {s['ms_per_view']:.1f} | {s['ms_per_view'] / base:.2f} | {s['bare_network_ms']:.1f} | "
                      f"{s['rot_mean_deg']:.2f} | {s['rot_median_deg']:.2f} | {s['trans_mean_m']:.3f} | {s['lost']} | {paired} |")
-    publish("inference_engines", "inference-engines", payload, lines)
+    if args.section != "inference-engines":
+        lines[0] = (f"## Configurations {', '.join(names)} (`python benchmarks/inference_engines.py --configs "
+                    f"{' '.join(names)} --section {args.section}`)")
+    publish(args.section.replace("-", "_"), args.section, payload, lines)
 
 
 if __name__ == "__main__":

@@ -51,9 +51,9 @@ def file_sha256(path) -> str:
     return h.hexdigest()
 
 
-def record_crops(reg, frames, limit: int) -> np.ndarray:
+def record_crops(reg, frames, limit: int, progress=None) -> np.ndarray:
     """The crops (M, 3, S, S) float32 in [0, 1] that ``reg.predict`` feeds its keypoint network on
-    ``frames``, in order, at most ``limit``."""
+    ``frames``, in order, at most ``limit`` (``progress(crops so far, limit)`` after each frame)."""
     engine, crops = reg.engine, []
 
     def recording(x):
@@ -66,6 +66,8 @@ def record_crops(reg, frames, limit: int) -> np.ndarray:
             if len(crops) >= limit:
                 break
             reg.predict(frame)
+            if progress:
+                progress(min(len(crops), limit), limit)
     finally:
         reg.engine = engine
     return np.stack(crops[:limit]) if crops else np.zeros((0, 3, reg.image_size, reg.image_size), np.float32)
@@ -74,7 +76,7 @@ def record_crops(reg, frames, limit: int) -> np.ndarray:
 def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=None) -> dict:
     """Write the 8-bit ONNX model of a keypoint ``checkpoint`` (``out``, default :func:`int8_path`),
     calibrated on the crops the float network sees on the views of the BOP folder ``data`` (at most
-    ``crops`` of them). The file is written to a temporary name and renamed. Returns its record
+    ``crops`` of them; ``progress(crops so far, crops)``). The file is written to a temporary name and renamed. Returns its record
     (path, checkpoint hash, crops, calibration data).
 
     Raises ValueError (naming the argument) for a direct (VGG) checkpoint, an empty ``data`` or
@@ -102,13 +104,8 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
     if not items:
         raise ValueError(f"data: {data} holds no images")
 
-    def frames():
-        for k, (scene, i) in enumerate(items):
-            if progress:
-                progress(k + 1, len(items))
-            yield Frame(scene.rgb(i), scene.image(i).camera, 0.0)
-
-    x = record_crops(reg, frames(), int(crops))
+    frames = (Frame(scene.rgb(i), scene.image(i).camera, 0.0) for scene, i in items)
+    x = record_crops(reg, frames, int(crops), progress)
     if len(x) == 0:
         raise ValueError(f"data: the regressor found no object in any view of {data}: nothing to calibrate on")
 

@@ -95,11 +95,9 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
     if int(crops) < 1:
         raise ValueError(f"crops: expected at least 1 calibration crop, got {crops}")
     checkpoint = Path(checkpoint)
-    reg = CheckpointRegressor(checkpoint, engine="onnxruntime")   # float; refuses what cannot be exported
-    if reg.kind != "keypoints":
-        raise ValueError(f"checkpoint: {checkpoint} holds a direct {reg.model_name!r} model; only keypoint models "
-                         "are quantized")
-    reg.expert = None  # the expert's crops calibrate the expert's own file
+    # the float ONNX export (what the 8-bit model starts from) records the crops; the expert's crops calibrate
+    # its own file
+    reg = CheckpointRegressor(checkpoint, engine="onnxruntime", edge_on_expert=None)
     items = [(s, i) for s in map(BopScene, find_scenes(data)) for i in s.image_ids]
     if not items:
         raise ValueError(f"data: {data} holds no images")

@@ -432,7 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--engine", choices=("torch", "onnxruntime", "auto", "onnxruntime-int8"), default="torch",
                    help="keypoint models: what runs the network: torch (default), onnxruntime (CPU, faster, an error "
-                        "where it cannot run), auto (ONNX Runtime where installed, else torch), or the 8-bit model "
+                        "where it cannot run), auto (the faster of the two on this CPU, timed at load), or the 8-bit model "
                         "made by hybridpose quantize (onnxruntime-int8)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")

@@ -7,8 +7,8 @@ engines") with the same outputs to float rounding, and that call is a third to a
 the path (a keypoint just inside or outside a PnP threshold), and on 8000 fresh views that moved the
 mean rotation by +0.06° (95 % CI −0.05…+0.19°), past the +0.15° a rule written before the run allowed
 (RESULTS, "Inference engines"). ``engine="onnxruntime"`` asks for it (an error where it cannot run);
-``engine="auto"`` takes it on the CPU where it is installed and the export works, else torch (the reason
-logged). ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
+``engine="auto"`` times both at load and keeps the faster on this CPU (session 26 found them level on
+an AVX-512 host), torch where ONNX Runtime is missing or the export fails (the reason logged). ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
 (:mod:`hybridpose.regressors.quantize`).
 
 The network is exported at load (torch's TorchScript-based ONNX exporter: ≈ 0.3 s for the shipped
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import logging
+import time
 import warnings
 
 import numpy as np
@@ -109,8 +110,9 @@ class OnnxRuntimeEngine:
 def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_size: int,
                     memory_format=torch.contiguous_format, checkpoint=None):
     """The engine named ``engine`` (one of :data:`ENGINES`) for a keypoint ``net`` (eval mode, batch
-    norm folded) on ``device``. ``"auto"``: ONNX Runtime on the CPU where it is installed and the export
-    works, else torch (the reason logged). ``"onnxruntime-int8"``: the 8-bit model made from
+    norm folded) on ``device``. ``"auto"``: on the CPU, whichever of torch and ONNX Runtime runs a batch-1
+    call faster here (timed at load, ≈ 0.3 s; the choice logged), torch where ONNX Runtime is missing or
+    the export fails (the reason logged) or on a GPU. ``"onnxruntime-int8"``: the 8-bit model made from
     ``checkpoint`` by ``hybridpose quantize`` (beside it, :func:`~hybridpose.regressors.quantize.int8_path`)."""
     if engine not in ENGINES:
         raise ValueError(f"engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
@@ -126,11 +128,36 @@ def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_siz
             raise ValueError(f"engine='onnxruntime-int8': the 8-bit model of {checkpoint} takes "
                              f"{record.get('image_size')} px crops, the network {image_size}")
         return OnnxRuntimeEngine(net, image_size, model=model, name=engine)
+    torch_engine = TorchEngine(net, device, memory_format)
     if engine == "onnxruntime" or (engine == "auto" and device.type == "cpu"):
         try:
-            return OnnxRuntimeEngine(net, image_size)
+            ort_engine = OnnxRuntimeEngine(net, image_size)
         except RuntimeError as exc:
             if engine == "onnxruntime":
                 raise
             log.info("keypoint network on torch: %s", exc)
-    return TorchEngine(net, device, memory_format)
+            return torch_engine
+        if engine == "onnxruntime":
+            return ort_engine
+        # auto: whichever is faster on this CPU (ONNX Runtime 1.6× on an AVX2 EPYC, level with torch on an
+        # AVX-512 host: benchmarks/RESULTS.md, session 29 notes)
+        x = torch.zeros(1, 3, int(image_size), int(image_size))
+        ms = {e.name: call_ms(e, x) for e in (torch_engine, ort_engine)}
+        chosen = min((torch_engine, ort_engine), key=lambda e: ms[e.name])
+        log.info("engine auto: %s (batch-1 call %.1f ms on torch, %.1f ms on onnxruntime, %d thread(s))",
+                 chosen.name, ms["torch"], ms["onnxruntime"], torch.get_num_threads())
+        return chosen
+    return torch_engine
+
+
+def call_ms(engine, x: torch.Tensor, calls: int = 10, repeats: int = 3) -> float:
+    """ms of one ``engine(x)`` call at the current thread count: the lowest of ``repeats`` means over
+    ``calls`` (after one warm-up call)."""
+    engine(x)
+    best = float("inf")
+    for _ in range(max(1, int(repeats))):
+        t0 = time.perf_counter()
+        for _ in range(max(1, int(calls))):
+            engine(x)
+        best = min(best, 1000 * (time.perf_counter() - t0) / max(1, int(calls)))
+    return best

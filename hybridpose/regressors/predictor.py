@@ -419,8 +419,8 @@ class CheckpointRegressor(PoseRegressor):
             limit. Trades translation outliers for lost views: see ``DEPTH_BEYOND_TRAINED``.
         engine: keypoint models — what runs the network (:mod:`hybridpose.regressors.engines`):
             ``"torch"`` (default); ``"onnxruntime"`` (CPU only, ≈ 1.6× as fast at batch 1, same outputs
-            to float rounding; an error where it cannot run); ``"auto"``: ONNX Runtime on the CPU where
-            installed, else torch; ``"onnxruntime-int8"``: the 8-bit model ``hybridpose quantize`` wrote
+            to float rounding; an error where it cannot run); ``"auto"``: the faster of the two on this
+            CPU, timed at load; ``"onnxruntime-int8"``: the 8-bit model ``hybridpose quantize`` wrote
             beside the checkpoint (shipped for the ``default`` and its expert). The edge-on expert uses
             the same engine. Direct models always run on torch.
     """

@@ -36,6 +36,23 @@ def ms_per_image(model, size: int, threads: int, repeats: int) -> float:
     return (time.perf_counter() - t0) / repeats * 1000.0
 
 
+def onnxruntime_ms(model, size: int, repeats: int) -> dict:
+    """ms per batch-1 call of a keypoint net on ONNX Runtime (``engine="onnxruntime"``) at 1 and 2 threads;
+    {} where onnxruntime is not installed."""
+    from hybridpose.regressors.engines import OnnxRuntimeEngine, call_ms
+
+    try:
+        engine = OnnxRuntimeEngine(model, size)
+    except RuntimeError:
+        return {}
+    out = {}
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        out[f"ort_ms_{threads}_thread{'s' if threads > 1 else ''}"] = call_ms(engine, torch.rand(1, 3, size, size),
+                                                                              calls=repeats, repeats=1)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", type=int, default=224)
@@ -58,9 +75,12 @@ def main() -> None:
         # as CheckpointRegressor runs it on the CPU: batch norm folded, channels-last
         model = fold_batch_norm(model).to(memory_format=torch.channels_last)
         repeats = args.repeats if model_kind(name) == "direct" else max(args.repeats, 30)  # ms-scale nets: more runs
-        rows.append({"model": name, "input_px": size, "params_M": params,
-                     "ms_1_thread": ms_per_image(model, size, 1, repeats),
-                     "ms_2_threads": ms_per_image(model, size, 2, repeats)})
+        row = {"model": name, "input_px": size, "params_M": params,
+               "ms_1_thread": ms_per_image(model, size, 1, repeats),
+               "ms_2_threads": ms_per_image(model, size, 2, repeats)}
+        if model_kind(name) == "keypoints":
+            row.update(onnxruntime_ms(model, size, repeats))
+        rows.append(row)
         del model
     env = environment()
     write_json("regressor_speed", {"env": env, "size": args.size, "repeats": args.repeats, "results": rows})
@@ -69,12 +89,18 @@ def main() -> None:
         "",
         f"Square input of the given side, batch 1, float32, channels-last, batch norm folded (as the regressor runs them), "
         f"torch {torch.__version__}, mean of {args.repeats} runs (30 for the keypoint nets) after a warm-up, "
-        f"git {env['git']}, {cpu_label(env)}. Target for the shipped `default`: ≤ 20 ms on 1 thread.",
+        f"git {env['git']}, {cpu_label(env)}. Target for the shipped `default`: ≤ 20 ms on 1 thread. ONNX Runtime "
+        "(`engine=\"onnxruntime\"`, keypoint nets only): the same nets exported to ONNX, mean of as many calls.",
         "",
-        "| model | input px | parameters (M) | ms/image, 1 thread | ms/image, 2 threads |",
-        "|---|---|---|---|---|",
+        "| model | input px | parameters (M) | ms/image, 1 thread | ms/image, 2 threads | ONNX Runtime, 1 thread | 2 threads |",
+        "|---|---|---|---|---|---|---|",
     ]
-    lines += [f"| {r['model']} | {r['input_px']} | {r['params_M']:.1f} | {r['ms_1_thread']:.1f} | {r['ms_2_threads']:.1f} |" for r in rows]
+
+    def ort(r, key):
+        return f"{r[key]:.1f}" if key in r else "–"
+
+    lines += [f"| {r['model']} | {r['input_px']} | {r['params_M']:.1f} | {r['ms_1_thread']:.1f} | {r['ms_2_threads']:.1f} | "
+              f"{ort(r, 'ort_ms_1_thread')} | {ort(r, 'ort_ms_2_threads')} |" for r in rows]
     update_results_md("regressor-speed", "\n".join(lines))
     print("\n".join(lines))
 

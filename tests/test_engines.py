@@ -117,7 +117,8 @@ def test_quantize_writes_an_8bit_model_the_int8_engine_runs(tiny_checkpoint, tmp
     assert i8.engine.name == "onnxruntime-int8" and len(out.read_bytes()) < 0.5 * len(f32.engine.model)
     x = torch.rand(3, 3, f32.image_size, f32.image_size, generator=torch.Generator().manual_seed(0))
     (uv8, spread8, twin8), (uv, spread, twin) = i8.engine(x), f32.engine(x)
-    assert uv8.shape == uv.shape and twin8.shape == twin.shape and torch.isfinite(uv8).all()
+    assert uv8.shape == uv.shape and spread8.shape == spread.shape and twin8.shape == twin.shape
+    assert torch.isfinite(uv8).all() and torch.isfinite(spread8).all()
     assert (uv8 - uv).abs().mean() < 0.05 * f32.image_size   # 8-bit noise, not another network
     cam = Camera.default().scaled(160)
     m = i8.predict(Frame(np.zeros((cam.height, cam.width, 3), np.uint8), cam, 0.0))

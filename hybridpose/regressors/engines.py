@@ -8,7 +8,8 @@ the path (a keypoint just inside or outside a PnP threshold), and on 8000 fresh 
 mean rotation by +0.06° (95 % CI −0.05…+0.19°), past the +0.15° a rule written before the run allowed
 (RESULTS, "Inference engines"). ``engine="onnxruntime"`` asks for it (an error where it cannot run);
 ``engine="auto"`` times both at load and keeps the faster on this CPU (session 26 found them level on
-an AVX-512 host), torch where ONNX Runtime is missing or the export fails (the reason logged). ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
+an AVX-512 host), torch where ONNX Runtime is missing or the export fails (the reason logged).
+``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
 (:mod:`hybridpose.regressors.quantize`).
 
 The network is exported at load (torch's TorchScript-based ONNX exporter: ≈ 0.3 s for the shipped
@@ -23,7 +24,6 @@ import logging
 import time
 import warnings
 
-import numpy as np
 import torch
 from torch import nn
 

@@ -454,6 +454,8 @@ class CheckpointRegressor(PoseRegressor):
         # channels-last convolutions are ≈ 15 % faster on the CPU at batch 1 (same weights, same math)
         self.memory_format = torch.channels_last if self.device.type == "cpu" else torch.contiguous_format
         fold_batch_norm(self.net.eval()).to(self.device, memory_format=self.memory_format)
+        if threads is not None:  # before the engine: engine="auto" times both at this thread count
+            torch.set_num_threads(int(threads))
         if engine not in ENGINES:
             raise ValueError(f"engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
         if engine.startswith("onnxruntime") and self.kind != "keypoints":
@@ -474,8 +476,6 @@ class CheckpointRegressor(PoseRegressor):
         self.has_twin_head = getattr(self.net, "twin_head", None) is not None and bool(self.twins)
         if self.calibration is None:
             log.warning("%s: no covariance calibration stored; covariances are inflated ×%g", self.path, UNCALIBRATED_SCALE)
-        if threads is not None:
-            torch.set_num_threads(int(threads))
         if object is not None:
             self._check_object(object)
         self.twin_check = None

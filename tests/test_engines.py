@@ -148,3 +148,6 @@ def test_int8_engine_refuses_a_missing_stale_or_foreign_file(tiny_checkpoint, tm
         read_record(int8_path(ck))
     assert main(["quantize", "--checkpoint", str(ck), "--data", str(tmp_path), "--crops", "0"]) == 2
     assert "crops: expected at least 1" in capsys.readouterr().err
+    save_checkpoint(tmp_path / "vgg.pt", {"config": {"model": "vgg16"}, "model": {}, "build": {}})
+    assert main(["quantize", "--checkpoint", str(tmp_path / "vgg.pt"), "--data", str(tmp_path)]) == 2
+    assert "holds a direct 'vgg16' model; only keypoint models" in capsys.readouterr().err

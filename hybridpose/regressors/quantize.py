@@ -95,6 +95,13 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
     if int(crops) < 1:
         raise ValueError(f"crops: expected at least 1 calibration crop, got {crops}")
     checkpoint = Path(checkpoint)
+    from .models import available_models, model_kind
+    from .train import load_checkpoint
+
+    model = load_checkpoint(checkpoint).get("config", {}).get("model")
+    if model in available_models() and model_kind(model) != "keypoints":
+        raise ValueError(f"checkpoint: {checkpoint} holds a direct {model!r} model; only keypoint models (default, "
+                         "keypoints) are quantized")
     # the float ONNX export (what the 8-bit model starts from) records the crops; the expert's crops calibrate
     # its own file
     reg = CheckpointRegressor(checkpoint, engine="onnxruntime", edge_on_expert=None)

@@ -8,7 +8,7 @@ the path (a keypoint just inside or outside a PnP threshold), and on 8000 fresh 
 mean rotation by +0.06° (95 % CI −0.05…+0.19°), past the +0.15° a rule written before the run allowed
 (RESULTS, "Inference engines"). ``engine="onnxruntime"`` asks for it (an error where it cannot run);
 ``engine="auto"`` times both at load and keeps the faster on this CPU (session 26 found them level on
-an AVX-512 host), torch where ONNX Runtime is missing or the export fails (the reason logged).
+its faster host), torch where ONNX Runtime is missing or the export fails (the reason logged).
 ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
 (:mod:`hybridpose.regressors.quantize`).
 
@@ -139,8 +139,8 @@ def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_siz
             return torch_engine
         if engine == "onnxruntime":
             return ort_engine
-        # auto: whichever is faster on this CPU (ONNX Runtime 1.6× on an AVX2 EPYC, level with torch on an
-        # AVX-512 host: benchmarks/RESULTS.md, session 29 notes)
+        # auto: whichever is faster on this CPU (ONNX Runtime 1.6× on an AVX2 EPYC, level with torch on
+        # session 26's faster host: benchmarks/RESULTS.md, session 29 notes)
         x = torch.zeros(1, 3, int(image_size), int(image_size))
         ms = {e.name: call_ms(e, x) for e in (torch_engine, ort_engine)}
         chosen = min((torch_engine, ort_engine), key=lambda e: ms[e.name])

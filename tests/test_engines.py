@@ -84,6 +84,8 @@ def test_engine_bad_input(truss, tmp_path):
         keypoint_engine("onnxruntime", net, torch.device("meta"), 64)
     with pytest.raises(ValueError, match="engine: expected one of"):
         CheckpointRegressor(shipped_checkpoint("default"), engine="fast")
+    with pytest.raises(RuntimeError, match="ONNX Runtime cannot run the network"):
+        OnnxRuntimeEngine(net, 64, model=b"not an onnx model")
     assert set(ENGINES) == {"auto", "torch", "onnxruntime", "onnxruntime-int8"}
 
 

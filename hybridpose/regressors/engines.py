@@ -62,7 +62,8 @@ class OnnxRuntimeEngine:
     """The same network exported to ONNX and run by ONNX Runtime's CPU provider; same call as
     :class:`TorchEngine`. ``model``: an ONNX model of it to run instead (bytes; the 8-bit one of
     :mod:`hybridpose.regressors.quantize`, whose ``name`` is then given). Raises RuntimeError (naming
-    the cause) when onnxruntime or onnx is missing or the export fails."""
+    the cause) when onnxruntime or onnx is missing, the export fails or ONNX Runtime cannot load the
+    model (checked at construction, on torch's current thread count)."""
 
     def __init__(self, net: nn.Module, image_size: int, model: bytes | None = None, name: str = "onnxruntime") -> None:
         try:
@@ -73,9 +74,15 @@ class OnnxRuntimeEngine:
         self._ort, self.name = onnxruntime, name
         self.has_twin = getattr(net, "twin_head", None) is not None
         self._sessions: dict[int, object] = {}
-        if model is not None:
-            self.model = model
-            return
+        self.model = model if model is not None else self._export(net, image_size)
+        try:  # a model ONNX Runtime cannot load fails here, with its reason, not at the first predict
+            self.session(torch.get_num_threads())
+        except Exception as exc:  # noqa: BLE001 — onnxruntime raises its own exception types
+            raise RuntimeError(f"engine={name!r}: ONNX Runtime cannot run the network ({exc})") from exc
+
+    @staticmethod
+    def _export(net: nn.Module, image_size: int) -> bytes:
+        has_twin = getattr(net, "twin_head", None) is not None
         example = torch.zeros(1, 3, int(image_size), int(image_size))
         buffer = io.BytesIO()
         try:
@@ -84,11 +91,11 @@ class OnnxRuntimeEngine:
                 # tracer warns about the net's input checks, which the regressor has made before any call
                 warnings.simplefilter("ignore")
                 torch.onnx.export(_TwinOutputs(net.cpu()).eval(), (example,), buffer, input_names=["x"],
-                                  output_names=["uv", "spread"] + (["twin"] if self.has_twin else []),
+                                  output_names=["uv", "spread"] + (["twin"] if has_twin else []),
                                   dynamic_axes={"x": {0: "batch"}}, opset_version=17, dynamo=False)
         except Exception as exc:  # noqa: BLE001 — any exporter failure means: this net cannot run here
             raise RuntimeError(f"engine='onnxruntime': exporting the network to ONNX failed ({exc})") from exc
-        self.model = buffer.getvalue()
+        return buffer.getvalue()
 
     def session(self, threads: int):
         """The ONNX Runtime session running on ``threads`` intra-op threads (made on first use)."""

@@ -308,10 +308,10 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     data = tiny_checkpoint.parent.parent / "ds"
     assert main(["eval", "--checkpoint", str(tiny_checkpoint), "--data", str(data), "--out", str(tmp_path / "rep"),
                  "--limit", "10", "--turns", "always", "--pnp-outliers", "ransac", "--edge-on-expert", str(tiny_checkpoint),
-                 "--expert-rule", "pooled", "--no-dim-fallback", "--max-depth", "auto"]) == 0
+                 "--expert-rule", "pooled", "--no-dim-fallback", "--max-depth", "auto", "--engine", "onnxruntime"]) == 0
     rep = json.loads((tmp_path / "rep" / "report.json").read_text())
     s = rep["summary"]
-    assert s["turns"] == "always" and s["pnp_outliers"] == "ransac"
+    assert s["turns"] == "always" and s["pnp_outliers"] == "ransac" and s["engine"] == "onnxruntime"
     assert s["max_depth_m"] == pytest.approx(3.6)                    # 3 × the 1.2 m the tiny run recorded
     assert s["expert_rule"] == "pooled" and s["dim_fallback"] is False and s["edge_on_expert"] == str(tiny_checkpoint)
     assert s["images"] == 10 and len(rep["per_image"]) == 10
@@ -338,7 +338,8 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     if posed:
         assert 0.0 <= c["inside_share"] <= c["inside_share_twin"] <= 1.0 and "Covariance check:" in md
     assert (tmp_path / "rep" / "gradcam.png").stat().st_size > 1000
-    assert "eval default on 10 images" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "eval default on 10 images" in out and "a call on onnxruntime" in out
 
 
 def test_eval_without_gradcam_writes_no_sheet(tiny_checkpoint, tmp_path):

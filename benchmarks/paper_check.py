@@ -78,11 +78,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--limit", type=int, default=None, help="views per set (a smoke run; the table says how many)")
     ap.add_argument("--section", default="paper-check", help="RESULTS.md section (and results JSON name) to (re)write")
-    ap.add_argument("--engine", default="torch", help="the regressor's engine (torch, onnxruntime, onnxruntime-int8)")
+    ap.add_argument("--engine", default="auto", help="the regressor's engine (auto, torch, onnxruntime, onnxruntime-int8)")
     ap.add_argument("--no-expert", action="store_true", help="without the edge-on expert (edge_on_expert=None)")
     args = ap.parse_args()
     options = {"engine": args.engine, **({"edge_on_expert": None} if args.no_expert else {})}
-    label = "default" + "".join(f", {x}" for x in ([args.engine] if args.engine != "torch" else []) + ["no expert"] * args.no_expert)
+    label = "default" + "".join(f", {x}" for x in ([args.engine] if args.engine != "auto" else []) + ["no expert"] * args.no_expert)
     jobs = [(args.checkpoint, d, str(Path(args.reports) / Path(d).name), args.limit, options) for d in args.data]
     if args.workers > 1 and len(jobs) > 1:
         import multiprocessing as mp

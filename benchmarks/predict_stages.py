@@ -119,7 +119,7 @@ def main() -> None:
     ap.add_argument("--data", required=True)
     ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
     ap.add_argument("--limit", type=int, default=400)
-    ap.add_argument("--engine", default="torch", choices=engines.ENGINES)
+    ap.add_argument("--engine", default="auto", choices=engines.ENGINES)
     args = ap.parse_args()
     torch.set_num_threads(1)
     reg = CheckpointRegressor(args.checkpoint, engine=args.engine)

@@ -430,10 +430,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keypoint models: PnP leaves the worst keypoint out until the rest agree (drop-worst, the "
                         "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
-    e.add_argument("--engine", choices=("torch", "onnxruntime", "auto", "onnxruntime-int8"), default="torch",
-                   help="keypoint models: what runs the network: torch (default), onnxruntime (CPU, faster, an error "
-                        "where it cannot run), auto (the faster of the two on this CPU, timed at load), or the 8-bit model "
-                        "made by hybridpose quantize (onnxruntime-int8)")
+    e.add_argument("--engine", choices=("auto", "onnxruntime", "torch", "onnxruntime-int8"), default="auto",
+                   help="keypoint models: what runs the network: auto (default: ONNX Runtime on the CPU, torch where it "
+                        "cannot run), onnxruntime (an error where it cannot run), torch, or the 8-bit model made by "
+                        "hybridpose quantize (onnxruntime-int8)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")
     e.add_argument("--mirror-verifier", default="auto",

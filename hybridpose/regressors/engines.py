@@ -1,14 +1,14 @@
-"""Where a keypoint network runs at inference: torch (the default), or ONNX Runtime on the CPU.
+"""Where a keypoint network runs at inference: ONNX Runtime on the CPU (the default, ``"auto"``) or torch.
 
 ONNX Runtime's CPU kernels run the shipped 128-px keypoint network ≈ 1.6× as fast as torch's at
 batch 1 on one thread (4.4 vs 7.0 ms a call on an AVX2 EPYC; benchmarks/RESULTS.md, "Inference
 engines") with the same outputs to float rounding, and that call is a third to a half of
-``predict``'s time. It is not the default: float rounding sends ≈ 1 % of views down another branch of
-the path (a keypoint just inside or outside a PnP threshold), and on 8000 fresh views that moved the
-mean rotation by +0.06° (95 % CI −0.05…+0.19°), past the +0.15° a rule written before the run allowed
-(RESULTS, "Inference engines"). ``engine="onnxruntime"`` asks for it (an error where it cannot run);
-``engine="auto"`` times both at load and keeps the faster on this CPU (session 26 found them level on
-its faster host), torch where ONNX Runtime is missing or the export fails (the reason logged).
+``predict``'s time. Float rounding sends ≈ 1 % of views down another branch of the path (a keypoint
+just inside or outside a PnP threshold); rule 19 (16 000 fresh views, written before they were
+rendered) found the two engines equivalent within ±0.25° mean rotation, so ``engine="auto"`` (the
+regressors' default) runs keypoint networks on ONNX Runtime on the CPU, and on torch where ONNX Runtime
+is missing, the export fails (the reason logged) or on a GPU. ``engine="onnxruntime"`` asks for it (an
+error where it cannot run); ``engine="torch"`` for torch (the default until session 29).
 ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
 (:mod:`hybridpose.regressors.quantize`).
 
@@ -69,8 +69,7 @@ class OnnxRuntimeEngine:
         try:
             import onnxruntime
         except ImportError as exc:
-            raise RuntimeError(f"engine={name!r} needs the onnxruntime package (pip install onnxruntime onnx, or "
-                               "pip install 'hybridpose[onnx]')") from exc
+            raise RuntimeError(f"engine={name!r} needs the onnxruntime package (pip install onnxruntime onnx)") from exc
         self._ort, self.name = onnxruntime, name
         self.has_twin = getattr(net, "twin_head", None) is not None
         self._sessions: dict[int, object] = {}
@@ -117,9 +116,8 @@ class OnnxRuntimeEngine:
 def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_size: int,
                     memory_format=torch.contiguous_format, checkpoint=None):
     """The engine named ``engine`` (one of :data:`ENGINES`) for a keypoint ``net`` (eval mode, batch
-    norm folded) on ``device``. ``"auto"``: on the CPU, whichever of torch and ONNX Runtime runs a batch-1
-    call faster here (timed at load, ≈ 0.3 s; the choice logged), torch where ONNX Runtime is missing or
-    the export fails (the reason logged) or on a GPU. ``"onnxruntime-int8"``: the 8-bit model made from
+    norm folded) on ``device``. ``"auto"``: ONNX Runtime on the CPU, torch where ONNX Runtime is missing
+    or the export fails (the reason logged) or on a GPU. ``"onnxruntime-int8"``: the 8-bit model made from
     ``checkpoint`` by ``hybridpose quantize`` (beside it, :func:`~hybridpose.regressors.quantize.int8_path`)."""
     if engine not in ENGINES:
         raise ValueError(f"engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
@@ -144,16 +142,7 @@ def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_siz
                 raise
             log.info("keypoint network on torch: %s", exc)
             return torch_engine
-        if engine == "onnxruntime":
-            return ort_engine
-        # auto: whichever is faster on this CPU (ONNX Runtime 1.6× on an AVX2 EPYC, level with torch on
-        # session 26's faster host: benchmarks/RESULTS.md, session 29 notes)
-        x = torch.zeros(1, 3, int(image_size), int(image_size))
-        ms = {e.name: call_ms(e, x) for e in (torch_engine, ort_engine)}
-        chosen = min((torch_engine, ort_engine), key=lambda e: ms[e.name])
-        log.info("engine auto: %s (batch-1 call %.1f ms on torch, %.1f ms on onnxruntime, %d thread(s))",
-                 chosen.name, ms["torch"], ms["onnxruntime"], torch.get_num_threads())
-        return chosen
+        return ort_engine
     return torch_engine
 
 

@@ -53,7 +53,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
                         device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
                         sun_known: bool = False, mirror_verifier="auto",
                         edge_on_expert="auto", expert_rule: str = "pooled-unsure", dim_fallback: bool = True,
-                        max_depth_m=None, engine: str = "torch") -> dict:
+                        max_depth_m=None, engine: str = "auto") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`, no ``roi``) on every image of ``data``.
 
     ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in

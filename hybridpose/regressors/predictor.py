@@ -418,9 +418,9 @@ class CheckpointRegressor(PoseRegressor):
             checkpoints trained since session 26), else no limit. The edge-on expert uses the same
             limit. Trades translation outliers for lost views: see ``DEPTH_BEYOND_TRAINED``.
         engine: keypoint models — what runs the network (:mod:`hybridpose.regressors.engines`):
-            ``"torch"`` (default); ``"onnxruntime"`` (CPU only, ≈ 1.6× as fast at batch 1, same outputs
-            to float rounding; an error where it cannot run); ``"auto"``: the faster of the two on this
-            CPU, timed at load; ``"onnxruntime-int8"``: the 8-bit model ``hybridpose quantize`` wrote
+            ``"auto"`` (default): ONNX Runtime on the CPU (≈ 1.6× as fast as torch at batch 1 on an AVX2
+            CPU, same outputs to float rounding, equivalent accuracy by rule 19), torch where it cannot
+            run or on a GPU; ``"onnxruntime"`` (an error where it cannot run); ``"torch"``; ``"onnxruntime-int8"``: the 8-bit model ``hybridpose quantize`` wrote
             beside the checkpoint (shipped for the ``default`` and its expert). The edge-on expert uses
             the same engine. Direct models always run on torch.
     """
@@ -430,7 +430,7 @@ class CheckpointRegressor(PoseRegressor):
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
                  mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
                  expert_rule: str = "pooled-unsure", dim_fallback: bool = True, max_depth_m=None,
-                 engine: str = "torch") -> None:
+                 engine: str = "auto") -> None:
         from .train import load_checkpoint
 
         self.path = Path(checkpoint)
@@ -454,7 +454,7 @@ class CheckpointRegressor(PoseRegressor):
         # channels-last convolutions are ≈ 15 % faster on the CPU at batch 1 (same weights, same math)
         self.memory_format = torch.channels_last if self.device.type == "cpu" else torch.contiguous_format
         fold_batch_norm(self.net.eval()).to(self.device, memory_format=self.memory_format)
-        if threads is not None:  # before the engine: engine="auto" times both at this thread count
+        if threads is not None:  # before the engine: its first session is made at this thread count
             torch.set_num_threads(int(threads))
         if engine not in ENGINES:
             raise ValueError(f"engine: expected one of {', '.join(ENGINES)}, got {engine!r}")

@@ -73,15 +73,14 @@ class OnnxRuntimeEngine:
         self._ort, self.name = onnxruntime, name
         self.has_twin = getattr(net, "twin_head", None) is not None
         self._sessions: dict[int, object] = {}
-        self.model = model if model is not None else self._export(net, image_size)
+        self.model = model if model is not None else self._export(net, image_size, self.has_twin)
         try:  # a model ONNX Runtime cannot load fails here, with its reason, not at the first predict
             self.session(torch.get_num_threads())
         except Exception as exc:  # noqa: BLE001 — onnxruntime raises its own exception types
             raise RuntimeError(f"engine={name!r}: ONNX Runtime cannot run the network ({exc})") from exc
 
     @staticmethod
-    def _export(net: nn.Module, image_size: int) -> bytes:
-        has_twin = getattr(net, "twin_head", None) is not None
+    def _export(net: nn.Module, image_size: int, has_twin: bool) -> bytes:
         example = torch.zeros(1, 3, int(image_size), int(image_size))
         buffer = io.BytesIO()
         try:
@@ -146,14 +145,18 @@ def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_siz
     return torch_engine
 
 
-def call_ms(engine, x: torch.Tensor, calls: int = 10, repeats: int = 3) -> float:
+def call_ms(engine, x: torch.Tensor, calls: int = 10, repeats: int = 3, sync=None) -> float:
     """ms of one ``engine(x)`` call at the current thread count: the lowest of ``repeats`` means over
-    ``calls`` (after one warm-up call)."""
+    ``calls`` (after one warm-up call). ``sync``: called after each run of ``calls`` before the clock is
+    read (``torch.cuda.synchronize`` for a network on a GPU)."""
+    calls, repeats = max(1, int(calls)), max(1, int(repeats))
     engine(x)
     best = float("inf")
-    for _ in range(max(1, int(repeats))):
+    for _ in range(repeats):
         t0 = time.perf_counter()
-        for _ in range(max(1, int(calls))):
+        for _ in range(calls):
             engine(x)
-        best = min(best, 1000 * (time.perf_counter() - t0) / max(1, int(calls)))
+        if sync is not None:
+            sync()
+        best = min(best, 1000 * (time.perf_counter() - t0) / calls)
     return best

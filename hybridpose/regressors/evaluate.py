@@ -28,6 +28,7 @@ from ..metrics import add, add_recall, rotation_error_deg, speed_score, translat
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .calibration import MIN_BAND_POSES, nees, quality_scale
+from .engines import call_ms
 from .predictor import CheckpointRegressor, uncalibrated_record
 
 log = logging.getLogger(__name__)
@@ -301,18 +302,8 @@ def network_call_ms(reg: CheckpointRegressor, calls: int = 20, repeats: int = 3,
         run, x = reg.engine, reg._batch(image)
     else:
         run, x = reg.net, reg._tensor(image)
-    calls, repeats = max(1, int(calls)), max(1, int(repeats))
-    means = []
     with torch.inference_mode():
-        run(x)  # warm-up
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            for _ in range(calls):
-                run(x)
-            if reg.device.type == "cuda":
-                torch.cuda.synchronize()
-            means.append(1000 * (time.perf_counter() - t0) / calls)
-    return float(min(means))
+        return call_ms(run, x, calls, repeats, sync=torch.cuda.synchronize if reg.device.type == "cuda" else None)
 
 
 def error_vs_distance(rows) -> list[dict]:

@@ -20,14 +20,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import logging
-import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-log = logging.getLogger(__name__)
+from ..io import atomic_write_bytes
 
 # left in float: the heatmap logits (a soft-argmax of 8-bit logits moves keypoints by up to a cell), the
 # twin logits (one small matrix product, ≈ 0 of the time) and the first convolution (the image itself; on
@@ -123,7 +121,6 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
             return None if row is None else {"x": row}
 
     out = int8_path(checkpoint) if out is None else Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         src, pre = Path(tmp) / "float.onnx", Path(tmp) / "pre.onnx"
         src.write_bytes(reg.engine.model)
@@ -141,17 +138,7 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
               "image_size": reg.image_size, "twin_head": reg.engine.has_twin, "data": str(data), "crops": int(len(x))}
     entry = model.metadata_props.add()
     entry.key, entry.value = META_KEY, json.dumps(record)
-    fd, tmp_name = tempfile.mkstemp(dir=out.parent, prefix=out.name, suffix=".tmp")
-    os.close(fd)
-    try:
-        onnx.save(model, tmp_name)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_name, 0o666 & ~umask)  # mkstemp's 0600 would make a shipped file unreadable to others
-        os.replace(tmp_name, out)
-    finally:
-        if os.path.exists(tmp_name):
-            os.unlink(tmp_name)
+    atomic_write_bytes(out, model.SerializeToString())  # what onnx.save writes for a model under 2 GB
     return {"path": str(out), **record}
 
 

@@ -119,11 +119,11 @@ def test_imagenet_first_fc_goes_to_main_stream_columns_of_branched(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["vgg16", "branched-vgg19", "parallel-vgg19"])
-def test_gradcam_of_every_direct_model(name, tmp_path):
-    """`hybridpose eval`'s Grad-CAM sheet works for each direct model (the branched one runs slices
+def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
+    """`hybridpose eval`'s Grad-CAM sheet and bare-call timing work for each direct model (the branched one runs slices
     of its features, which once left a hook on the whole Sequential unfired)."""
     from hybridpose.core import Camera, Frame
-    from hybridpose.regressors.evaluate import gradcam
+    from hybridpose.regressors.evaluate import gradcam, network_call_ms
     from hybridpose.regressors.predictor import CheckpointRegressor
     from hybridpose.regressors.train import save_checkpoint
 
@@ -136,3 +136,34 @@ def test_gradcam_of_every_direct_model(name, tmp_path):
     img, cam = gradcam(reg, Frame(image, Camera.default().scaled("128x96"), 0.0))
     assert img.shape == (64, 64, 3) and cam.shape == (64, 64)
     assert np.isfinite(cam).all() and 0.0 <= cam.min() and cam.max() <= 1.0
+    # the report's bare-call timing feeds every input the model takes (the parallel one's two streams)
+    assert network_call_ms(reg, calls=1, repeats=1) > 0
+
+
+@pytest.mark.parametrize("name", ["parallel-vgg19", "default"])  # parallel: both VGG streams and the branch
+def test_channels_last_layout_gives_the_same_outputs_and_gradients(name, truss):
+    """Training on a GPU puts the weights in NHWC (train.channels_last); flattening, the branch and the
+    two streams must read the same numbers as in NCHW."""
+    from hybridpose.regressors.train import channels_last
+
+    torch.manual_seed(0)
+    build = {"image_size": 64, **({"keypoints_m": truss.keypoints} if name == "default" else {})}
+    ref = build_model(name, **build).eval()
+    nhwc = channels_last(build_model(name, **build).eval())
+    nhwc.load_state_dict(ref.state_dict())
+    assert any(p.dim() == 4 and p.is_contiguous(memory_format=torch.channels_last) and not p.is_contiguous()
+               for p in nhwc.parameters())
+    x = torch.rand(2, 3, 64, 64)
+    args = (x, x.flip(-1)) if name == "parallel-vgg19" else (x,)
+    outs = [m(*args) for m in (ref, nhwc)]
+    for a, b in zip(*outs):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    weights = [torch.randn_like(v.float()) for v in outs[0]]  # |q| = 1: a sum of squares has no gradient
+    for o in outs:
+        sum((v.float() * w).sum() for v, w in zip(o, weights)).backward()
+    # (a gradient that is zero by symmetry, e.g. a bias before a softmax, is compared with the largest)
+    floor = 1e-3 * max(float(p.grad.norm()) for p in ref.parameters())
+    for (n, a), b in zip(ref.named_parameters(), nhwc.parameters()):
+        # float32 sums in another order, rounding grown through up to 16 layers: each gradient as a
+        # whole within 1 % (a layout mistake moves it by its own size)
+        assert (a.grad - b.grad).norm() <= 1e-2 * a.grad.norm() + floor, n

@@ -11,14 +11,27 @@
 #           that every keep-warm call brings back what is finished (a lost warm window loses the rest)
 #   collect exported checkpoints (split below the 16 MiB a returned file may have), metrics, logs and
 #           the parallel-vgg19 evaluation report into OUTDIR (a short call of its own: see README.md)
+# The paper's four VGG models (session 30): start-vgg (= setup render launch-vgg, then wait-vgg) |
+# wait-vgg OUTDIR SECONDS (sleep until SECONDS after the call began, CALL_START in epoch seconds, then
+# status and collect-vgg: every call brings back what is done)
+#   launch-vgg  vgg16, vgg19, branched-vgg19, parallel-vgg19 at once, detached, from scratch (no ImageNet
+#           weights can reach the machine), the paper's loss and Adam 1e-4, bf16, batch 32, 100 epochs
+#           planned and TIME_LIMIT minutes allowed; each then evaluated on the GPU on the seed-100 test set
+#   collect-vgg OUTDIR  metrics, logs and the evaluation reports in one archive (checkpoints of
+#           0.5-1.1 GB cannot come back)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
+export CALL_START=${CALL_START:-$(date +%s)}
 export PYTHONPATH=/tmp/site:$PWD MUJOCO_GL=egl PYTHONUNBUFFERED=1
 DATA=${DATA:-/tmp/hp/data} RUNS=${RUNS:-/tmp/hp/runs} TIME_LIMIT=${TIME_LIMIT:-15}
 TRAIN_COUNT=${TRAIN_COUNT:-24000} TRAIN_SEED=${TRAIN_SEED:-4} INIT=${INIT:-.carry/stage4.pt}
 hp() { python3 -m hybridpose "$@"; }
 phase=${1:-}
 if [ "$phase" = start ]; then bash "$0" setup && bash "$0" render && exec bash "$0" launch; fi
+if [ "$phase" = start-vgg ]; then
+    bash "$0" setup && bash "$0" render && bash "$0" launch-vgg && exec bash "$0" wait-vgg "${2:?start-vgg OUTDIR SECONDS}" "${3:?}"
+fi
+VGG_RUNS=(vgg16 vgg19 branched-vgg19 parallel-vgg19)
 case "$phase" in
 setup)
     for f in .gl/*.deb; do dpkg -x "$f" /; done
@@ -51,6 +64,37 @@ launch)
     tail -n 3 "$RUNS"/*.log
     nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv
     ;;
+launch-vgg)
+    mkdir -p "$RUNS"
+    declare -A workers=([vgg16]=3 [vgg19]=3 [branched-vgg19]=3 [parallel-vgg19]=5)  # parallel reads each view twice
+    for m in "${VGG_RUNS[@]}"; do
+        setsid nohup bash -c "python3 -m hybridpose train --model $m --data $DATA/train --seed 0 --val-fraction 0.05 \
+            --patience 0 --epochs 100 --batch 32 --amp --workers ${workers[$m]} --time-limit $TIME_LIMIT --out $RUNS/$m \
+            > $RUNS/$m.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt --data $DATA/test --device cuda \
+            --out $RUNS/${m}_eval > $RUNS/${m}_eval.log 2>&1" > /dev/null 2>&1 &
+    done
+    sleep 45
+    tail -n 2 "$RUNS"/*.log
+    nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv
+    ;;
+wait-vgg)
+    out=${2:?wait-vgg OUTDIR SECONDS}
+    left=$(( ${CALL_START:-$(date +%s)} + ${3:?} - $(date +%s) ))
+    if [ "$left" -gt 0 ]; then sleep "$left"; fi
+    for m in "${VGG_RUNS[@]}"; do
+        echo "== $m"; tail -n 3 "$RUNS/$m/metrics.csv" 2>/dev/null || tail -c 400 "$RUNS/$m.log" 2>/dev/null || true
+        tail -n 2 "$RUNS/${m}_eval.log" 2>/dev/null || true
+    done
+    nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader || true
+    uptime
+    exec bash "$0" collect-vgg "$out"
+    ;;
+collect-vgg)
+    out=${2:?collect-vgg OUTDIR}
+    (cd "$RUNS" && find . -maxdepth 2 \( -name '*.log' -o -name metrics.csv -o -name history.json \) -print0 \
+        | tar --null -T - -czf "$out/vgg_runs.tgz" $(ls -d *_eval 2>/dev/null))
+    ls -la "$out"
+    ;;
 status)
     for r in default keypoints pvgg; do echo "== $r"; tail -n 4 "$RUNS/$r/metrics.csv" 2>/dev/null || tail -c 600 "$RUNS/$r.log"; done
     nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader
@@ -66,7 +110,7 @@ collect)
     ls -la "$out"
     ;;
 *)
-    echo "usage: $0 start|setup|render|launch|status|collect OUTDIR" >&2
+    echo "usage: $0 start|setup|render|launch|status|collect OUTDIR | start-vgg OUTDIR SECONDS|launch-vgg|wait-vgg OUTDIR SECONDS|collect-vgg OUTDIR" >&2
     exit 2
     ;;
 esac

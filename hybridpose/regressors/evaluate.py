@@ -300,6 +300,9 @@ def network_call_ms(reg: CheckpointRegressor, calls: int = 20, repeats: int = 3,
     image = np.zeros((reg.image_size, reg.image_size, 3), np.uint8)
     if reg.engine is not None and not on_torch:
         run, x = reg.engine, reg._batch(image)
+    elif reg.model_name == "parallel-vgg19":
+        # both streams, as predict runs them: the whole frame and the bounded image, each at the input size
+        run, x = (lambda v: reg.net(v, v)), reg._tensor(image)
     else:
         run, x = reg.net, reg._tensor(image)
     with torch.inference_mode():

@@ -1,0 +1,94 @@
+"""The paper's four VGG models trained on a lent GPU, beside the paper's table.
+
+Usage (after a lease of ``train_on_gpu.sh start-vgg`` / ``wait-vgg`` brought back ``vgg_runs.tgz``):
+    mkdir -p runs/gpu30 && tar -C runs/gpu30 -xzf vgg_runs.tgz
+    python benchmarks/gpu/vgg_runs.py --runs runs/gpu30 --note "..."
+
+Reads each model's ``metrics.csv`` (validation per epoch: the 5 % held out of the training views,
+the parallel model's rotation stream fed the crop around the true box) and its ``hybridpose eval``
+report on the test set (the inference path: no roi, so the parallel model crops around its own
+translation estimate), writes ``benchmarks/results/gpu_vgg_runs.json``, copies the plots there and
+writes the "gpu-vgg-runs" section of RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import shutil
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _common import BENCH_DIR, update_results_md, write_json  # noqa: E402
+from hybridpose.regressors.evaluate import PAPER  # noqa: E402
+
+MODELS = ("vgg16", "vgg19", "branched-vgg19", "parallel-vgg19")
+PAPER_NAMES = {"vgg16": "VGG-16", "vgg19": "VGG-19", "branched-vgg19": "Branched VGG-19", "parallel-vgg19": "Parallel VGG-19"}
+SUMMARY_KEYS = ("images", "device", "machine", "rot_mean_deg", "rot_median_deg", "trans_mean_m", "speed_score",
+                "add_0.1d_recall", "gross_error_share", "failures", "ms_per_image", "covariance_check")
+
+
+def read_run(runs: Path, model: str) -> dict:
+    """One model's validation history and test-set summary (absent parts are left out, not invented)."""
+    run: dict = {"model": model}
+    metrics = runs / model / "metrics.csv"
+    if metrics.exists():
+        with metrics.open() as f:
+            rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
+        best = min(rows, key=lambda r: r["val_loss"])
+        run.update(epochs=len(rows), epoch_s_mean=sum(r["epoch_s"] for r in rows) / len(rows),
+                   train_images=int(rows[-1]["train_images"]), val_best=best, val_last=rows[-1], history=rows)
+    report = runs / f"{model}_eval" / "report.json"
+    if report.exists():
+        r = json.loads(report.read_text())["summary"]
+        run["test"] = {k: r[k] for k in SUMMARY_KEYS if k in r}
+        run["test_data"] = r.get("data")
+    return run
+
+
+def fmt(x, spec: str) -> str:
+    return "–" if x is None else format(x, spec)
+
+
+def markdown(runs: list[dict], note: str) -> str:
+    lines = ["## The paper's VGG models on a lent GPU (`python benchmarks/gpu/vgg_runs.py`)", "", note, "",
+             "| model | epochs × s | val: mean / median rot °, mean trans m (best epoch) | "
+             "test: mean rot ° | median rot ° | mean trans m | SPEED | ADD-0.1d | > 30° | ms/img (GPU) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for run in runs:
+        name = PAPER_NAMES[run["model"]]
+        p = PAPER[name]
+        lines.append(f"| paper: {name} (their data, GPU, 100 epochs, ImageNet) | 100 | – | {p[0]:.2f} | {p[1]:.2f} | "
+                     f"{p[2]:.2f} | – | – | – | – |")
+        v, t = run.get("val_best"), run.get("test", {})
+        val = (f"{v['rot_mean_deg']:.1f} / {v['rot_median_deg']:.1f} / {v['trans_mean_m']:.3f} (epoch {int(v['epoch'])})"
+               if v else "–")
+        ms = t.get("ms_per_image", {}).get("1_thread")
+        lines.append(f"| **{run['model']}** | {run.get('epochs', '–')} × {fmt(run.get('epoch_s_mean'), '.0f')} | {val} | "
+                     f"{fmt(t.get('rot_mean_deg'), '.2f')} | {fmt(t.get('rot_median_deg'), '.2f')} | "
+                     f"{fmt(t.get('trans_mean_m'), '.3f')} | {fmt(t.get('speed_score'), '.3f')} | "
+                     f"{fmt(t.get('add_0.1d_recall'), '.2f')} | {fmt(100 * t['gross_error_share'] if 'gross_error_share' in t else None, '.1f')}% | "
+                     f"{fmt(ms, '.1f')} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--runs", required=True, help="folder vgg_runs.tgz was unpacked into")
+    ap.add_argument("--note", default="", help="what ran where (Markdown), written above the table")
+    args = ap.parse_args()
+    runs = [read_run(Path(args.runs), m) for m in MODELS]
+    if not any("epochs" in r for r in runs):
+        raise SystemExit(f"--runs: no <model>/metrics.csv under {args.runs}")
+    write_json("gpu_vgg_runs", {"note": args.note, "runs": runs})
+    for run in runs:
+        for png in ("error_vs_distance.png", "gradcam.png"):
+            src = Path(args.runs) / f"{run['model']}_eval" / png
+            if src.exists():
+                shutil.copyfile(src, BENCH_DIR / "results" / f"gpu_{run['model']}_{png}")
+    update_results_md("gpu-vgg-runs", markdown(runs, args.note))
+
+
+if __name__ == "__main__":
+    main()

@@ -81,3 +81,29 @@ def test_engine_benchmark_configurations_name_engine_and_cheaper_settings():
         "engine": "onnxruntime-int8", "edge_on_expert": None, "turns": "off"}
     with pytest.raises(ValueError, match="unknown setting 'fast'"):
         inference_engines.regressor_options("torch/fast")
+
+
+def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
+    """benchmarks/gpu/vgg_runs.py: best validation epoch, the test report's summary, '–' where a part
+    did not come back from the machine."""
+    import json
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks" / "gpu"))
+    import vgg_runs
+
+    run = tmp_path / "vgg16"
+    run.mkdir()
+    head = "epoch,train_loss,val_loss,rot_mean_deg,rot_median_deg,trans_mean_m,lr,epoch_s,train_images\n"
+    (run / "metrics.csv").write_text(head + "0,22,22.2,126,129,0.16,1e-4,50,100\n1,21,21.0,110,112,0.15,1e-4,40,100\n"
+                                     "2,20,21.5,115,118,0.14,1e-4,45,100\n")
+    (tmp_path / "vgg16_eval").mkdir()
+    (tmp_path / "vgg16_eval" / "report.json").write_text(json.dumps({"summary": {
+        "images": 10, "rot_mean_deg": 111.0, "rot_median_deg": 115.0, "trans_mean_m": 0.149, "speed_score": 2.1,
+        "add_0.1d_recall": 0.0, "gross_error_share": 0.968, "failures": 0, "ms_per_image": {"1_thread": 3.6}}}))
+    runs = [vgg_runs.read_run(tmp_path, m) for m in vgg_runs.MODELS]
+    assert runs[0]["epochs"] == 3 and runs[0]["val_best"]["epoch"] == 1 and runs[0]["epoch_s_mean"] == 45
+    assert runs[0]["test"]["rot_mean_deg"] == 111.0 and runs[1] == {"model": "vgg19"}
+    md = vgg_runs.markdown(runs, "note")
+    assert "| **vgg16** | 3 × 45 | 110.0 / 112.0 / 0.150 (epoch 1) | 111.00 | 115.00 | 0.149 | 2.100 | 0.00 | 96.8% | 3.6 |" in md
+    assert "| **vgg19** | – × – | – | – | – | – | – | – | – | – |" in md
+    assert "| paper: Parallel VGG-19 (their data, GPU, 100 epochs, ImageNet) | 100 | – | 4.61 | 4.41 | 0.03 |" in md

@@ -68,7 +68,7 @@ def markdown(runs: list[dict], note: str) -> str:
         lines.append(f"| **{run['model']}** | {run.get('epochs', '–')} × {fmt(run.get('epoch_s_mean'), '.0f')} | {val} | "
                      f"{fmt(t.get('rot_mean_deg'), '.2f')} | {fmt(t.get('rot_median_deg'), '.2f')} | "
                      f"{fmt(t.get('trans_mean_m'), '.3f')} | {fmt(t.get('speed_score'), '.3f')} | "
-                     f"{fmt(t.get('add_0.1d_recall'), '.2f')} | {fmt(100 * t['gross_error_share'] if 'gross_error_share' in t else None, '.1f')}% | "
+                     f"{fmt(t.get('add_0.1d_recall'), '.2f')} | {fmt(t.get('gross_error_share'), '.1%')} | "
                      f"{fmt(ms, '.1f')} |")
     return "\n".join(lines)
 

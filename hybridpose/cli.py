@@ -220,7 +220,8 @@ def cmd_eval(args) -> int:
                             mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier,
                             edge_on_expert=None if args.edge_on_expert == "none" else args.edge_on_expert,
                             expert_rule=args.expert_rule, dim_fallback=not args.no_dim_fallback,
-                            max_depth_m=None if args.max_depth == "none" else args.max_depth, engine=args.engine)
+                            max_depth_m=None if args.max_depth == "none" else args.max_depth, engine=args.engine,
+                            roi=args.roi)
     ms = s["ms_per_image"]
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
@@ -429,6 +430,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--pnp-outliers", choices=("drop-worst", "ransac"), default="drop-worst",
                    help="keypoint models: PnP leaves the worst keypoint out until the rest agree (drop-worst, the "
                         "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")
+    e.add_argument("--roi", choices=("none", "truth"), default="none",
+                   help="none (default): no prior, the object found by detection (the parallel VGG-19: its own first "
+                        "pass); truth: each view's true object box from scene_gt_info.json, as a tracker on the object "
+                        "passes it in the hybrid (the paper's 'bounded image')")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--engine", choices=("auto", "onnxruntime", "torch", "onnxruntime-int8"), default="auto",
                    help="keypoint models: what runs the network: auto (default: ONNX Runtime on the CPU, torch where it "

@@ -367,6 +367,40 @@ def test_eval_can_give_the_regressor_each_images_sun(tiny_checkpoint, tmp_path):
         evaluate_checkpoint(tiny_checkpoint, bare, tmp_path / "rep2", limit=3, sun_known=True)
 
 
+def test_eval_can_give_the_regressor_each_views_true_box(tiny_checkpoint, tmp_path, monkeypatch):
+    import json
+    import shutil
+
+    from hybridpose.datasets.bop import BopScene
+    from hybridpose.regressors import evaluate
+    from hybridpose.regressors.predictor import CheckpointRegressor
+
+    data = tiny_checkpoint.parent.parent / "ds"
+    seen, predict = [], CheckpointRegressor.predict
+
+    def spy(self, frame, roi=None, sun_direction_cam=None):
+        seen.append(roi)
+        return predict(self, frame, roi=roi, sun_direction_cam=sun_direction_cam)
+
+    monkeypatch.setattr(CheckpointRegressor, "predict", spy)
+    s = evaluate.evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=3, timing_images=1,
+                                     gradcam_count=0, roi="truth")
+    scene = BopScene(data / "train" / "000000")
+    assert s["roi"] == "truth" and seen[:3] == [scene.image(i).bbox_obj for i in scene.image_ids[:3]]
+    assert all(r is None for r in seen[3:])  # the timings run the path without a prior
+    assert "true object box" in (tmp_path / "rep" / "report.md").read_text()
+    with pytest.raises(ValueError, match="roi: expected one of none, truth"):
+        evaluate.evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep2", limit=1, roi="detector")
+    bare = tmp_path / "bare"
+    shutil.copytree(data, bare)
+    info_path = bare / "train" / "000000" / "scene_gt_info.json"
+    info = json.loads(info_path.read_text())
+    info_path.write_text(json.dumps({k: [{kk: vv for kk, vv in e.items() if kk != "bbox_obj"} for e in v]
+                                     for k, v in info.items()}))
+    with pytest.raises(ValueError, match="has no bbox_obj"):
+        evaluate.evaluate_checkpoint(tiny_checkpoint, bare, tmp_path / "rep3", limit=1, roi="truth")
+
+
 def test_covariance_check_counts_errors_inside_the_ellipsoid():
     from scipy.stats import chi2
 

@@ -100,10 +100,14 @@ def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
     (tmp_path / "vgg16_eval" / "report.json").write_text(json.dumps({"summary": {
         "images": 10, "rot_mean_deg": 111.0, "rot_median_deg": 115.0, "trans_mean_m": 0.149, "speed_score": 2.1,
         "add_0.1d_recall": 0.0, "gross_error_share": 0.968, "failures": 0, "ms_per_image": {"1_thread": 3.6}}}))
+    (tmp_path / "vgg16_eval_roi").mkdir()  # `--roi truth`
+    (tmp_path / "vgg16_eval_roi" / "report.json").write_text(json.dumps({"summary": {
+        "rot_mean_deg": 20.0, "rot_median_deg": 10.0, "trans_mean_m": 0.05}}))
     runs = [vgg_runs.read_run(tmp_path, m) for m in vgg_runs.MODELS]
     assert runs[0]["epochs"] == 3 and runs[0]["val_best"]["epoch"] == 1 and runs[0]["epoch_s_mean"] == 45
     assert runs[0]["test"]["rot_mean_deg"] == 111.0 and runs[1] == {"model": "vgg19"}
     md = vgg_runs.markdown(runs, "note")
-    assert "| **vgg16** | 3 × 45 | 110.0 / 112.0 / 0.150 (epoch 1) | 111.00 | 115.00 | 0.149 | 2.100 | 0.00 | 96.8% | 3.6 |" in md
-    assert "| **vgg19** | – × – | – | – | – | – | – | – | – | – |" in md
+    assert ("| **vgg16** | 3 × 45 | 110.0 / 112.0 / 0.150 (epoch 1) | 111.00 | 115.00 | 0.149 | 2.100 | 0.00 | 96.8% | "
+            "3.6 | 20.00 / 10.00 / 0.050 |") in md
+    assert "| **vgg19** | – × – | – | – | – | – | – | – | – | – | – |" in md
     assert "| paper: Parallel VGG-19 (their data, GPU, 100 epochs, ImageNet) | 100 | – | 4.61 | 4.41 | 0.03 |" in md

@@ -16,7 +16,8 @@
 # status and collect-vgg: every call brings back what is done)
 #   launch-vgg  vgg16, vgg19, branched-vgg19, parallel-vgg19 at once, detached, from scratch (no ImageNet
 #           weights can reach the machine), the paper's loss and Adam 1e-4, bf16, batch 32, 100 epochs
-#           planned and TIME_LIMIT minutes allowed; each then evaluated on the GPU on the seed-100 test set
+#           planned and TIME_LIMIT minutes allowed; each then evaluated on the GPU on the seed-100 test set,
+#           without a prior and with each view's true box as roi (the paper's bounded image; after session 30)
 #   collect-vgg OUTDIR  metrics, logs and the evaluation reports in one archive (checkpoints of
 #           0.5-1.1 GB cannot come back)
 set -euo pipefail
@@ -71,7 +72,8 @@ launch-vgg)
         setsid nohup bash -c "python3 -m hybridpose train --model $m --data $DATA/train --seed 0 --val-fraction 0.05 \
             --patience 0 --epochs 100 --batch 32 --amp --workers ${workers[$m]} --time-limit $TIME_LIMIT --out $RUNS/$m \
             > $RUNS/$m.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt --data $DATA/test --device cuda \
-            --out $RUNS/${m}_eval > $RUNS/${m}_eval.log 2>&1" > /dev/null 2>&1 &
+            --out $RUNS/${m}_eval > $RUNS/${m}_eval.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt \
+            --data $DATA/test --device cuda --roi truth --out $RUNS/${m}_eval_roi > $RUNS/${m}_eval_roi.log 2>&1" > /dev/null 2>&1 &
     done
     sleep 45
     tail -n 2 "$RUNS"/*.log

@@ -6,8 +6,8 @@ Usage (after a lease of ``train_on_gpu.sh start-vgg`` / ``wait-vgg`` brought bac
 
 Reads each model's ``metrics.csv`` (validation per epoch: the 5 % held out of the training views,
 the parallel model's rotation stream fed the crop around the true box) and its ``hybridpose eval``
-report on the test set (the inference path: no roi, so the parallel model crops around its own
-translation estimate), writes ``benchmarks/results/gpu_vgg_runs.json``, copies the plots there and
+reports on the test set (``<model>_eval``: the inference path, no roi, so the parallel model crops
+around its own translation estimate; ``<model>_eval_roi``, where present: ``--roi truth``), writes ``benchmarks/results/gpu_vgg_runs.json``, copies the plots there and
 writes the "gpu-vgg-runs" section of RESULTS.md.
 """
 from __future__ import annotations
@@ -39,11 +39,12 @@ def read_run(runs: Path, model: str) -> dict:
         best = min(rows, key=lambda r: r["val_loss"])
         run.update(epochs=len(rows), epoch_s_mean=sum(r["epoch_s"] for r in rows) / len(rows),
                    train_images=int(rows[-1]["train_images"]), val_best=best, val_last=rows[-1], history=rows)
-    report = runs / f"{model}_eval" / "report.json"
-    if report.exists():
-        r = json.loads(report.read_text())["summary"]
-        run["test"] = {k: r[k] for k in SUMMARY_KEYS if k in r}
-        run["test_data"] = r.get("data")
+    for key, folder in (("test", f"{model}_eval"), ("test_roi", f"{model}_eval_roi")):
+        report = runs / folder / "report.json"
+        if report.exists():
+            r = json.loads(report.read_text())["summary"]
+            run[key] = {k: r[k] for k in SUMMARY_KEYS if k in r}
+            run["test_data"] = r.get("data")
     return run
 
 
@@ -51,16 +52,21 @@ def fmt(x, spec: str) -> str:
     return "–" if x is None else format(x, spec)
 
 
+def roi_cell(t: dict | None) -> str:
+    return "–" if not t else f"{t['rot_mean_deg']:.2f} / {t['rot_median_deg']:.2f} / {t['trans_mean_m']:.3f}"
+
+
 def markdown(runs: list[dict], note: str) -> str:
     lines = ["## The paper's VGG models on a lent GPU (`python benchmarks/gpu/vgg_runs.py`)", "", note, "",
              "| model | epochs × s | val: mean / median rot °, mean trans m (best epoch) | "
-             "test: mean rot ° | median rot ° | mean trans m | SPEED | ADD-0.1d | > 30° | ms/img (GPU) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "test: mean rot ° | median rot ° | mean trans m | SPEED | ADD-0.1d | > 30° | ms/img (GPU) | "
+             "test, true box as roi: mean / median rot °, mean trans m |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for run in runs:
         name = PAPER_NAMES[run["model"]]
         p = PAPER[name]
         lines.append(f"| paper: {name} (their data, GPU, 100 epochs, ImageNet) | 100 | – | {p[0]:.2f} | {p[1]:.2f} | "
-                     f"{p[2]:.2f} | – | – | – | – |")
+                     f"{p[2]:.2f} | – | – | – | – | – |")
         v, t = run.get("val_best"), run.get("test", {})
         val = (f"{v['rot_mean_deg']:.1f} / {v['rot_median_deg']:.1f} / {v['trans_mean_m']:.3f} (epoch {int(v['epoch'])})"
                if v else "–")
@@ -69,7 +75,7 @@ def markdown(runs: list[dict], note: str) -> str:
                      f"{fmt(t.get('rot_mean_deg'), '.2f')} | {fmt(t.get('rot_median_deg'), '.2f')} | "
                      f"{fmt(t.get('trans_mean_m'), '.3f')} | {fmt(t.get('speed_score'), '.3f')} | "
                      f"{fmt(t.get('add_0.1d_recall'), '.2f')} | {fmt(t.get('gross_error_share'), '.1%')} | "
-                     f"{fmt(ms, '.1f')} |")
+                     f"{fmt(ms, '.1f')} | {roi_cell(run.get('test_roi'))} |")
     return "\n".join(lines)
 
 

@@ -111,3 +111,15 @@ def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
             "3.6 | 20.00 / 10.00 / 0.050 |") in md
     assert "| **vgg19** | – × – | – | – | – | – | – | – | – | – | – |" in md
     assert "| paper: Parallel VGG-19 (their data, GPU, 100 epochs, ImageNet) | 100 | – | 4.61 | 4.41 | 0.03 |" in md
+
+
+def test_bounded_crop_agreement_and_training_jitter():
+    import bounded_crop
+
+    assert bounded_crop.crop_agreement((100, 100, 50, 20), (100, 100, 50, 20)) == (0.0, 1.2)  # the crop it trained on
+    offset, scale = bounded_crop.crop_agreement((100, 100, 50, 20), (110, 100, 50, 20))        # 10 px to the right
+    assert offset == pytest.approx(10 / 60) and scale == pytest.approx(1.2)
+    assert bounded_crop.crop_agreement((100, 100, 50, 20), None) == (np.inf, np.inf)
+    inside = bounded_crop.inside_training_jitter(np.array([0.0, 0.16, 0.18, 0.0, 0.0, np.inf]),
+                                                 np.array([1.2, 1.2, 1.2, 1.05, 1.9, np.inf]))
+    assert inside.tolist() == [True, True, False, False, False, False]

@@ -167,3 +167,32 @@ def test_channels_last_layout_gives_the_same_outputs_and_gradients(name, truss):
         # float32 sums in another order, rounding grown through up to 16 layers: each gradient as a
         # whole within 1 % (a layout mistake moves it by its own size)
         assert (a.grad - b.grad).norm() <= 1e-2 * a.grad.norm() + floor, n
+
+
+def test_parallel_model_crops_around_the_detected_object_or_else_its_translation(tmp_path, monkeypatch):
+    """Without a roi the bounded image is the detected object's box × CROP_MARGIN (as it trained, on the
+    true box); with nothing to detect, the projection of its own translation, sized by the diameter."""
+    from hybridpose.core import Camera, Frame
+    from hybridpose.datasets.torch_dataset import crop_box
+    from hybridpose.regressors.predictor import CROP_MARGIN, CheckpointRegressor
+    from hybridpose.regressors.train import save_checkpoint
+
+    torch.manual_seed(0)
+    save_checkpoint(tmp_path / "ck.pt", {"config": {"model": "parallel-vgg19", "image_size": 64}, "build": {"image_size": 64},
+                                         "model": build_model("parallel-vgg19", image_size=64).state_dict()})
+    reg = CheckpointRegressor(tmp_path / "ck.pt")
+    crops, crop = [], reg._crop
+    monkeypatch.setattr(reg, "_crop", lambda image, K, cx, cy, side: crops.append((cx, cy, side)) or crop(image, K, cx, cy, side))
+    t = np.array([0.05, -0.02, 0.8])  # the translation stream's estimate, fixed (an untrained one may point anywhere)
+    monkeypatch.setattr(reg.net.translation, "forward", lambda x: torch.tensor(t, dtype=x.dtype)[None])
+    cam = Camera.default().scaled("128x96")
+    image = np.zeros((96, 128, 3), np.uint8)
+    image[30:50, 40:70] = 200                                  # a lit object, 30 × 20 px
+    m = reg.predict(Frame(image, cam, 0.0))
+    np.testing.assert_allclose(m.pose.t, t, rtol=1e-6)
+    np.testing.assert_allclose(crops[-1], crop_box((40, 30, 30, 20), CROP_MARGIN), atol=2.5)  # detection: ±1 px at half size
+    reg.predict(Frame(image, cam, 0.0), roi=(10, 10, 20, 20))
+    np.testing.assert_allclose(crops[-1], crop_box((10, 10, 20, 20), CROP_MARGIN))
+    reg.predict(Frame(np.zeros_like(image), cam, 0.0))           # nothing to detect
+    np.testing.assert_allclose(crops[-1][:2], (cam.K @ (t / t[2]))[:2], atol=1e-3)
+    assert crops[-1][2] == pytest.approx(CROP_MARGIN * max(cam.fx, cam.fy) * 0.5 / t[2], rel=1e-6)

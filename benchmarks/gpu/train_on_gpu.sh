@@ -91,6 +91,22 @@ wait-vgg)
     uptime
     exec bash "$0" collect-vgg "$out"
     ;;
+crop-check)
+    # the parallel VGG-19 alone for TIME_LIMIT minutes, then evaluated on EVAL_LIMIT test views without a roi
+    # (the detected object's crop since session 30) and with the true box: one call, what is left of a lease
+    out=${2:?crop-check OUTDIR}
+    bash "$0" setup && bash "$0" render
+    mkdir -p "$RUNS"
+    hp train --model parallel-vgg19 --data "$DATA/train" --seed 0 --val-fraction 0.05 --patience 0 --epochs 100 \
+        --batch 32 --amp --workers 14 --time-limit "$TIME_LIMIT" --out "$RUNS/parallel-vgg19" > "$RUNS/parallel.log" 2>&1 || true
+    for roi in none truth; do
+        hp eval --checkpoint "$RUNS/parallel-vgg19/best.pt" --data "$DATA/test" --device cuda --limit "${EVAL_LIMIT:-300}" \
+            --roi $roi --out "$RUNS/parallel-vgg19_eval_$roi" 2>&1 | tail -1 || true
+    done
+    tail -n 4 "$RUNS/parallel-vgg19/metrics.csv" || true
+    (cd "$RUNS" && tar -czf "$out/crop_check.tgz" parallel.log parallel-vgg19/metrics.csv parallel-vgg19_eval_* || true)
+    ls -la "$out"
+    ;;
 collect-vgg)
     out=${2:?collect-vgg OUTDIR}
     (cd "$RUNS" && find . -maxdepth 2 \( -name '*.log' -o -name metrics.csv -o -name history.json \) -print0 \

@@ -431,8 +431,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keypoint models: PnP leaves the worst keypoint out until the rest agree (drop-worst, the "
                         "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")
     e.add_argument("--roi", choices=("none", "truth"), default="none",
-                   help="none (default): no prior, the object found by detection (the parallel VGG-19: its own first "
-                        "pass); truth: each view's true object box from scene_gt_info.json, as a tracker on the object "
+                   help="none (default): no prior, the object found by detection (the parallel VGG-19 crops around its "
+                        "own translation where nothing is detected); truth: each view's true object box from scene_gt_info.json, as a tracker on the object "
                         "passes it in the hybrid (the paper's 'bounded image')")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--engine", choices=("auto", "onnxruntime", "torch", "onnxruntime-int8"), default="auto",

@@ -70,7 +70,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     None, as ``verifier``); ``edge_on_expert``: the edge-on expert (``"auto"``, a path or None, ditto);
     ``expert_rule``, ``dim_fallback``, ``max_depth_m`` and ``engine``: :class:`CheckpointRegressor`'s
     arguments; the summary's ``engine`` names the one that ran the network. ``roi``: ``"none"`` (the
-    default: no prior, the object found by detection, or by the parallel model's own first pass) or
+    default: no prior, the object found by detection; the parallel model crops around its own
+    translation where nothing is detected) or
     ``"truth"`` (each view's true object box, ``bbox_obj`` of ``scene_gt_info.json``: what a tracker on
     the object passes in the hybrid, and the paper's "bounded image"); the timings run without it.
     """

@@ -308,10 +308,12 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     data = tiny_checkpoint.parent.parent / "ds"
     assert main(["eval", "--checkpoint", str(tiny_checkpoint), "--data", str(data), "--out", str(tmp_path / "rep"),
                  "--limit", "10", "--turns", "always", "--pnp-outliers", "ransac", "--edge-on-expert", str(tiny_checkpoint),
-                 "--expert-rule", "pooled", "--no-dim-fallback", "--max-depth", "auto", "--engine", "onnxruntime"]) == 0
+                 "--expert-rule", "pooled", "--no-dim-fallback", "--max-depth", "auto", "--engine", "onnxruntime",
+                 "--roi", "truth"]) == 0
     rep = json.loads((tmp_path / "rep" / "report.json").read_text())
     s = rep["summary"]
     assert s["turns"] == "always" and s["pnp_outliers"] == "ransac" and s["engine"] == "onnxruntime"
+    assert s["roi"] == "truth"
     assert s["max_depth_m"] == pytest.approx(3.6)                    # 3 × the 1.2 m the tiny run recorded
     assert s["expert_rule"] == "pooled" and s["dim_fallback"] is False and s["edge_on_expert"] == str(tiny_checkpoint)
     assert s["images"] == 10 and len(rep["per_image"]) == 10

@@ -5,7 +5,8 @@ Usage: python benchmarks/bounded_crop.py --data data/truss_test100 [--limit N]
 The parallel model's rotation stream trains on the "bounded image": the true object box (``bbox_obj``)
 × ``CROP_MARGIN``, jittered by up to ``JITTER_SHIFT`` of the side and a margin of ``JITTER_MARGIN`` × the
 extent. Without a ``roi`` its predictor crops around the detected object
-(:meth:`CheckpointRegressor._bounded_box`). Per view: the crop centres' distance over the crop side, and
+(:func:`~hybridpose.regressors.predictor.detected_crop`; where nothing is detected
+:func:`~hybridpose.regressors.predictor.translation_crop`). Per view: the crop centres' distance over the crop side, and
 the crop side over the true box's extent; the share of views whose crop lies inside the training
 jitter. Writes ``benchmarks/results/bounded_crop.json`` and the "bounded-crop" section of RESULTS.md.
 """
@@ -18,16 +19,16 @@ import numpy as np
 from _common import environment, update_results_md, write_json
 from hybridpose.datasets.bop import BopScene, dataset_object, find_scenes
 from hybridpose.datasets.torch_dataset import JITTER_MARGIN, JITTER_SHIFT, crop_box
-from hybridpose.regressors.predictor import CROP_MARGIN, detect_bright_object, detect_dim_object
+from hybridpose.regressors.predictor import CROP_MARGIN, detected_crop, translation_crop
 
 
-def crop_agreement(true_box, box) -> tuple[float, float]:
-    """(centre offset / crop side, crop side / true extent) of the crop around ``box`` against the crop
-    around ``true_box`` (both (x, y, w, h) px, cropped as training does); (inf, inf) without a box."""
-    if box is None:
+def crop_agreement(true_box, crop) -> tuple[float, float]:
+    """(centre offset / crop side, crop side / true extent) of ``crop`` (cx, cy, side) px against the crop
+    training makes around ``true_box`` (x, y, w, h) px; (inf, inf) without a crop."""
+    if crop is None:
         return float("inf"), float("inf")
     tcx, tcy, tside = crop_box(true_box, CROP_MARGIN)
-    cx, cy, side = crop_box(box, CROP_MARGIN)
+    cx, cy, side = crop
     return float(np.hypot(cx - tcx, cy - tcy) / side), float(side / (tside / CROP_MARGIN))
 
 
@@ -46,14 +47,11 @@ def main() -> None:
     diameter = dataset_object(args.data).diameter
     rows = {"detected object": [], "true translation, object diameter": []}
     for scene, i in views:
-        image, gt = scene.rgb(i), scene.image(i)
-        rows["detected object"].append(crop_agreement(gt.bbox_obj, detect_bright_object(image) or detect_dim_object(image)))
+        gt = scene.image(i)
+        rows["detected object"].append(crop_agreement(gt.bbox_obj, detected_crop(scene.rgb(i))))
         # the crop the predictor falls back to, here with a perfect translation: the best it can do
-        t, K = gt.pose.t, gt.camera.K
-        side = CROP_MARGIN * max(K[0, 0], K[1, 1]) * diameter / t[2]
-        u, v = (K @ (t / t[2]))[:2]
         rows["true translation, object diameter"].append(
-            crop_agreement(gt.bbox_obj, (u - side / CROP_MARGIN / 2, v - side / CROP_MARGIN / 2, side / CROP_MARGIN, side / CROP_MARGIN)))
+            crop_agreement(gt.bbox_obj, translation_crop(gt.pose.t, gt.camera.K, diameter)))
     result = {"env": environment(), "data": args.data, "views": len(views), "crops": {}}
     lines = [
         "## The parallel VGG-19's crop without a roi (`python benchmarks/bounded_crop.py`)", "",

@@ -115,9 +115,11 @@ def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
 
 def test_bounded_crop_agreement_and_training_jitter():
     import bounded_crop
+    from hybridpose.datasets.torch_dataset import crop_box
 
-    assert bounded_crop.crop_agreement((100, 100, 50, 20), (100, 100, 50, 20)) == (0.0, 1.2)  # the crop it trained on
-    offset, scale = bounded_crop.crop_agreement((100, 100, 50, 20), (110, 100, 50, 20))        # 10 px to the right
+    crop = lambda box: crop_box(box, bounded_crop.CROP_MARGIN)  # noqa: E731  (as training crops a box)
+    assert bounded_crop.crop_agreement((100, 100, 50, 20), crop((100, 100, 50, 20))) == (0.0, 1.2)  # the crop it trained on
+    offset, scale = bounded_crop.crop_agreement((100, 100, 50, 20), crop((110, 100, 50, 20)))        # 10 px to the right
     assert offset == pytest.approx(10 / 60) and scale == pytest.approx(1.2)
     assert bounded_crop.crop_agreement((100, 100, 50, 20), None) == (np.inf, np.inf)
     inside = bounded_crop.inside_training_jitter(np.array([0.0, 0.16, 0.18, 0.0, 0.0, np.inf]),

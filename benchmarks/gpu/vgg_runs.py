@@ -6,9 +6,9 @@ Usage (after a lease of ``train_on_gpu.sh start-vgg`` / ``wait-vgg`` brought bac
 
 Reads each model's ``metrics.csv`` (validation per epoch: the 5 % held out of the training views,
 the parallel model's rotation stream fed the crop around the true box) and its ``hybridpose eval``
-reports on the test set (``<model>_eval``: the inference path, no roi, so the parallel model crops
-around its own translation estimate; ``<model>_eval_roi``, where present: ``--roi truth``), writes ``benchmarks/results/gpu_vgg_runs.json``, copies the plots there and
-writes the "gpu-vgg-runs" section of RESULTS.md.
+reports on the test set (``<model>_eval``: the inference path, no roi; ``<model>_eval_roi``, where
+present: ``--roi truth``), writes ``benchmarks/results/gpu_vgg_runs.json``, copies the plots there
+and writes the "gpu-vgg-runs" section of RESULTS.md.
 """
 from __future__ import annotations
 

@@ -286,6 +286,25 @@ def detect_dim_object(image: np.ndarray, min_area_px: int = DETECT_DIM_MIN_AREA_
     return _union_box(stats[keep]) if len(keep) else None
 
 
+def detected_crop(image: np.ndarray) -> tuple[float, float, float] | None:
+    """(cx, cy, side) px of the parallel model's "bounded image" around the object detected in ``image``
+    (bright, else dim), cropped as it trained on the true box (× ``CROP_MARGIN``); None where nothing is
+    detected. On the seed-100 views this crop lies within 3.4 % of its side of the true one in 90 % of
+    them, its side 1.14–1.20 × the true extent (`benchmarks/bounded_crop.py`, session 30)."""
+    seen = detect_bright_object(image) or detect_dim_object(image)
+    return None if seen is None else crop_box(seen, CROP_MARGIN)
+
+
+def translation_crop(t: np.ndarray, K: np.ndarray, diameter_m: float) -> tuple[float, float, float]:
+    """(cx, cy, side) px of the crop around the projection of the translation ``t`` (3,) m, sized by the
+    object's diameter: the parallel model's fallback where nothing is detected (an Earth background, a
+    dim object). It misses the true crop by tens of pixels and up to 2× in scale: the parallel VGG-19
+    of session 30 scored 41° mean on validation (true crops) and 90° on test views through it."""
+    z = max(float(t[2]), 0.05)
+    uv = K @ (np.asarray(t, dtype=np.float64) / z)
+    return float(uv[0]), float(uv[1]), CROP_MARGIN * max(K[0, 0], K[1, 1]) * diameter_m / z
+
+
 def _half_gray(image: np.ndarray) -> np.ndarray:
     """(H/2, W/2) uint8 grey of an (H, W, 3) uint8 RGB frame: what both detections label."""
     small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
@@ -1019,22 +1038,9 @@ class CheckpointRegressor(PoseRegressor):
                            timestamp=frame.timestamp)
 
     def _bounded_box(self, image: np.ndarray, cam: Camera, t: np.ndarray) -> tuple[float, float, float]:
-        """The parallel model's "bounded image" without a ``roi``: (cx, cy, side) px of the crop.
-
-        Around the detected object, as it trained (the true box × ``CROP_MARGIN``): on the seed-100
-        views the detected box's crop lies within 3.4 % of its side of the true one in 90 % of them,
-        its side 1.14–1.20 × the true extent (`benchmarks/RESULTS.md`, session 30). Where nothing is
-        detected (an Earth background, a dim object), around the projection of its own translation
-        ``t`` (3,) m, sized by the object's diameter — a crop that missed the true one by tens of
-        pixels and up to 2× in scale: the parallel VGG-19 of session 30 scored 41° mean on validation
-        (true crops) and 90° on test views through this crop."""
-        seen = detect_bright_object(image) or detect_dim_object(image)
-        if seen is not None:
-            return crop_box(seen, CROP_MARGIN)
-        d = float(self.dataset.get("diameter_m") or 0.5)
-        z = max(float(t[2]), 0.05)
-        uv = cam.K @ (t / z)
-        return uv[0], uv[1], CROP_MARGIN * max(cam.fx, cam.fy) * d / z
+        """The parallel model's "bounded image" without a ``roi``: :func:`detected_crop`, else
+        :func:`translation_crop` of its own translation ``t`` (3,) m."""
+        return detected_crop(image) or translation_crop(t, cam.K, float(self.dataset.get("diameter_m") or 0.5))
 
     def _lost(self, frame: Frame) -> Measurement:
         return Measurement(pose=None, covariance=LOST_COVARIANCE, quality=0.0, source=f"regressor:{self.name}",

@@ -5,6 +5,8 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hybridpose.core import Frame
 from hybridpose.geometry import Camera, Pose, projection_jacobian, random_quat
@@ -14,7 +16,7 @@ from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_
 from hybridpose.regressors.engines import TorchEngine
 from hybridpose.regressors.keypoint_pnp import solve_pnp
 from hybridpose.regressors.predictor import (CheckpointRegressor, detect_bright_object, detect_dim_object,
-                                             twin_scores)
+                                             TWIN_EDGE_WEIGHT, twin_scores)
 from hybridpose.registry import available, create
 
 
@@ -876,12 +878,43 @@ def test_verifier_choice_before_fitting_fits_only_the_chosen_twin(tiny_checkpoin
 
     monkeypatch.setattr(edges, "fit_edges", spy)
     reg._refine(frame, pose, order, head)
-    assert len(fitted) == 4, "edges weighed in the choice: every twin is fitted"
+    assert 2 <= len(fitted) <= 4, "edges weighed in the choice: twins fitted until none left can win"
     fitted.clear()
     monkeypatch.setattr(predictor, "VERIFIER_EDGE_WEIGHT", 0.0)
     got, twin = reg._refine(frame, pose, order, head)
     assert twin == 2 and len(fitted) == 1  # log 0.2 + log 0.97 beats log 0.4 + log 0.01
     assert rotation_error_deg(fitted[0], reg._twin_starts(pose, order)[2]) < 1e-6
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0.0, 1.0), st.floats(0.0, 1.0), st.floats(0.0, 1.0),
+                          st.booleans()), min_size=1, max_size=6),
+       st.sampled_from([0.0, 2.0, TWIN_EDGE_WEIGHT]), st.booleans())
+def test_pruned_twin_fits_choose_as_fitting_them_all(cands, edge_weight, with_verifier):
+    """_best_fitted_twin = fit every start and take the first best twin_scores, with no more fits (a fit's
+    quality ≤ 1 bounds each start's score); failed fits (None) score as quality 0."""
+    import hybridpose.trackers.edges as edges
+    from types import SimpleNamespace
+
+    head = [c[0] + 1e-3 for c in cands]
+    ver = [c[1] + 1e-3 for c in cands] if with_verifier else None
+    fits = [SimpleNamespace(quality=c[2]) if c[3] else None for c in cands]
+    starts = list(range(len(cands)))
+    fitted = []
+
+    def fake_fit(view, frame, start, gray=None, search_px=None):
+        fitted.append(start)
+        return fits[start]
+
+    real = edges.fit_edges
+    edges.fit_edges = fake_fit
+    try:
+        best, fit = CheckpointRegressor._best_fitted_twin(None, None, None, starts, head, ver, edge_weight)
+    finally:
+        edges.fit_edges = real
+    every = twin_scores(head, [f.quality if f else 0.0 for f in fits], edge_weight=edge_weight, verifier_prob=ver)
+    assert best == int(np.argmax(every)) and fit is fits[best]
+    assert len(fitted) == len(set(fitted)) <= len(cands)
 
 
 def test_twin_candidates_need_a_twin_head(tiny_checkpoint, camera):

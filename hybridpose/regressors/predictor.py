@@ -940,7 +940,8 @@ class CheckpointRegressor(PoseRegressor):
         symmetry index of the twin it settled on, as in ``order``).
 
         With a twin head (``prob``): when the head is sure (p ≥ ``TWIN_SURE``, ``VERIFIER_SURE``
-        with a verifier) only its twin is fitted; else every twin is, and the one with the best
+        with a verifier) only its twin is fitted; else every twin is weighed (fitted until none left
+        can win: :meth:`_best_fitted_twin`), and the one with the best
         ``log p + TWIN_EDGE_WEIGHT · log quality`` wins (with a verifier: ``log p +
         VERIFIER_EDGE_WEIGHT · log quality + VERIFIER_WEIGHT · log p_verifier``, and where
         ``VERIFIER_EDGE_WEIGHT`` is 0 the twin is chosen before fitting and only it is fitted).
@@ -967,19 +968,43 @@ class CheckpointRegressor(PoseRegressor):
         if ver is not None and edge_weight == 0:  # the fits would not change the choice: fit the chosen twin only
             k = int(np.argmax(twin_scores(head_prob, np.ones(len(starts)), edge_weight=0.0, verifier_prob=ver)))
             starts, twin_of, head_prob, ver = [starts[k]], [twin_of[k]], [head_prob[k]], None
-        fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]
         if prob is not None:
-            score = twin_scores(head_prob, [f.quality if f else 0.0 for f in fits], edge_weight=edge_weight,
-                                verifier_prob=ver)
-            best = int(np.argmax(score))
+            best, fit = self._best_fitted_twin(view, frame, gray, starts, head_prob, ver, edge_weight)
         else:
+            fits = [fit_edges(view, frame, p, gray=gray, search_px=REFINE_SEARCH_PX) for p in starts]
             ranked = [(f.samples * f.quality, i) for i, f in enumerate(fits) if f]
             best = max(ranked)[1] if ranked else 0
-        fit = fits[best]
+            fit = fits[best]
         if fit is not None and fit.quality >= REFINE_MIN_QUALITY:
             return fit.pose, twin_of[best]
         # a poor fit: the twin the head and edges chose, unrefined; without a head, the CNN's own pose
         return (starts[best], twin_of[best]) if prob is not None else (pose, order[0])
+
+    @staticmethod
+    def _best_fitted_twin(view, frame: Frame, gray, starts, head_prob, ver, edge_weight: float):
+        """(index, fit) of the start of highest :func:`twin_scores` after its edge fit — what fitting every
+        start and taking the first best score gives, with fewer fits: a fit's quality is at most 1, so
+        ``twin_scores`` at quality 1 bounds what a start can reach, and the starts are fitted in the order
+        of that bound until the best score so far beats every bound left (where the head is unsure
+        ≈ 2 fits instead of 4; the pooled choice prunes its candidates alike)."""
+        from ..trackers.edges import fit_edges
+
+        if len(starts) == 1:
+            return 0, fit_edges(view, frame, starts[0], gray=gray, search_px=REFINE_SEARCH_PX)
+        bound = twin_scores(head_prob, np.ones(len(starts)), edge_weight=max(edge_weight, 0.0), verifier_prob=ver)
+        if edge_weight < 0:  # a weight that rewards poor fits has no such bound: fit them all
+            bound = np.full(len(starts), np.inf)
+        best, best_fit, best_score = 0, None, -np.inf
+        for i in sorted(range(len(starts)), key=lambda k: (-bound[k], k)):
+            if best_score > bound[i]:
+                break
+            fit = fit_edges(view, frame, starts[i], gray=gray, search_px=REFINE_SEARCH_PX)
+            score = twin_scores([head_prob[i]], [fit.quality if fit else 0.0], edge_weight=edge_weight,
+                                verifier_prob=None if ver is None else [ver[i]])[0]
+            # the lower index wins a tie, as np.argmax over all of them would
+            if score > best_score or (score == best_score and i < best):
+                best, best_fit, best_score = i, fit, score
+        return best, best_fit
 
     def _mirror_check(self, frame: Frame, pose: Pose, switch_p: float = MIRROR_SWITCH_P
                       ) -> tuple[Pose, float, int] | None:

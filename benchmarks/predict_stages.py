@@ -105,7 +105,9 @@ def measure(reg: CheckpointRegressor, frames) -> list[dict]:
 
 def summarise(rows: list[dict]) -> dict:
     n = len(rows)
-    out = {"views": n, "ms_total": 1e3 * float(np.mean([r["total"] for r in rows])),
+    total_ms = 1e3 * np.array([r["total"] for r in rows])
+    out = {"views": n, "ms_total": float(total_ms.mean()), "ms_p95": float(np.percentile(total_ms, 95)),
+           "ms_max": float(total_ms.max()),
            "network_calls": float(np.mean([r["network_calls"] for r in rows])),
            "network_images": float(np.mean([r["network_images"] for r in rows]))}
     for s in STAGE_NAMES:
@@ -149,11 +151,12 @@ def main() -> None:
         f"{engine_ms:.1f} ms. ms per view of each stage; "
         "*other*: crops, twin candidates, covariance, Python.",
         "",
-        "| views | share | ms/view | network | PnP | edge fits | detection | verifier | other | network calls | images through it |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| views | share | ms/view | 95th pct. ms | largest ms | network | PnP | edge fits | detection | verifier | other | "
+        "network calls | images through it |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, g in groups.items():
-        lines.append(f"| {name} | {g['views'] / len(rows):.0%} | {g['ms_total']:.1f} | "
+        lines.append(f"| {name} | {g['views'] / len(rows):.0%} | {g['ms_total']:.1f} | {g['ms_p95']:.1f} | {g['ms_max']:.1f} | "
                      + " | ".join(f"{g[f'ms_{s}']:.1f}" for s in STAGE_NAMES)
                      + f" | {g['ms_other']:.1f} | {g['network_calls']:.2f} | {g['network_images']:.2f} |")
     if more:

@@ -29,6 +29,7 @@ def test_stage_timers_split_the_predict_path_and_put_every_function_back(truss, 
         assert r["network_calls"] >= 1 and r["network_images"] >= r["network_calls"] and r["detection"] > 0
     g = predict_stages.summarise(rows)
     assert g["views"] == 3 and g["ms_other"] >= 0
+    assert g["ms_total"] <= g["ms_max"] == pytest.approx(1e3 * max(r["total"] for r in rows)) and g["ms_p95"] <= g["ms_max"]
     assert all(getattr(owner, attr) is fn for owner, attr, fn in originals)
     assert [getattr(owner, attr) for owner, attr in predict_stages.ENGINE_CALLS] == calls
     with pytest.raises(RuntimeError, match="boom"):

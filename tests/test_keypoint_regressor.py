@@ -322,8 +322,11 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert {"rot_mean_deg", "rot_median_deg", "trans_mean_m", "speed_score", "add_0.1d_recall", "failures"} <= set(s)
     rot = [r["rot_deg"] for r in rep["per_image"]]
     assert s["gross_error_share"] == pytest.approx(sum(r > 30 for r in rot) / 10)
-    assert set(s["ms_per_image"]) == {"1_thread", "2_threads", "network_1_thread", "network_2_threads"}
-    assert s["ms_per_image"]["network_1_thread"] > 0
+    ms = s["ms_per_image"]
+    assert set(ms) == {f"{n}{tail}" for n in ("1_thread", "2_threads") for tail in ("", "_p50", "_p95", "_max")} | {
+        "network_1_thread", "network_2_threads"}
+    assert ms["network_1_thread"] > 0
+    assert 0 < ms["1_thread_p50"] <= ms["1_thread_p95"] <= ms["1_thread_max"] and ms["1_thread"] <= ms["1_thread_max"]
     assert s["machine"]["cpus"] == os.cpu_count() and s["machine"]["cpu_model"]
     assert sum(b["n"] for b in s["error_vs_elevation"]) == 10
     assert all(0.0 <= r["elevation_deg"] <= 90.0 for r in rep["per_image"])
@@ -336,6 +339,7 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
     assert "| phase ° | n |" in md and "| azimuth ° | n |" in md
     assert s["accuracy_by_quality"][0]["kept_share"] == 1.0 and "| quality ≥ | views kept |" in md
     assert "paper: Parallel VGG-19 | 4.61 | 4.41 | 0.03" in md and "ours: default" in md
+    assert f"95th percentile {ms['1_thread_p95']:.1f} ms" in md
     c = s["covariance_check"]
     posed = [r for r in rep["per_image"] if "nees" in r]
     assert c["views"] == len(posed) and all(r["nees_twin"] <= r["nees"] for r in posed)

@@ -62,6 +62,36 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
     assert not list((tmp_path / "run").glob("*.tmp"))
 
 
+def test_checkpoints_every_n_epochs_hold_the_best_until_written(data, tmp_path, tiny, monkeypatch):
+    """checkpoint_every=2: last.pt at epochs 2, 4 and the last; a better best.pt found in between is kept in host
+    memory and written with it — the same files as writing every epoch (the runs are identical otherwise)."""
+    import hybridpose.regressors.train as train_mod
+
+    writes = []
+    real = train_mod.save_checkpoint
+    monkeypatch.setattr(train_mod, "save_checkpoint", lambda path, payload: writes.append((path.name, payload["epoch"]))
+                        or real(path, payload))
+    base = dict(model="tiny", data=str(data), epochs=5, batch=4, lr=1e-2, image_size=32, patience=0, augment=False)
+    train(TrainConfig(**base, out=str(tmp_path / "every"), checkpoint_every=1), progress=False)
+    writes.clear()
+    train(TrainConfig(**base, out=str(tmp_path / "sparse"), checkpoint_every=2), progress=False)
+    assert [w for w in writes if w[0] == "last.pt"] == [("last.pt", 1), ("last.pt", 3), ("last.pt", 4)]
+    # best.pt only just before a last.pt, holding an epoch no later than it (then once more: its calibration)
+    assert writes[-1][0] == "best.pt" and all(writes[i + 1][0] == "last.pt" and epoch <= writes[i + 1][1]
+                                              for i, (name, epoch) in enumerate(writes[:-1]) if name == "best.pt")
+    for name in ("best.pt", "last.pt"):
+        a, b = load_checkpoint(tmp_path / "every" / name), load_checkpoint(tmp_path / "sparse" / name)
+        assert a["epoch"] == b["epoch"] and len(a["history"]) == len(b["history"])
+        for k in a["model"]:
+            torch.testing.assert_close(a["model"][k], b["model"][k], rtol=0, atol=0)
+    # a run stopped by its time limit writes what it has, due or not
+    writes.clear()
+    train(TrainConfig(**base, out=str(tmp_path / "tl"), checkpoint_every=3, time_limit_min=1e-6), progress=False)
+    assert writes == [("best.pt", 0), ("last.pt", 0), ("best.pt", 0)]
+    with pytest.raises(ValueError, match="checkpoint_every"):
+        TrainConfig(**base, out=str(tmp_path), checkpoint_every=0)
+
+
 def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):
     """A run resumed by a version whose rows carry a new column still writes its CSV (blank where absent)."""
     from hybridpose.regressors.train import _write_metrics

@@ -71,6 +71,7 @@ launch-vgg)
     for m in "${VGG_RUNS[@]}"; do
         setsid nohup bash -c "python3 -m hybridpose train --model $m --data $DATA/train --seed 0 --val-fraction 0.05 \
             --patience 0 --epochs 100 --batch 32 --amp --workers ${workers[$m]} --time-limit $TIME_LIMIT --out $RUNS/$m \
+            --checkpoint-every 10 \
             > $RUNS/$m.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt --data $DATA/test --device cuda \
             --out $RUNS/${m}_eval > $RUNS/${m}_eval.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt \
             --data $DATA/test --device cuda --roi truth --out $RUNS/${m}_eval_roi > $RUNS/${m}_eval_roi.log 2>&1" > /dev/null 2>&1 &
@@ -98,7 +99,8 @@ crop-check)
     bash "$0" setup && bash "$0" render
     mkdir -p "$RUNS"
     hp train --model parallel-vgg19 --data "$DATA/train" --seed 0 --val-fraction 0.05 --patience 0 --epochs 100 \
-        --batch 32 --amp --workers 14 --time-limit "$TIME_LIMIT" --out "$RUNS/parallel-vgg19" > "$RUNS/parallel.log" 2>&1 || true
+        --batch 32 --amp --workers 14 --time-limit "$TIME_LIMIT" --checkpoint-every 10 --out "$RUNS/parallel-vgg19" \
+        > "$RUNS/parallel.log" 2>&1 || true
     for roi in none truth; do
         hp eval --checkpoint "$RUNS/parallel-vgg19/best.pt" --data "$DATA/test" --device cuda --limit "${EVAL_LIMIT:-300}" \
             --roi $roi --out "$RUNS/parallel-vgg19_eval_$roi" 2>&1 | tail -1 || true

@@ -189,6 +189,23 @@ def test_torch_dataset_full_and_crop(random_ds):
         np.testing.assert_allclose(got, expect, atol=1e-3)
 
 
+def test_parallel_models_items_decode_each_image_once(random_ds, monkeypatch):
+    """The parallel model's item (full image + crop of one view) decodes its image once and equals the two
+    datasets' own items."""
+    from hybridpose.datasets import bop
+    from hybridpose.regressors.train import TrainConfig, make_datasets
+
+    train, _ = make_datasets(TrainConfig(model="parallel-vgg19", data=str(random_ds), out="unused", image_size=64))
+    paired = train.dataset
+    decoded = []
+    real = bop.BopScene.rgb
+    monkeypatch.setattr(bop.BopScene, "rgb", lambda self, im_id: decoded.append(im_id) or real(self, im_id))
+    item = paired[1]
+    assert decoded == [paired.full.samples[1][1]]
+    assert torch.equal(item["image"], paired.full[1]["image"]) and torch.equal(item["t"], paired.full[1]["t"])
+    assert torch.equal(item["crop_image"], paired.crop[1]["image"])
+
+
 def test_split_is_seeded_80_20():
     tr, va = split_indices(100, 0.2, seed=1)
     assert len(tr) == 80 and len(va) == 20 and not set(tr) & set(va)

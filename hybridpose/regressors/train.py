@@ -132,8 +132,9 @@ class _Paired(Dataset):
         return len(self.full)
 
     def __getitem__(self, k: int) -> dict:
-        item = self.full[k]
-        item["crop_image"] = self.crop[k]["image"]
+        image = self.full.rgb(k)  # decoded once for both inputs
+        item = self.full.item(k, image)
+        item["crop_image"] = self.crop.item(k, image)["image"]
         return item
 
 

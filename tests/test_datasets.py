@@ -204,6 +204,55 @@ def test_parallel_models_items_decode_each_image_once(random_ds, monkeypatch):
     assert decoded == [paired.full.samples[1][1]]
     assert torch.equal(item["image"], paired.full[1]["image"]) and torch.equal(item["t"], paired.full[1]["t"])
     assert torch.equal(item["crop_image"], paired.crop[1]["image"])
+    # with the image cache (--cache-images) both come from it: nothing decoded, the same tensors
+    cached, _ = make_datasets(TrainConfig(model="parallel-vgg19", data=str(random_ds), out="unused", image_size=64,
+                                          cache_images=str(random_ds.parent / "cache_paired")))
+    decoded.clear()
+    again = cached.dataset[1]
+    assert not decoded and all(torch.equal(again[k], item[k]) for k in ("image", "crop_image", "t", "K"))
+
+
+def test_image_cache_gives_the_same_items_and_is_rebuilt_when_the_views_change(random_ds, tmp_path, monkeypatch):
+    """cache_images: the items read back equal the decoded ones (full frames and fixed crops), the file is
+    reused by a new dataset on the same views, rebuilt after a view's image changed, and random crops
+    (jitter) never read it."""
+    import cv2
+
+    from hybridpose.datasets import bop
+
+    data = tmp_path / "ds"
+    shutil.copytree(random_ds, data)
+    keys = ("image", "t", "q", "K", "crop")
+    for crop in (False, True):
+        ds = PoseDataset(data, size=(48, 40), crop=crop)
+        before = [ds[k] for k in range(len(ds))]
+        path = ds.cache_images(tmp_path / "cache", workers=2)
+        assert ds.cached and path.exists() and not list(path.parent.glob(".*.tmp"))
+        decoded = []
+        real = bop.BopScene.rgb
+        monkeypatch.setattr(bop.BopScene, "rgb", lambda self, im_id: decoded.append(im_id) or real(self, im_id))
+        after = [ds[k] for k in range(len(ds))]
+        assert not decoded, "cached items are not decoded"
+        assert all(torch.equal(a[key], b[key]) for a, b in zip(before, after) for key in keys)
+        if crop:  # random crops are drawn per item: never from the cache
+            jittered = ds.subset(range(3), jitter=True)
+            assert not jittered.cached
+            jittered[0]
+            assert decoded
+        monkeypatch.setattr(bop.BopScene, "rgb", real)
+    # reused as long as the views are the same files, rebuilt once one changed
+    mtime = path.stat().st_mtime_ns
+    PoseDataset(data, size=(48, 40), crop=True).cache_images(tmp_path / "cache")
+    assert path.stat().st_mtime_ns == mtime
+    rgb = sorted((find_scenes(data)[0] / "rgb").iterdir())[0]
+    img = cv2.imread(str(rgb))
+    cv2.imwrite(str(rgb), 255 - img)
+    ds = PoseDataset(data, size=(48, 40), crop=True)
+    ds.cache_images(tmp_path / "cache")
+    assert path.stat().st_mtime_ns != mtime
+    k = ds.samples.index(next(s for s in ds.samples if s[1] == int(rgb.stem)))
+    fresh = PoseDataset(data, size=(48, 40), crop=True)[k]["image"]
+    assert torch.equal(ds[k]["image"], fresh)
 
 
 def test_split_is_seeded_80_20():

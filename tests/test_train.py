@@ -88,6 +88,13 @@ def test_checkpoints_every_n_epochs_hold_the_best_until_written(data, tmp_path, 
     writes.clear()
     train(TrainConfig(**base, out=str(tmp_path / "tl"), checkpoint_every=3, time_limit_min=1e-6), progress=False)
     assert writes == [("best.pt", 0), ("last.pt", 0), ("best.pt", 0)]
+    # the image cache changes nothing but where the pixels come from
+    train(TrainConfig(**base, out=str(tmp_path / "cached"), checkpoint_every=1, cache_images=str(tmp_path / "cache")),
+          progress=False)
+    assert list((tmp_path / "cache").glob("full_32x32.npy"))
+    a, b = load_checkpoint(tmp_path / "every" / "last.pt"), load_checkpoint(tmp_path / "cached" / "last.pt")
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=0, atol=0)
     with pytest.raises(ValueError, match="checkpoint_every"):
         TrainConfig(**base, out=str(tmp_path), checkpoint_every=0)
 

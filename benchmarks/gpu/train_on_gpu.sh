@@ -18,6 +18,9 @@
 #           weights can reach the machine), the paper's loss and Adam 1e-4, bf16, batch 32, 100 epochs
 #           planned and TIME_LIMIT minutes allowed; each then evaluated on the GPU on the seed-100 test set,
 #           without a prior and with each view's true box as roi (the paper's bounded image; after session 30)
+#   cache-vgg   decode the training views once into $DATA/cache (224 px frames and fixed crops) for
+#           all four runs (`--cache-images`, session 31; launch-vgg and crop-check run it first); the
+#           runs write last.pt every 10 epochs (`--checkpoint-every`: a parallel VGG-19's is 4.6 GB)
 #   collect-vgg OUTDIR  metrics, logs and the evaluation reports in one archive (checkpoints of
 #           0.5-1.1 GB cannot come back)
 set -euo pipefail
@@ -65,13 +68,19 @@ launch)
     tail -n 3 "$RUNS"/*.log
     nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv
     ;;
+cache-vgg)
+    # the VGG models' inputs (224 px full frames, fixed crops) decoded once for all four runs
+    python3 -c "from hybridpose.datasets.torch_dataset import PoseDataset as P
+for crop in (False, True): P('$DATA/train', size=224, crop=crop).cache_images('$DATA/cache', workers=15)"
+    ;;
 launch-vgg)
     mkdir -p "$RUNS"
+    bash "$0" cache-vgg
     declare -A workers=([vgg16]=3 [vgg19]=3 [branched-vgg19]=3 [parallel-vgg19]=5)  # parallel reads each view twice
     for m in "${VGG_RUNS[@]}"; do
         setsid nohup bash -c "python3 -m hybridpose train --model $m --data $DATA/train --seed 0 --val-fraction 0.05 \
             --patience 0 --epochs 100 --batch 32 --amp --workers ${workers[$m]} --time-limit $TIME_LIMIT --out $RUNS/$m \
-            --checkpoint-every 10 \
+            --checkpoint-every 10 --cache-images $DATA/cache \
             > $RUNS/$m.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt --data $DATA/test --device cuda \
             --out $RUNS/${m}_eval > $RUNS/${m}_eval.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt \
             --data $DATA/test --device cuda --roi truth --out $RUNS/${m}_eval_roi > $RUNS/${m}_eval_roi.log 2>&1" > /dev/null 2>&1 &
@@ -96,10 +105,11 @@ crop-check)
     # the parallel VGG-19 alone for TIME_LIMIT minutes, then evaluated on EVAL_LIMIT test views without a roi
     # (the detected object's crop since session 30) and with the true box: one call, what is left of a lease
     out=${2:?crop-check OUTDIR}
-    bash "$0" setup && bash "$0" render
+    bash "$0" setup && bash "$0" render && bash "$0" cache-vgg
     mkdir -p "$RUNS"
     hp train --model parallel-vgg19 --data "$DATA/train" --seed 0 --val-fraction 0.05 --patience 0 --epochs 100 \
-        --batch 32 --amp --workers 14 --time-limit "$TIME_LIMIT" --checkpoint-every 10 --out "$RUNS/parallel-vgg19" \
+        --batch 32 --amp --workers 14 --time-limit "$TIME_LIMIT" --checkpoint-every 10 --cache-images "$DATA/cache" \
+        --out "$RUNS/parallel-vgg19" \
         > "$RUNS/parallel.log" 2>&1 || true
     for roi in none truth; do
         hp eval --checkpoint "$RUNS/parallel-vgg19/best.pt" --data "$DATA/test" --device cuda --limit "${EVAL_LIMIT:-300}" \

@@ -47,6 +47,22 @@ def crop_affine(cx: float, cy: float, side: float, out_w: int, out_h: int) -> np
     return np.array([[sx, 0.0, (out_w - 1) / 2 - sx * cx], [0.0, sy, (out_h - 1) / 2 - sy * cy]])
 
 
+def single_threaded_worker(_worker_id: int) -> None:
+    """DataLoader ``worker_init_fn`` for workers that decode and crop one image at a time: OpenCV's own
+    thread pool in every worker oversubscribed a 16-core GPU machine (load average 168 with three
+    trainings at once)."""
+    cv2.setNumThreads(1)
+
+
+def _read_json(path: Path):
+    import json
+
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def crop_image(image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float, size: tuple[int, int]):
     """The square ``(cx, cy, side)`` (source pixels) of ``image`` resampled to ``size`` (W, H), and the
     intrinsics of the crop; outside the frame is black (space). Training and inference share it so
@@ -99,6 +115,7 @@ class PoseDataset(Dataset):
             if self.keypoints_m.ndim not in (2, 3) or self.keypoints_m.shape[-1] != 3:
                 raise ValueError(f"keypoints_m: expected (N, 3) or (T, N, 3) metres, got {self.keypoints_m.shape}")
         self.indices = self._checked(np.arange(len(self.samples)) if indices is None else indices)
+        self._cache_path, self._cache = None, None  # cache_images
 
     def _checked(self, indices) -> np.ndarray:
         idx = np.asarray(indices, dtype=np.int64)
@@ -121,25 +138,37 @@ class PoseDataset(Dataset):
         """Item ``k`` (as ``self[k]``); ``image``: its :meth:`rgb` where the caller already decoded it
         (the parallel model's two inputs come from one image: decoding it once saves a third of the
         loader's time per view)."""
-        idx = int(self.indices[k])
+        return self._item_at(int(self.indices[k]), image)
+
+    def _item_at(self, idx: int, image: np.ndarray | None = None, use_cache: bool = True) -> dict:
         scene_i, im_id = self.samples[idx]
         scene = self.scenes[scene_i]
         gt = scene.image(im_id)
-        img = scene.rgb(im_id) if image is None else image
+        rows = self._cache_rows() if use_cache and image is None and self.cached else None
+        if rows is None:
+            img = scene.rgb(im_id) if image is None else image
+            src_h, src_w = img.shape[:2]
+        else:  # the transformed image, as the code below would make it (cache_images)
+            out = np.array(rows[0][idx])  # a copy: torch wants a writable array, the map is read-only
+            src_h, src_w = (int(v) for v in rows[1][idx])
         w, h = self.size
         if self.crop:
             if gt.bbox_obj[2] <= 0:
                 raise ValueError(f"{scene.dir} image {im_id}: no bbox_obj in scene_gt_info.json; cannot crop")
             cx, cy, side = crop_box(gt.bbox_obj, self.crop_margin)
             if self.jitter:
-                cx, cy, side = self._jittered(cx, cy, side / self.crop_margin, img.shape[1], img.shape[0])
-            out, K = crop_image(img, gt.camera.K, cx, cy, side, (w, h))
+                cx, cy, side = self._jittered(cx, cy, side / self.crop_margin, src_w, src_h)
+            if rows is None:
+                out, K = crop_image(img, gt.camera.K, cx, cy, side, (w, h))
+            else:
+                K = np.vstack([crop_affine(cx, cy, side, w, h), [0, 0, 1]]) @ gt.camera.K  # crop_image's K
             crop = (cx, cy, side)
         else:
             cam = gt.camera.scaled((w, h))
-            out = img if (w, h) == (img.shape[1], img.shape[0]) else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+            if rows is None:
+                out = img if (w, h) == (src_w, src_h) else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
             K = cam.K
-            crop = ((img.shape[1] - 1) / 2, (img.shape[0] - 1) / 2, float(max(img.shape[:2])))
+            crop = ((src_w - 1) / 2, (src_h - 1) / 2, float(max(src_h, src_w)))
         item = {
             "image": torch.from_numpy(np.ascontiguousarray(out)).permute(2, 0, 1).float() / 255.0,
             "t": torch.tensor(gt.pose.t, dtype=torch.float32),
@@ -154,6 +183,101 @@ class PoseDataset(Dataset):
             uv = (p[:, :2] / p[:, 2:]).reshape(*self.keypoints_m.shape[:-1], 2)
             item["kp2d"] = torch.tensor(uv, dtype=torch.float32)
         return item
+
+    # --- image cache --------------------------------------------------------------------------
+    def cache_images(self, directory, workers: int = 1) -> Path:
+        """Decode and resize (or crop) every view's image once into ``directory`` and read them from
+        there from now on: ``<kind>_<W>x<H>.npy`` (N, H, W, 3) uint8, memory-mapped, beside a JSON
+        record of what it holds. An existing cache is used when it was made from the same views,
+        files and settings, else rebuilt; both files are written to temp files and renamed.
+
+        For the direct (VGG) models on a GPU, whose items are fixed (the photometric augmentation
+        runs on the GPU): decoding a 640×480 PNG and resizing it take ≈ 6.5 ms of a core per view
+        (the parallel model's two inputs ≈ 9 ms), so a few workers per model cannot feed a GPU
+        that trains thousands of views a second; a memory-mapped row takes microseconds. Random
+        crops (``jitter``) differ every epoch and are never read from the cache. ``workers``:
+        threads that build it.
+        """
+        directory = Path(directory)
+        kind = f"{'crop' if self.crop else 'full'}_{self.size[0]}x{self.size[1]}"
+        if self.crop:
+            kind += f"_m{self.crop_margin:g}"
+        path = directory / f"{kind}.npy"
+        record = {"format": 1, "size": list(self.size), "crop": self.crop, "crop_margin": self.crop_margin,
+                  "views": self._views_fingerprint()}
+        meta = path.with_suffix(".json")
+        if not (path.exists() and path.with_suffix(".shapes.npy").exists() and _read_json(meta) == record):
+            self._build_cache(path, meta, record, workers)
+        self._cache_path, self._cache = path, None
+        return path
+
+    def _views_fingerprint(self) -> str:
+        """SHA-1 of the views (scene folder, image id) and of each scene's label and image files'
+        sizes and modification times: a cache made from other files is not reused."""
+        import hashlib
+
+        h = hashlib.sha1()
+        for scene in self.scenes:
+            for f in sorted([*scene.dir.glob("scene_*.json"), *(scene.dir / "rgb").iterdir()]):
+                st = f.stat()
+                h.update(f"{f.resolve()}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+        h.update(repr(self.samples).encode())
+        return h.hexdigest()
+
+    def _build_cache(self, path: Path, meta: Path, record: dict, workers: int) -> None:
+        import logging
+        import os
+        from concurrent.futures import ThreadPoolExecutor
+
+        from ..io import atomic_write_json
+
+        n, (w, h) = len(self.samples), self.size
+        logging.getLogger(__name__).info("caching %d %s images of %dx%d in %s", n, "crop" if self.crop else "full",
+                                         w, h, path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            images = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(n, h, w, 3))
+            shapes = np.zeros((n, 2), np.int32)
+            # threads, not processes: decoding and resizing run in OpenCV, which lets go of the GIL, and
+            # a process forked after OpenCV's or torch's thread pools ran can deadlock
+            with ThreadPoolExecutor(max(1, int(workers))) as pool:
+                for idx, (image, shape) in enumerate(pool.map(self._cache_row, range(n))):
+                    images[idx], shapes[idx] = image, shape
+            images.flush()
+            del images
+            np.save(path.with_suffix(".shapes.npy"), shapes)
+            os.replace(tmp, path)
+            atomic_write_json(meta, record)
+        finally:
+            tmp.unlink(missing_ok=True)
+
+    @property
+    def cached(self) -> bool:
+        """Whether items are read from :meth:`cache_images`' file (random crops never are)."""
+        return self._cache_path is not None and not self.jitter
+
+    def _cache_row(self, idx: int) -> tuple[np.ndarray, tuple[int, int]]:
+        """(transformed uint8 image (H, W, 3), source image (height, width)) of sample ``idx``."""
+        scene_i, im_id = self.samples[idx]
+        img = self.scenes[scene_i].rgb(im_id)
+        x = self._item_at(idx, image=img, use_cache=False)["image"]
+        # the item's float image is the uint8 one / 255: ×255 and rounding gives it back exactly
+        return (x.permute(1, 2, 0) * 255.0).round().to(torch.uint8).numpy(), img.shape[:2]
+
+    def _cache_rows(self):
+        """(images (N, H, W, 3) uint8, source sizes (N, 2)) memory-mapped, or None without a cache."""
+        path = self._cache_path
+        if path is None:
+            return None
+        if self._cache is None:  # opened lazily: in each DataLoader worker, after the fork
+            self._cache = (np.load(path, mmap_mode="r"), np.load(path.with_suffix(".shapes.npy"), mmap_mode="r"))
+        return self._cache
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_cache"] = None  # a worker maps the file itself instead of receiving its contents
+        return state
 
     def subset(self, indices, jitter: bool = False) -> "PoseDataset":
         """The same data restricted to ``indices`` (e.g. a split), without re-reading the scenes."""

@@ -23,7 +23,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from ..datasets.bop import dataset_object
-from ..datasets.torch_dataset import PoseDataset, split_indices
+from ..datasets.torch_dataset import PoseDataset, single_threaded_worker, split_indices
 from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text, atomic_write_with
 from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
@@ -72,6 +72,11 @@ class TrainConfig:
             validation, calibration and checkpoints stay float32).
         time_limit_min: stop after the epoch that would make the next one end past this many
             minutes of training (best.pt is calibrated as after a normal end); None = no limit.
+        cache_images: a directory where the direct (VGG) models' inputs are decoded and resized (or
+            cropped) once and memory-mapped from then on (:meth:`PoseDataset.cache_images`; reused by
+            later runs on the same views): ≈ 1 ms per item instead of 6.5 (9 for the parallel
+            model's two) on a core; the GPU then no longer waits for the loaders. Keypoint models
+            train on random crops and ignore it. None: no cache.
         checkpoint_every: write ``last.pt`` every this many epochs (epoch numbers divisible by it,
             counted from 1), and when the run stops; a better ``best.pt`` found in between is kept
             in host memory and written with it. 1 (default): every epoch. A parallel VGG-19's
@@ -104,6 +109,7 @@ class TrainConfig:
     amp: bool = False
     time_limit_min: float | None = None
     checkpoint_every: int = 1
+    cache_images: str | None = None
     max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
 
     def __post_init__(self) -> None:
@@ -132,7 +138,7 @@ class _Paired(Dataset):
         return len(self.full)
 
     def __getitem__(self, k: int) -> dict:
-        image = self.full.rgb(k)  # decoded once for both inputs
+        image = None if self.full.cached and self.crop.cached else self.full.rgb(k)  # decoded once for both inputs
         item = self.full.item(k, image)
         item["crop_image"] = self.crop.item(k, image)["image"]
         return item
@@ -146,12 +152,18 @@ def make_datasets(cfg: TrainConfig, keypoints_m=None) -> tuple[Dataset, Dataset]
     deterministic object-centred crop.
     """
     if keypoints_m is not None:
+        if cfg.cache_images:
+            log.warning("--cache-images: keypoint models train on random crops, which are never cached; ignored")
         crops = PoseDataset(cfg.data, size=cfg.image_size, crop=True, keypoints_m=keypoints_m)
         train_idx, val_idx = split_indices(len(crops), cfg.val_fraction, cfg.seed)
         return crops.subset(train_idx, jitter=cfg.augment), crops.subset(val_idx)
-    data: Dataset = PoseDataset(cfg.data, size=cfg.image_size)
+    full = PoseDataset(cfg.data, size=cfg.image_size)
+    data: Dataset = full
     if cfg.model == "parallel-vgg19":
-        data = _Paired(data, PoseDataset(cfg.data, size=cfg.image_size, crop=True))
+        data = _Paired(full, PoseDataset(cfg.data, size=cfg.image_size, crop=True))
+    if cfg.cache_images:
+        for ds in (full,) if data is full else (data.full, data.crop):
+            ds.cache_images(cfg.cache_images, workers=max(1, cfg.workers))
     train_idx, val_idx = split_indices(len(data), cfg.val_fraction, cfg.seed)
     return Subset(data, train_idx.tolist()), Subset(data, val_idx.tolist())
 
@@ -390,8 +402,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     train_loader = DataLoader(train_ds, batch_size=cfg.batch, shuffle=sampler is None, sampler=sampler,
                               generator=gen if sampler is None else None, num_workers=cfg.workers,
                               drop_last=len(train_ds) > cfg.batch * world, pin_memory=device.type == "cuda",
-                              worker_init_fn=_single_threaded_worker, persistent_workers=cfg.workers > 0)
-    val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers, worker_init_fn=_single_threaded_worker,
+                              worker_init_fn=single_threaded_worker, persistent_workers=cfg.workers > 0)
+    val_loader = DataLoader(val_ds, batch_size=cfg.batch, num_workers=cfg.workers, worker_init_fn=single_threaded_worker,
                             persistent_workers=cfg.workers > 0)
 
     if cfg.init_from:
@@ -533,12 +545,6 @@ def channels_last(model: torch.nn.Module) -> torch.nn.Module:
     return model.to(memory_format=torch.channels_last)
 
 
-def _single_threaded_worker(_worker_id: int) -> None:
-    """DataLoader workers decode and crop one image at a time: OpenCV's own thread pool in every
-    worker oversubscribed a 16-core GPU machine (load average 168 with three trainings at once)."""
-    cv2.setNumThreads(1)
-
-
 def _init_from(model, path) -> None:
     """Copy the weights of ``path`` whose names and shapes match ``model``'s; log what was left out."""
     src = load_checkpoint(path)
@@ -628,6 +634,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time-limit", type=float, default=None, metavar="MIN",
                    help="stop cleanly before the next epoch would end past MIN minutes")
     p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
+    p.add_argument("--cache-images", default=None, metavar="DIR",
+                   help="VGG models: decode and resize every view once into DIR and memory-map it (reused by later "
+                        "runs on the same views; ≈ 150 KB a view at 224 px)")
     p.add_argument("--checkpoint-every", type=int, default=1, metavar="N",
                    help="write last.pt (and a better best.pt) every N epochs and when the run stops (default 1: every "
                         "epoch; the VGG models' multi-GB checkpoints take as long to write as a GPU epoch takes)")
@@ -646,7 +655,7 @@ def config_from_args(args) -> TrainConfig:
                        twin_weight=args.twin_weight,
                        init_from=args.init_from, val_fraction=args.val_fraction, amp=args.amp,
                        time_limit_min=args.time_limit,
-                       checkpoint_every=args.checkpoint_every)
+                       checkpoint_every=args.checkpoint_every, cache_images=args.cache_images)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -99,6 +99,42 @@ def test_checkpoints_every_n_epochs_hold_the_best_until_written(data, tmp_path, 
         TrainConfig(**base, out=str(tmp_path), checkpoint_every=0)
 
 
+def test_loader_workers_start_after_this_process_used_opencv_threads(data, tmp_path):
+    """A loader worker forked while OpenCV's thread pool was up hung setting its thread count (the image cache
+    is built in this process): train() runs OpenCV single-threaded while its workers run, and puts it back.
+    In a subprocess, so that a hang fails the test instead of stalling the suite."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        import cv2, numpy as np, torch
+        from torch import nn
+        from hybridpose.regressors import models
+        from hybridpose.regressors.losses import normalize_quat
+        from hybridpose.regressors.train import TrainConfig, train
+
+        class Tiny(nn.Module):
+            def __init__(self, **_):
+                super().__init__()
+                self.net = nn.Sequential(nn.Conv2d(3, 4, 3, stride=2), nn.AdaptiveAvgPool2d(2), nn.Flatten(), nn.Linear(16, 7))
+
+            def forward(self, x):
+                y = self.net(x)
+                return y[:, :3], normalize_quat(y[:, 3:])
+
+        models.MODELS["tiny"] = Tiny
+        cv2.resize(np.zeros((2000, 2000, 3), np.uint8), (500, 500), interpolation=cv2.INTER_AREA)  # the pool is up
+        threads = cv2.getNumThreads()
+        train(TrainConfig(model="tiny", data={str(data)!r}, out={str(tmp_path / "run")!r}, epochs=1, batch=4,
+                          image_size=32, workers=2, patience=0, cache_images={str(tmp_path / "cache")!r}), progress=False)
+        assert cv2.getNumThreads() == threads
+        print("trained")
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0 and "trained" in done.stdout, done.stderr[-2000:]
+
+
 def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):
     """A run resumed by a version whose rows carry a new column still writes its CSV (blank where absent)."""
     from hybridpose.regressors.train import _write_metrics

@@ -375,6 +375,19 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     its shard of every epoch with ``cfg.batch`` images per step (global batch N × batch); rank 0
     validates, writes checkpoints and metrics, and decides early stopping for all.
     """
+    threads = cv2.getNumThreads()
+    if cfg.workers > 0:
+        # OpenCV single-threaded in this process before the loader workers fork: a worker forked while
+        # OpenCV's thread pool was up (this process had resized or cropped images, e.g. building
+        # --cache-images) hangs when it sets its own thread count
+        cv2.setNumThreads(1)
+    try:
+        return _train(cfg, resume, progress)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     rank, world, device = _distributed(torch_device(cfg.device))

@@ -131,8 +131,18 @@ def test_loader_workers_start_after_this_process_used_opencv_threads(data, tmp_p
         assert cv2.getNumThreads() == threads
         print("trained")
     """)
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=240)
-    assert done.returncode == 0 and "trained" in done.stdout, done.stderr[-2000:]
+    import os
+    import signal
+
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=240)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)  # the hung loader workers too
+        proc.communicate()
+        pytest.fail("training with loader workers hung after OpenCV's thread pool ran")
+    assert proc.returncode == 0 and "trained" in out, err[-2000:]
 
 
 def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):

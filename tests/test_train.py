@@ -44,6 +44,8 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
     assert [r["epoch"] for r in hist] == [0, 1]
     assert [r["train_images"] for r in hist] == [16, 16]       # 20 views, 4 held out for validation
+    # where an epoch's time went: waiting for the loader, training steps, then validation and writes
+    assert all(0 <= r["loader_wait_s"] <= r["train_s"] <= r["epoch_s"] for r in hist)
     assert (tmp_path / "run" / "metrics.csv").read_text().startswith("epoch,train_loss,val_loss")
     ck = load_checkpoint(tmp_path / "run" / "last.pt")
     assert ck["epoch"] == 1 and ck["config"]["model"] == "tiny" and "optimizer" in ck

@@ -469,7 +469,11 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
             sampler.set_epoch(epoch)
         net.train()
         t0, total, n, lr_used = time.perf_counter(), 0.0, 0, optim.param_groups[0]["lr"]
+        # time spent waiting for the loader: whether its workers or the device set the pace (loss.item()
+        # below waits for the device every step, so the rest of the loop is the step itself)
+        loader_wait_s, ready = 0.0, time.perf_counter()
         for b, batch in enumerate(train_loader):
+            loader_wait_s += time.perf_counter() - ready
             if cfg.max_batches is not None and b >= cfg.max_batches:
                 break
             if augment is not None:
@@ -484,6 +488,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
             loss.backward()
             optim.step()
             total, n = total + loss.item() * len(batch["index"]), n + len(batch["index"])
+            ready = time.perf_counter()
+        train_s = time.perf_counter() - t0
         if sched is not None:
             sched.step()
         if world > 1:
@@ -498,7 +504,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
                 break
             continue
         row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta, twins),
-               "lr": lr_used, "epoch_s": time.perf_counter() - t0, "train_images": n}
+               "lr": lr_used, "epoch_s": time.perf_counter() - t0, "train_images": n, "train_s": train_s,
+               "loader_wait_s": loader_wait_s}
         history.append(row)
         improved = row["val_loss"] < best
         best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)

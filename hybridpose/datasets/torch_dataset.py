@@ -14,6 +14,7 @@ import torch
 from torch.utils.data import Dataset
 
 from ..geometry import parse_size
+from ..io import atomic_write_json, read_json
 from .bop import BopScene, find_scenes
 
 MIN_CROP_PX = 16
@@ -54,11 +55,11 @@ def single_threaded_worker(_worker_id: int) -> None:
     cv2.setNumThreads(1)
 
 
-def _read_json(path: Path):
-    import json
-
+def _cache_record(path: Path) -> dict | None:
+    """The record beside an image cache (:meth:`PoseDataset.cache_images`), None where it is missing or
+    unreadable (the cache is then rebuilt)."""
     try:
-        return json.loads(Path(path).read_text())
+        return read_json(path)
     except (OSError, ValueError):
         return None
 
@@ -206,7 +207,7 @@ class PoseDataset(Dataset):
         record = {"format": 1, "size": list(self.size), "crop": self.crop, "crop_margin": self.crop_margin,
                   "views": self._views_fingerprint()}
         meta = path.with_suffix(".json")
-        if not (path.exists() and path.with_suffix(".shapes.npy").exists() and _read_json(meta) == record):
+        if not (path.exists() and path.with_suffix(".shapes.npy").exists() and _cache_record(meta) == record):
             self._build_cache(path, meta, record, workers)
         self._cache_path, self._cache = path, None
         return path
@@ -228,8 +229,6 @@ class PoseDataset(Dataset):
         import logging
         import os
         from concurrent.futures import ThreadPoolExecutor
-
-        from ..io import atomic_write_json
 
         n, (w, h) = len(self.samples), self.size
         logging.getLogger(__name__).info("caching %d %s images of %dx%d in %s", n, "crop" if self.crop else "full",

@@ -305,7 +305,7 @@ def time_inference(reg: CheckpointRegressor, items, threads=(1, 2), repeats: int
             out[key] = float(best.mean())
             out.update({f"{key}_p50": float(np.percentile(best, 50)), f"{key}_p95": float(np.percentile(best, 95)),
                         f"{key}_max": float(best.max())})
-            out[f"network_{n}_thread{'s' if n > 1 else ''}"] = network_call_ms(reg)
+            out[f"network_{key}"] = network_call_ms(reg)
     finally:
         torch.set_num_threads(before)
     return out

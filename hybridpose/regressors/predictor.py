@@ -989,11 +989,9 @@ class CheckpointRegressor(PoseRegressor):
         ≈ 2 fits instead of 4; the pooled choice prunes its candidates alike)."""
         from ..trackers.edges import fit_edges
 
-        if len(starts) == 1:
-            return 0, fit_edges(view, frame, starts[0], gray=gray, search_px=REFINE_SEARCH_PX)
-        bound = twin_scores(head_prob, np.ones(len(starts)), edge_weight=max(edge_weight, 0.0), verifier_prob=ver)
-        if edge_weight < 0:  # a weight that rewards poor fits has no such bound: fit them all
-            bound = np.full(len(starts), np.inf)
+        # a weight that rewards poor fits has no such bound: then they are all fitted
+        bound = (twin_scores(head_prob, np.ones(len(starts)), edge_weight=edge_weight, verifier_prob=ver)
+                 if edge_weight >= 0 else np.full(len(starts), np.inf))
         best, best_fit, best_score = 0, None, -np.inf
         for i in sorted(range(len(starts)), key=lambda k: (-bound[k], k)):
             if best_score > bound[i]:

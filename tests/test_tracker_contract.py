@@ -105,13 +105,3 @@ def test_edge_trackers_refuse_a_mesh_without_edges():
     ball = ObjectModel("ball", trimesh.creation.icosphere(subdivisions=3, radius=0.1))
     with pytest.raises(ValueError, match="no sharp edges"):
         create("tracker", "edges", object=ball)
-
-
-@settings(max_examples=60, deadline=None)
-@given(st.lists(st.floats(0.0, 1e3, allow_nan=False), min_size=1, max_size=50))
-def test_edge_fit_median_is_numpys(values):
-    """The edge fit's own median (its MAD scale; faster than np.median on a vector) gives np.median's value."""
-    from hybridpose.trackers.edges import _median
-
-    a = np.asarray(values)
-    assert _median(a) == float(np.median(a))

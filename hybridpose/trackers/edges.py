@@ -17,20 +17,18 @@ its rim a single line: the quality collapses. Below ``lost_quality`` (default 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from ..core import Frame
-from ..geometry import Pose
+from ..geometry import Pose, line_jacobian
 from ..objects import ObjectModel
 from ..registry import register
+from . import _edge_kernels
 from .base import Tracker
-from ..geometry import line_jacobian, se3_exp
 from .model_view import EdgeSamples, ModelView
 
-TUKEY_C = 4.685
 MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
 
@@ -59,43 +57,13 @@ def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_con
     nearest-maximum rule would. (Keeping each sample's contrast sign from frame to frame, as ViSP
     does, was tried and dropped: under a fixed sun, crease edges of a tumbling truss flip sign.)
     """
-    k = np.arange(-search_px - 1, search_px + 2, dtype=np.float32)
-    # u and v maps one at a time: the same float64 sums as one (S, 2L+3, 2) array, without its strided copies
-    map_u = (samples.uv[:, :1] + k * samples.normals[:, :1]).astype(np.float32)
-    map_v = (samples.uv[:, 1:] + k * samples.normals[:, 1:]).astype(np.float32)
-    prof = cv2.remap(gray, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    g = np.abs(prof[:, 2:] - prof[:, :-2]) * 0.5               # step at k = −L … L
-    ks = k[1:-1]
-    score = g * np.exp(-0.5 * (ks / max(search_px, 1)) ** 2)
-    j = np.argmax(score, axis=1)
-    rows = np.arange(len(j))
-    best = g[rows, j]
-    # sub-pixel: parabola through the peak and its neighbours
-    jl, jr = np.clip(j - 1, 0, len(ks) - 1), np.clip(j + 1, 0, len(ks) - 1)
-    a, b, c = g[rows, jl], best, g[rows, jr]
-    den = a - 2 * b + c
-    sub = np.where((j > 0) & (j < len(ks) - 1) & (den < -1e-6), 0.5 * (a - c) / np.where(den == 0, 1, den), 0.0)
-    return ks[j] + sub, best >= min_contrast, prof.mean(1)
+    return _search(gray, samples.uv, samples.normals, search_px, min_contrast)
 
 
-class _RT(NamedTuple):
-    R: np.ndarray
-    t: np.ndarray
-
-
-def _median(a: np.ndarray) -> float:
-    """np.median of a 1-D array (the same value), without its generic-axis overhead (≈ 3× its
-    cost on a few hundred samples, nine times per fit)."""
-    n = len(a)
-    if n % 2:
-        return float(np.partition(a, n // 2)[n // 2])
-    part = np.partition(a, (n // 2 - 1, n // 2))
-    return float((part[n // 2 - 1] + part[n // 2]) / 2)
-
-
-def _tukey(r: np.ndarray, scale: float) -> np.ndarray:
-    u = r / (TUKEY_C * scale)
-    return np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
+def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: int, min_contrast: float = 4.0):
+    map_u, map_v = _edge_kernels.search_maps(uv, normals, int(search_px))
+    profiles = cv2.remap(gray, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return _edge_kernels.strongest_steps(profiles, int(search_px), float(min_contrast))
 
 
 def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | None = None, search_px: int = 12,
@@ -103,7 +71,9 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
               covariance_scale: float = 1.0, max_step_m: float | None = None) -> EdgeFit | None:
     """Align the visible model edges with the image edges, starting from ``start``.
 
-    ``search_px`` halves at each outer iteration (coarse to fine, never below 4). Quality =
+    ``search_px`` halves at each outer iteration (coarse to fine, never below 4); each outer
+    iteration searches the edges from the current pose and runs ``inner`` Gauss–Newton steps on
+    them (compiled: :mod:`hybridpose.trackers._edge_kernels`). Quality =
     inliers / (matched samples + samples whose lit search line shows no edge) × min(1, inliers /
     MIN_SUPPORT). None when fewer than 6 samples are visible or matched, or
     when the pose moves more than ``max_step_m`` (default: the object's diameter) from ``start``.
@@ -112,46 +82,33 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     K = cam.K
     gray = to_gray(frame.image) if gray is None else gray
     max_step_m = view.object.diameter if max_step_m is None else max_step_m
-    # plain arrays through the iterations, one validated Pose at the end (a Pose checks and
-    # re-orthonormalises its rotation on construction: a product of rotations needs neither)
-    pose = _RT(start.R, start.t)
+    # visibility once per fit (at the start pose: the pose moves by a fraction of a degree); the
+    # samples are re-projected as the pose moves and those that leave the image dropped
+    visible = view.visible_index(start, cam, margin_px=2, max_samples=max_samples)
+    points, directions = view.points[visible], view.directions[visible]
+    R, t = start.R, start.t
     rng_px = search_px
-    visible = None
     for _ in range(outer):
-        # visibility once per frame (at the start pose: the pose moves by a fraction of a degree)
-        if visible is None:
-            samples = view.visible_samples(pose, cam, margin_px=2, max_samples=max_samples)
-            visible = samples.index
-        else:
-            samples = view.samples_at(pose, cam, visible, margin_px=2)
-        if len(samples.index) < 6:
+        keep, uv, normals = _edge_kernels.project_samples(points, directions, R, t, K, cam.width, cam.height,
+                                                          2.0, True)
+        if not keep.all():
+            points, directions, uv, normals = points[keep], directions[keep], uv[keep], normals[keep]
+        if len(points) < 6:
             return None
-        offset, valid, brightness = search_edges(gray, samples, rng_px)
+        offset, valid, brightness = _search(gray, uv, normals, rng_px)
         if valid.sum() < 6:
             return None
-        target = samples.uv + offset[:, None] * samples.normals   # matched edge points
-        n, X, m = samples.normals[valid], samples.points_m[valid], target[valid]
-        rt = pose
-        for _ in range(inner):
-            uv, Jn = line_jacobian(rt, X, K, n)                     # Jn: (S, 6)
-            r = np.einsum("si,si->s", n, uv - m)                   # signed point-to-line distance, px
-            # MAD scale, capped by the search range: when an occluder's edges outnumber the model's
-            # the MAD would grow and let them in
-            scale = min(max(1.4826 * _median(np.abs(r)), 0.5), max(1.0, rng_px / 4))
-            w = _tukey(r, scale)
-            if w.sum() < 6:
-                return None
-            H = (Jn * w[:, None]).T @ Jn
-            delta = -np.linalg.solve(H + 1e-9 * np.eye(6), (Jn * w[:, None]).T @ r)
-            dR, dt = se3_exp(delta)                                  # right perturbation, as Pose.retract
-            rt = _RT(rt.R @ dR, rt.R @ dt + rt.t)
-            if np.abs(delta).max() < 1e-6:
-                break
-        pose = rt
-        if np.linalg.norm(pose.t - start.t) > max_step_m:
+        target = uv + offset[:, None] * normals   # matched edge points
+        n, X, m = normals[valid], points[valid], target[valid]
+        # MAD scale capped by the search range: when an occluder's edges outnumber the model's the
+        # MAD would grow and let them in
+        R, t, ok = _edge_kernels.gauss_newton_lines(R, t, X, n, m, K, max(1.0, rng_px / 4), inner)
+        if not ok:
+            return None
+        if np.linalg.norm(t - start.t) > max_step_m:
             return None
         rng_px = max(4, rng_px // 2)
-    pose = Pose(pose.R, pose.t)
+    pose = Pose(R, t)
     uv, Jn = line_jacobian(pose, X, K, n)
     r = np.einsum("si,si->s", n, uv - m)
     inl = np.abs(r) < inlier_px

@@ -17,6 +17,7 @@ from ..geometry import Camera, Pose
 from ..geometry.raster import fill_triangles, front_faces_far_first
 from ..objects import ObjectModel
 from ..objects.base import SHARP_EDGE_ANGLE_DEG
+from . import _edge_kernels
 
 DEFAULT_STEP_M = 0.005
 ID_SCALE = 0.5  # facet-id image resolution relative to the frame
@@ -139,57 +140,29 @@ class ModelView:
                         max_samples: int | None = None) -> EdgeSamples:
         """Edge samples visible at ``pose``: a front-facing adjacent face, not hidden by another
         part (facet-id test), inside the image by ``margin_px``; evenly thinned to ``max_samples``."""
-        R, t = pose.R, pose.t
-        X = self.points @ R.T + t
-        # a face looks at the camera where n_cam · X_cam < 0, i.e. n · (p + Rᵀt) < 0 in the object
-        # frame: n · p is fixed per sample, so only one dot per face is left to do per pose
-        facing = (self._normal_dot_point + (self.face_normals @ (R.T @ t))[self.faces]) < 0   # (P, 2)
-        keep = facing.any(1) & (X[:, 2] > 1e-3)
-        K = camera.K
-        uv = np.full((len(X), 2), -1e9)
-        z = np.where(keep, X[:, 2], 1.0)
-        uv[:, 0] = K[0, 0] * X[:, 0] / z + K[0, 2]
-        uv[:, 1] = K[1, 1] * X[:, 1] / z + K[1, 2]
-        keep &= ((uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width - 1 - margin_px)
-                 & (uv[:, 1] >= margin_px) & (uv[:, 1] <= camera.height - 1 - margin_px))
-        idx = np.flatnonzero(keep)
+        return self.samples_at(pose, camera, self.visible_index(pose, camera, margin_px, max_samples))
+
+    def visible_index(self, pose: Pose, camera: Camera, margin_px: float = 0.0,
+                      max_samples: int | None = None) -> np.ndarray:
+        """Indices (S,) into :attr:`points` of the samples :meth:`visible_samples` returns."""
+        idx, uv, facing = _edge_kernels.facing_samples(
+            self.points, self._normal_dot_point, self.face_normals, self.faces, pose.R, pose.t, camera.K,
+            camera.width, camera.height, float(margin_px))
         if len(idx):
-            ids = self.facet_ids(pose, camera)
-            h, w = ids.shape
-            c = np.round((uv[idx] + 0.5) * ID_SCALE - 0.5).astype(int)
-            own = self.facet_of[self.faces[idx]] * facing[idx]     # (S, 2): 0 where back-facing
-            step = np.array([-1, 0, 1])                              # the 3×3 neighbourhood, one gather
-            rows = np.clip(c[:, 1, None, None] + step[None, :, None], 0, h - 1)
-            cols = np.clip(c[:, 0, None, None] + step[None, None, :], 0, w - 1)
-            f = ids[rows, cols].reshape(len(idx), 9)
-            idx = idx[((f == own[:, :1]) | (f == own[:, 1:])).any(1)]
+            own = self.facet_of[self.faces[idx]] * facing                 # (S, 2): 0 where back-facing
+            idx = idx[_edge_kernels.shows_own_facet(self.facet_ids(pose, camera), uv, own, ID_SCALE)]
         if max_samples is not None and len(idx) > max_samples:
             idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
-        return self.samples_at(pose, camera, idx)
+        return idx
 
     def samples_at(self, pose: Pose, camera: Camera, index: np.ndarray, margin_px: float | None = None) -> EdgeSamples:
         """The samples ``index`` projected at ``pose`` (no visibility test: the trackers decide
         visibility once per frame and re-project as the pose moves); with ``margin_px`` those that
-        left the image are dropped."""
-        R = pose.R
-        X = self.points[index] @ R.T + pose.t
-        K = camera.K
-        z = np.maximum(X[:, 2], 1e-3)
-        uv = np.stack([K[0, 0] * X[:, 0] / z + K[0, 2], K[1, 1] * X[:, 1] / z + K[1, 2]], 1)
-        if margin_px is not None:
-            ok = ((uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width - 1 - margin_px)
-                  & (uv[:, 1] >= margin_px) & (uv[:, 1] <= camera.height - 1 - margin_px) & (X[:, 2] > 1e-3))
-            index, X, uv = index[ok], X[ok], uv[ok]
-        # image normal: perpendicular to the projected edge direction
-        d_img = project_direction(X, self.directions[index] @ R.T, K)
-        normals = np.stack([-d_img[:, 1], d_img[:, 0]], 1)
+        left the image are dropped. The image normal is perpendicular to the projected edge."""
+        index = np.asarray(index, dtype=np.int64)
+        keep, uv, normals = _edge_kernels.project_samples(
+            self.points[index], self.directions[index], pose.R, pose.t, camera.K, camera.width, camera.height,
+            0.0 if margin_px is None else float(margin_px), margin_px is not None)
+        if margin_px is not None and not keep.all():
+            index, uv, normals = index[keep], uv[keep], normals[keep]
         return EdgeSamples(index=index, points_m=self.points[index], uv=uv, normals=normals)
-
-
-def project_direction(X_cam: np.ndarray, d_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(S, 2) unit image directions of 3D directions ``d_cam`` at camera points ``X_cam``."""
-    z = X_cam[:, 2:3]
-    du = np.stack([K[0, 0] * (d_cam[:, 0] * z[:, 0] - X_cam[:, 0] * d_cam[:, 2]),
-                   K[1, 1] * (d_cam[:, 1] * z[:, 0] - X_cam[:, 1] * d_cam[:, 2])], 1) / (z**2)
-    n = np.linalg.norm(du, axis=1, keepdims=True)
-    return du / np.maximum(n, 1e-12)

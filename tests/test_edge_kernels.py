@@ -1,0 +1,150 @@
+"""The moving-edge fit's compiled kernels (hybridpose/trackers/_edge_kernels.py) against independent
+oracles: cv2.projectPoints, NumPy's linear algebra, geometry.se3_exp / line_jacobian."""
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hybridpose.geometry import Camera, Pose, line_jacobian, se3_exp
+from hybridpose.trackers import _edge_kernels as ek
+
+CAM = Camera.default()
+
+
+def random_pose(rng, distance=0.8):
+    return Pose.from_rotvec_t(rng.normal(size=3), np.r_[rng.uniform(-0.1, 0.1, 2), distance])
+
+
+def test_project_samples_matches_cv2(rng):
+    pose = random_pose(rng)
+    pts = rng.uniform(-0.3, 0.3, (200, 3))
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    keep, uv, normals = ek.project_samples(pts, dirs, pose.R, pose.t, CAM.K, CAM.width, CAM.height, 20.0, True)
+    rvec = cv2.Rodrigues(pose.R)[0]
+    ref = cv2.projectPoints(pts, rvec, pose.t, CAM.K, None)[0].reshape(-1, 2)
+    np.testing.assert_allclose(uv, ref, atol=1e-9)
+    inside = (ref >= 20).all(1) & (ref[:, 0] <= CAM.width - 21) & (ref[:, 1] <= CAM.height - 21)
+    np.testing.assert_array_equal(keep, inside)
+    # the normal is a unit vector across the image of the edge (a short step along it, projected)
+    ahead = cv2.projectPoints(pts + 1e-6 * dirs, rvec, pose.t, CAM.K, None)[0].reshape(-1, 2) - ref
+    ahead /= np.linalg.norm(ahead, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("si,si->s", normals, ahead), 0.0, atol=1e-5)
+    keep_all, _, _ = ek.project_samples(pts, dirs, pose.R, pose.t, CAM.K, CAM.width, CAM.height, 20.0, False)
+    assert keep_all.all()
+
+
+def _steps_numpy(profiles, search_px, min_contrast):
+    """The edge search's step finder written with NumPy array operations (hybridpose ≤ session 31)."""
+    k = np.arange(-search_px - 1, search_px + 2, dtype=np.float32)
+    g = np.abs(profiles[:, 2:] - profiles[:, :-2]) * 0.5
+    ks = k[1:-1]
+    j = np.argmax(g * np.exp(-0.5 * (ks / max(search_px, 1)) ** 2), axis=1)
+    rows = np.arange(len(j))
+    jl, jr = np.clip(j - 1, 0, len(ks) - 1), np.clip(j + 1, 0, len(ks) - 1)
+    a, b, c = g[rows, jl], g[rows, j], g[rows, jr]
+    den = a - 2 * b + c
+    sub = np.where((j > 0) & (j < len(ks) - 1) & (den < -1e-6), 0.5 * (a - c) / np.where(den == 0, 1, den), 0.0)
+    return ks[j] + sub, b >= min_contrast, profiles.mean(1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 20), st.integers(0, 2**31 - 1))
+def test_strongest_steps_match_numpy(search_px, seed):
+    rng = np.random.default_rng(seed)
+    # smooth random profiles with a few steps, as image edges look after bilinear sampling
+    prof = np.cumsum(rng.normal(0, 3, (64, 2 * search_px + 3)) * (rng.random((64, 2 * search_px + 3)) < 0.2),
+                     axis=1).astype(np.float32) * 10 + 60
+    offset, valid, bright = ek.strongest_steps(prof, search_px, 4.0)
+    ref_offset, ref_valid, ref_bright = _steps_numpy(prof, search_px, 4.0)
+    np.testing.assert_allclose(offset, ref_offset, atol=1e-5)
+    np.testing.assert_array_equal(valid, ref_valid)
+    np.testing.assert_allclose(bright, ref_bright, rtol=1e-5, atol=1e-3)  # grey levels
+
+
+@pytest.mark.parametrize("frac", [0.0, 0.1, 0.3, 0.5, 0.7, 0.9])
+def test_edge_search_finds_a_step_edge(frac):
+    """A vertical step between columns 100 and 101 (at x = 100.5) is found from samples left of it,
+    through cv2.remap as the fit samples the image; a flat image has no edge."""
+    gray = np.zeros((60, 200), np.float32)
+    gray[:, 101:] = 100.0
+    uv = np.array([[95.0 + frac, y] for y in range(10, 50, 5)])
+    normals = np.tile([1.0, 0.0], (len(uv), 1))
+    mu, mv = ek.search_maps(uv, normals, 8)
+    np.testing.assert_allclose(mu[0], uv[0, 0] + np.arange(-9, 10), atol=1e-5)
+    prof = cv2.remap(gray, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    offset, valid, _ = ek.strongest_steps(prof, 8, 4.0)
+    assert valid.all()
+    np.testing.assert_allclose(offset, 100.5 - uv[:, 0], atol=0.1)
+    offset, valid, bright = ek.strongest_steps(np.full_like(prof, 80.0), 8, 4.0)
+    assert not valid.any() and np.allclose(bright, 80.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-3.0, 3.0), min_size=6, max_size=6), st.sampled_from([1.0, 1e-3, 1e-6, 0.0]))
+def test_se3_exp_one_matches_geometry(xi, scale):
+    xi = np.asarray(xi) * np.r_[scale, scale, scale, 1, 1, 1]
+    R, t = ek.se3_exp_one(xi)
+    R_ref, t_ref = se3_exp(xi)
+    np.testing.assert_allclose(R, R_ref, atol=1e-12)
+    np.testing.assert_allclose(t, t_ref, atol=1e-12)
+
+
+def test_solve6_matches_numpy(rng):
+    for _ in range(20):
+        A = rng.normal(size=(6, 6))
+        H = A @ A.T + 1e-3 * np.eye(6)
+        g = rng.normal(size=6)
+        np.testing.assert_allclose(ek._solve6(H, g), np.linalg.solve(H, g), rtol=1e-8, atol=1e-10)
+    H = np.diag([1.0, 2, 3, 4, 5, -1])  # not positive definite: solved by LU as NumPy would
+    np.testing.assert_allclose(ek._solve6(H, np.ones(6)), np.linalg.solve(H, np.ones(6)))
+
+
+def _line_problem(rng, pose, n=300):
+    pts = rng.uniform(-0.3, 0.3, (n, 3))
+    uv, _ = line_jacobian(pose, pts, CAM.K, np.tile([1.0, 0.0], (n, 1)))
+    ang = rng.uniform(0, np.pi, n)
+    normals = np.c_[np.cos(ang), np.sin(ang)]
+    return pts, normals, uv
+
+
+def _gauss_newton_step_numpy(pose, pts, normals, targets, cap):
+    """One step of the fit written with NumPy and geometry.line_jacobian (hybridpose ≤ session 31)."""
+    uv, J = line_jacobian(pose, pts, CAM.K, normals)
+    r = np.einsum("si,si->s", normals, uv - targets)
+    scale = min(max(1.4826 * np.median(np.abs(r)), 0.5), cap)
+    u = r / (4.685 * scale)
+    w = np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
+    delta = -np.linalg.solve((J * w[:, None]).T @ J + 1e-9 * np.eye(6), (J * w[:, None]).T @ r)
+    dR, dt = se3_exp(delta)
+    return pose.R @ dR, pose.R @ dt + pose.t
+
+
+def test_gauss_newton_step_matches_numpy(rng):
+    for _ in range(10):
+        truth = random_pose(rng)
+        pts, normals, targets = _line_problem(rng, truth)
+        targets = targets + rng.normal(0, 0.5, targets.shape)
+        targets[:30] += rng.normal(0, 20, (30, 2))                # outliers for the Tukey weights
+        start = truth.retract(np.r_[rng.normal(0, 0.01, 3), rng.normal(0, 0.005, 3)])
+        R, t, ok = ek.gauss_newton_lines(start.R, start.t, pts, normals, targets, CAM.K, 3.0, 1)
+        R_ref, t_ref = _gauss_newton_step_numpy(start, pts, normals, targets, 3.0)
+        assert ok
+        np.testing.assert_allclose(R, R_ref, atol=1e-10)
+        np.testing.assert_allclose(t, t_ref, atol=1e-10)
+
+
+def test_gauss_newton_converges_to_the_pose_the_lines_come_from(rng):
+    truth = random_pose(rng)
+    pts, normals, targets = _line_problem(rng, truth)
+    start = truth.retract(np.r_[rng.normal(0, 0.02, 3), rng.normal(0, 0.01, 3)])
+    R, t, ok = ek.gauss_newton_lines(start.R, start.t, pts, normals, targets, CAM.K, 4.0, 20)
+    assert ok
+    assert np.degrees(np.arccos(np.clip((np.trace(R.T @ truth.R) - 1) / 2, -1, 1))) < 1e-5
+    np.testing.assert_allclose(t, truth.t, atol=1e-7)
+    # fewer than 6 samples of weight: no step
+    _, _, ok = ek.gauss_newton_lines(start.R, start.t, pts[:5], normals[:5], targets[:5], CAM.K, 4.0, 3)
+    assert not ok
+

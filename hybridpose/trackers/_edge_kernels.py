@@ -18,6 +18,8 @@ import math
 import numba
 import numpy as np
 
+from ..geometry.se3 import se3_exp_one
+
 TUKEY_C = 4.685
 MAD_TO_SIGMA = 1.4826
 
@@ -139,26 +141,6 @@ def _solve6(H, g):
             acc -= L[k, i] * x[k]
         x[i] = acc / L[i, i]
     return x
-
-
-@numba.njit(cache=True, nogil=True)
-def se3_exp_one(xi):
-    """``[ω, v]`` (6,) → (R (3, 3), t (3,)): the closed forms of :func:`hybridpose.geometry.se3_exp`."""
-    w0, w1, w2 = xi[0], xi[1], xi[2]
-    t2 = w0 * w0 + w1 * w1 + w2 * w2
-    theta = math.sqrt(t2)
-    if theta < 1e-4:
-        a, b_rot = 1 - t2 / 6 + t2 * t2 / 120, 0.5 - t2 / 24 + t2 * t2 / 720
-        b_left, c = 0.5 - t2 / 24, 1.0 / 6 - t2 / 120
-    else:
-        s, co = math.sin(theta), math.cos(theta)
-        a, b_rot = s / theta, (1 - co) / t2
-        b_left, c = b_rot, (theta - s) / (t2 * theta)
-    W = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
-    W2 = W @ W
-    R = np.eye(3) + a * W + b_rot * W2
-    V = np.eye(3) + b_left * W + c * W2
-    return R, V @ xi[3:]
 
 
 @numba.njit(cache=True, nogil=True)

@@ -3,9 +3,11 @@ the projection Jacobian they all share.
 
 Visibility of model edges (what ViSP does with its scanline renderer): an edge sample is kept when
 one of its two faces looks at the camera *and* that face's facet is what the image shows around
-the sample's pixel. The facet-id image comes from a painter's-algorithm raster of the front faces
-(``cv2.fillConvexPoly``, far to near): no OpenGL context in the tracking loop, ~1 ms at half
-resolution for a few hundred triangles, and exact enough for a 3×3-pixel visibility test.
+the sample's pixel. The facet-id image comes from a depth-tested raster of the front faces
+(:func:`hybridpose.geometry.raster.zbuffer_front_faces`): no OpenGL context in the tracking loop,
+≈ 0.1 ms at half resolution for a few hundred triangles. (A far-first painter's raster, used until
+session 32, misordered the truss's long thin triangles: MuJoCo's depth disagreed with twice as many
+of its visibility calls.)
 """
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import Camera, Pose
-from ..geometry.raster import fill_triangles, front_faces_far_first
+from ..geometry.raster import zbuffer_front_faces
 from ..objects import ObjectModel
 from ..objects.base import SHARP_EDGE_ANGLE_DEG
 from . import _edge_kernels
@@ -94,10 +96,8 @@ class ModelView:
         """(h, w) uint16 facet id + 1 of the surface seen at each pixel (0 = background), at
         ``scale`` × the camera's resolution."""
         w, h = max(1, int(round(camera.width * scale))), max(1, int(round(camera.height * scale)))
-        tri_cam, _, order = front_faces_far_first(self.triangles, self.face_normals, pose)
-        p = tri_cam[order] @ camera.K.T
-        uv = (p[..., :2] / p[..., 2:3] + 0.5) * scale - 0.5        # pixel centres at integers
-        return fill_triangles(np.zeros((h, w), np.uint16), uv, self.facet_of[order])
+        return zbuffer_front_faces(self.triangles, self.face_normals, self.facet_of, pose.R, pose.t, camera.K,
+                                   float(scale), h, w)
 
     def lift(self, pose: Pose, camera: Camera, uv: np.ndarray, ids: np.ndarray | None = None,
              scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

@@ -43,24 +43,24 @@ def painter_ids(view: ModelView, pose, camera, scale: float = ID_SCALE) -> np.nd
     return fill_triangles(np.zeros((h, w), np.uint16), uv, view.facet_of[order])
 
 
-def visibility_agreement(view: ModelView, pose, camera, depth: np.ndarray, ids: np.ndarray):
-    """(visible agree, visible n, hidden agree, hidden n) of one view's samples against ``depth`` (metres)."""
+def depth_oracle(view: ModelView, pose, camera, depth: np.ndarray, margin_px: float = PATCH_PX):
+    """What the depth image ``depth`` (H, W) metres says of the edge samples a visibility test decides
+    on at ``pose``: those with a face turned to the camera, inside the image by ``margin_px``.
+
+    Returns (index (S,) into ``view.points``, uv (S, 2) px, own facets (S, 2) as ``shows_own_facet``
+    takes them, seen (S,) bool: a pixel within ``PATCH_PX`` shows the sample's depth ± ``DEPTH_TOL_M``,
+    covered (S,) bool: every such pixel shows something nearer by more than that)."""
     cand, uv, facing = _edge_kernels.facing_samples(view.points, view._normal_dot_point, view.face_normals,
                                                     view.faces, pose.R, pose.t, camera.K, camera.width,
-                                                    camera.height, float(PATCH_PX))
+                                                    camera.height, float(margin_px))
     own = view.facet_of[view.faces[cand]] * facing
-    visible = _edge_kernels.shows_own_facet(ids, uv, own, ID_SCALE)
     z = (view.points[cand] @ pose.R.T + pose.t)[:, 2]
-    c = np.rint(uv).astype(int)
-    ok_vis, ok_hid = [], []
-    for k in range(len(cand)):
-        u, v = c[k]
+    seen, covered = np.zeros(len(cand), bool), np.zeros(len(cand), bool)
+    for k, (u, v) in enumerate(np.rint(uv).astype(int)):
         patch = depth[max(v - PATCH_PX, 0):v + PATCH_PX + 1, max(u - PATCH_PX, 0):u + PATCH_PX + 1]
-        if visible[k]:
-            ok_vis.append(bool(np.any(np.abs(patch - z[k]) < DEPTH_TOL_M)))
-        else:
-            ok_hid.append(bool(np.all((patch > 0) & (patch < z[k] - DEPTH_TOL_M))))
-    return sum(ok_vis), len(ok_vis), sum(ok_hid), len(ok_hid)
+        seen[k] = np.any(np.abs(patch - z[k]) < DEPTH_TOL_M)
+        covered[k] = np.all((patch > 0) & (patch < z[k] - DEPTH_TOL_M))
+    return cand, uv, own, seen, covered
 
 
 def main() -> None:
@@ -83,13 +83,14 @@ def main() -> None:
     items = [(scene, im_id) for scene in map(BopScene, find_scenes(args.data)) for im_id in scene.image_ids]
     for i, (frame, gt) in enumerate(views):
         scene, im_id = items[i]
-        depth = scene.depth_m(im_id)
+        _, uv, own, seen, covered = depth_oracle(view, gt.pose, gt.camera, scene.depth_m(im_id))
         names = list(rasters) if i % 2 == 0 else list(rasters)[::-1]   # alternate which runs first
         for name in names:
             t0 = time.perf_counter()
             ids = rasters[name](gt.pose, gt.camera)
             raster_s[name] += time.perf_counter() - t0
-            counts[name] += visibility_agreement(view, gt.pose, gt.camera, depth, ids)
+            visible = _edge_kernels.shows_own_facet(ids, uv, own, ID_SCALE)
+            counts[name] += (seen[visible].sum(), visible.sum(), covered[~visible].sum(), (~visible).sum())
     # the edge fits predict runs on these views, replayed
     calls, fit = [], edges.fit_edges
 

@@ -37,3 +37,19 @@ def tiny_checkpoint(truss, tmp_path_factory):
                       lr=1e-3, image_size=64, patience=0, schedule="cosine")
     train(cfg, progress=False)
     return root / "run" / "best.pt"
+
+
+@pytest.fixture(scope="session")
+def truss_depth_views(truss, camera):
+    """Six random views of the truss (0.6–1.0 m, seed 7) and MuJoCo's depth of each: [(pose, (H, W)
+    float32 metres)], the oracle of the rasters' visibility tests."""
+    from hybridpose.geometry import Pose
+    from hybridpose.render import Renderer
+
+    rng = np.random.default_rng(7)
+    views = []
+    with Renderer(truss, camera) as r:
+        for _ in range(6):
+            pose = Pose.from_rotvec_t(rng.normal(size=3), np.r_[rng.uniform(-0.05, 0.05, 2), rng.uniform(0.6, 1.0)])
+            views.append((pose, r.render(pose, rng=0).depth))
+    return views

@@ -1,5 +1,8 @@
 """The moving-edge fit's compiled kernels (hybridpose/trackers/_edge_kernels.py) against independent
 oracles: cv2.projectPoints, NumPy's linear algebra, geometry.se3_exp / line_jacobian, MuJoCo's depth buffer."""
+import sys
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -10,6 +13,8 @@ from hybridpose.geometry import Camera, Pose, line_jacobian, se3_exp
 from hybridpose.geometry.se3 import se3_exp_one
 from hybridpose.trackers import _edge_kernels as ek
 from hybridpose.trackers.model_view import ModelView
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))  # its depth oracle
 
 CAM = Camera.default()
 
@@ -153,29 +158,18 @@ def test_gauss_newton_converges_to_the_pose_the_lines_come_from(rng):
     assert not ok
 
 
-def test_visible_edge_samples_agree_with_mujoco_depth(truss):
+def test_visible_edge_samples_agree_with_mujoco_depth(truss, truss_depth_views):
     """Samples the facet raster calls visible are where MuJoCo's depth buffer sees that depth (within
     2 px); front-facing samples inside the image it calls hidden have something nearer over them."""
-    from hybridpose.render import Renderer
+    from edge_visibility import depth_oracle
 
     view = ModelView(truss)
-    rng = np.random.default_rng(7)
     agree_visible, agree_hidden = [], []
-    with Renderer(truss, CAM) as r:
-        for _ in range(6):
-            pose = Pose.from_rotvec_t(rng.normal(size=3), np.r_[rng.uniform(-0.05, 0.05, 2), rng.uniform(0.6, 1.0)])
-            depth = r.render(pose, rng=0).depth
-            cand, _, _ = ek.facing_samples(view.points, view._normal_dot_point, view.face_normals, view.faces,
-                                           pose.R, pose.t, CAM.K, CAM.width, CAM.height, 3.0)
-            visible = set(view.visible_index(pose, CAM, margin_px=3.0).tolist())
-            X = view.points[cand] @ pose.R.T + pose.t
-            uv = np.rint(X[:, :2] / X[:, 2:] * [CAM.fx, CAM.fy] + [CAM.cx, CAM.cy]).astype(int)
-            for k, (u, v) in enumerate(uv):
-                patch = depth[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]
-                if cand[k] in visible:
-                    agree_visible.append(np.any(np.abs(patch - X[k, 2]) < 0.005))
-                else:
-                    agree_hidden.append(np.all((patch > 0) & (patch < X[k, 2] - 0.005)))
+    for pose, depth in truss_depth_views:
+        cand, _, _, seen, covered = depth_oracle(view, pose, CAM, depth, margin_px=3.0)
+        visible = np.isin(cand, view.visible_index(pose, CAM, margin_px=3.0))
+        agree_visible.extend(seen[visible])
+        agree_hidden.extend(covered[~visible])
     assert len(agree_visible) > 500 and len(agree_hidden) > 50
     # the 3×3 test at half resolution admits samples within ≈ 3 px of their own facet: not all agree
     # (the painter's raster of session 31: 0.90 and 0.83 on these poses)

@@ -75,25 +75,22 @@ def test_zbuffer_orders_long_triangles_the_painter_misorders():
     assert painted[v, u] == 2  # what the painter's order gets wrong
 
 
-def test_zbuffer_agrees_with_mujoco_depth(truss):
+def test_zbuffer_agrees_with_mujoco_depth(truss, truss_depth_views):
     """Where the z-buffer shows a facet of the truss, MuJoCo's depth buffer sees the object at that
     facet's depth (the ray meets its plane there), and it shows nothing where MuJoCo sees nothing."""
-    from hybridpose.render import Renderer
     from hybridpose.trackers.model_view import ModelView
 
     cam = Camera.default()
     view = ModelView(truss)
     rng = np.random.default_rng(3)
     agree, background = [], []
-    with Renderer(truss, cam) as r:
-        for _ in range(4):
-            pose = Pose.from_rotvec_t(rng.normal(size=3), np.r_[rng.uniform(-0.05, 0.05, 2), rng.uniform(0.6, 1.0)])
-            depth = r.render(pose, rng=0).depth.astype(float)
-            ids = view.facet_ids(pose, cam, scale=1.0)
-            v, u = np.nonzero(ids)
-            pick = rng.choice(len(u), 3000, replace=False)
-            u, v = u[pick], v[pick]
-            _, lam, ok = view.ray_plane_depths(pose, cam, np.c_[u, v], ids[v, u])
-            agree.extend(np.abs(lam[ok] - depth[v[ok], u[ok]]) < 0.002)
-            background.append(np.mean(depth[ids == 0] == 0))
+    for pose, depth in truss_depth_views:
+        depth = depth.astype(float)
+        ids = view.facet_ids(pose, cam, scale=1.0)
+        v, u = np.nonzero(ids)
+        pick = rng.choice(len(u), 3000, replace=False)
+        u, v = u[pick], v[pick]
+        _, lam, ok = view.ray_plane_depths(pose, cam, np.c_[u, v], ids[v, u])
+        agree.extend(np.abs(lam[ok] - depth[v[ok], u[ok]]) < 0.002)
+        background.append(np.mean(depth[ids == 0] == 0))
     assert np.mean(agree) > 0.97 and min(background) > 0.97

@@ -5,8 +5,9 @@ dispatching its ~60 small array operations per iteration than computing (a line 
 shipped regressor's path: Gauss–Newton small-matrix work ≈ 30 % of a fit, projections and the
 edge search's bookkeeping another 25 %). No library has the point-to-line moving-edge step
 (``cv2.rapid`` solves point-to-point, see :mod:`hybridpose.trackers.edges`), so the same math is
-compiled here with numba, one loop over the samples per step. The image sampling stays in
-``cv2.remap``; the facet raster that decides visibility stays in OpenCV (:mod:`hybridpose.geometry.raster`).
+compiled here with numba, one loop over the samples per step (the point-to-line rows and the SE(3)
+exponential are the geometry module's compiled ones). The image sampling stays in ``cv2.remap``; the
+facet raster that decides visibility is :func:`hybridpose.geometry.raster.zbuffer_front_faces`.
 
 Conventions as in :mod:`hybridpose.geometry`: ``T_cam_obj`` as ``(R (3, 3), t (3,) metres)``,
 pixels with integer centres, right perturbation ``ξ = [ω, v]`` (``Pose.retract``).
@@ -18,6 +19,7 @@ import math
 import numba
 import numpy as np
 
+from ..geometry.camera import line_rows
 from ..geometry.se3 import se3_exp_one
 
 TUKEY_C = 4.685
@@ -151,31 +153,15 @@ def gauss_newton_lines(R, t, points_m, normals, targets, K, scale_cap_px, steps)
     Returns ``(R, t, ok)``; ``ok`` False when the weights sum below 6 (too few samples agree).
     Stops early when a step moves less than 1e-6 (rad or m)."""
     S = points_m.shape[0]
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    uv = np.empty((S, 2))
     J = np.empty((S, 6))
     r = np.empty(S)
     abs_r = np.empty(S)
     for _ in range(steps):
+        line_rows(R, t, points_m, K, normals, uv, J)
         for s in range(S):
-            p0, p1, p2 = points_m[s, 0], points_m[s, 1], points_m[s, 2]
-            x = R[0, 0] * p0 + R[0, 1] * p1 + R[0, 2] * p2 + t[0]
-            y = R[1, 0] * p0 + R[1, 1] * p1 + R[1, 2] * p2 + t[1]
-            z = R[2, 0] * p0 + R[2, 1] * p1 + R[2, 2] * p2 + t[2]
-            inv_z = 1.0 / z
-            u, v = fx * x * inv_z, fy * y * inv_z
-            n0, n1 = normals[s, 0], normals[s, 1]
-            r[s] = n0 * (u + cx - targets[s, 0]) + n1 * (v + cy - targets[s, 1])
+            r[s] = normals[s, 0] * (uv[s, 0] - targets[s, 0]) + normals[s, 1] * (uv[s, 1] - targets[s, 1])
             abs_r[s] = abs(r[s])
-            # a = (∂π/∂X_c)ᵀ n in the camera frame, b = Rᵀ a; the row is [X × b, b]
-            nu, nv = n0 * inv_z, n1 * inv_z
-            a0, a1, a2 = fx * nu, fy * nv, -(nu * u + nv * v)
-            b0 = a0 * R[0, 0] + a1 * R[1, 0] + a2 * R[2, 0]
-            b1 = a0 * R[0, 1] + a1 * R[1, 1] + a2 * R[2, 1]
-            b2 = a0 * R[0, 2] + a1 * R[1, 2] + a2 * R[2, 2]
-            J[s, 0] = p1 * b2 - p2 * b1
-            J[s, 1] = p2 * b0 - p0 * b2
-            J[s, 2] = p0 * b1 - p1 * b0
-            J[s, 3], J[s, 4], J[s, 5] = b0, b1, b2
         scale = min(max(MAD_TO_SIGMA * np.median(abs_r), 0.5), scale_cap_px)
         H = np.zeros((6, 6))
         g = np.zeros(6)

@@ -2,9 +2,9 @@
 
 The trackers' facet-id image and the twin verifier's flat-shaded drawings both need it for a few
 hundred triangles, often, on the CPU, inside loops where a GL context (MuJoCo) is not available or
-too slow to switch. Two kinds: :func:`zbuffer_front_faces` (depth-tested at each pixel, ≈ 0.1 ms at
-320×240; the trackers' facet ids) and the painter's far-to-near ``cv2.fillConvexPoly`` of
-:func:`front_faces_far_first` + :func:`fill_triangles` (≈ 1 ms; it can misorder long thin triangles,
+too slow to switch. Two kinds: :func:`zbuffer_front_faces` (depth-tested at each pixel, ≈ 0.6 ms at
+320×240 on test views; the trackers' facet ids) and the painter's far-to-near ``cv2.fillConvexPoly`` of
+:func:`front_faces_far_first` + :func:`fill_triangles` (≈ 1.2 ms there; it can misorder long thin triangles,
 and is kept for the twin verifier, whose network was trained on its drawings). OpenCV has the polygon
 fill but no depth-ordered mesh raster.
 """

@@ -62,6 +62,34 @@ def test_rotvec_exp_log_match_scipy(rng):
     np.testing.assert_allclose(np.abs(np.sum(q * xyzw_to_wxyz(Rotation.from_rotvec(rv).as_quat()), 1)), 1, atol=1e-12)
 
 
+def test_rotvec_to_matrix_of_one_vector_matches_batch_and_cv2(rng):
+    """The compiled one-vector path (PnP's) against scipy, cv2.Rodrigues and the batched NumPy path, on
+    both sides of the series switch (θ = 1e-4) and near π."""
+    import cv2
+
+    for rv in [*edge_case_rotvecs(rng), [1e-4 * (1 - 1e-9), 0, 0], [1e-4 * (1 + 1e-9), 0, 0], [0, 0, 1e-12]]:
+        rv = np.asarray(rv, dtype=np.float64)
+        one = rotvec_to_matrix(rv)
+        assert one.shape == (3, 3)
+        np.testing.assert_allclose(one, Rotation.from_rotvec(rv).as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(one, cv2.Rodrigues(rv)[0], atol=1e-12)
+        np.testing.assert_allclose(one, rotvec_to_matrix(rv[None])[0], atol=1e-15)
+
+
+def test_pose_reorthonormalises_only_what_is_not_a_rotation_to_rounding(rng):
+    """A rotation to float rounding is kept bit for bit (no SVD); one off by 1e-8 (inside the check's
+    tolerance, e.g. float32 from a file) comes back orthonormal to rounding; the checks still reject."""
+    R = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
+    assert np.array_equal(Pose(R, np.zeros(3)).R, R)
+    off = R + 1e-8 * rng.normal(size=(3, 3))
+    fixed = Pose(off, np.zeros(3)).R
+    assert np.abs(fixed.T @ fixed - np.eye(3)).max() < 1e-14 and np.abs(fixed - R).max() < 1e-7
+    with pytest.raises(ValueError, match="not a rotation"):
+        Pose(R + 1e-3, np.zeros(3))
+    with pytest.raises(ValueError, match="reflection"):
+        Pose(-R, np.zeros(3))
+
+
 def test_quat_multiply_and_angle_match_scipy(rng):
     a, b = random_quat(N, rng), random_quat(N, rng)
     ref = Rotation.from_quat(np.roll(a, -1, 1)) * Rotation.from_quat(np.roll(b, -1, 1))

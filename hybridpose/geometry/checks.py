@@ -5,10 +5,12 @@ crash deep inside OpenCV or a silent NaN.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 ROTATION_ATOL = 1e-5
 QUAT_NORM_ATOL = 1e-4
+ORTHONORMAL_ROUNDING = 1e-13
 
 
 def _describe(x: np.ndarray) -> str:
@@ -47,20 +49,36 @@ def as_vector(x, name: str, n: int) -> np.ndarray:
 
 
 def as_rotation_matrix(R, name: str = "R", atol: float = ROTATION_ATOL) -> np.ndarray:
-    """(3, 3) float64 proper rotation, re-orthonormalised (SVD) after the check.
+    """(3, 3) float64 proper rotation, re-orthonormalised (SVD) after the check unless it already is
+    one to float rounding (max |RᵀR − I| ≤ ``ORTHONORMAL_ROUNDING``).
 
     Raises:
         ValueError: when ``R`` is not orthonormal within ``atol`` or its determinant is not +1.
     """
     R = as_array(R, name, (3, 3))
-    err = np.abs(R.T @ R - np.eye(3)).max()
+    err, det = _orthonormality(np.ascontiguousarray(R))
     if err > atol:
         raise ValueError(f"{name}: not a rotation matrix (max |RᵀR − I| = {err:.3g} > {atol:g})")
-    det = np.linalg.det(R)
     if det < 0:
         raise ValueError(f"{name}: a reflection, not a rotation (det = {det:.3f}, expected +1)")
+    if err <= ORTHONORMAL_ROUNDING:  # a rotation to float rounding already (Rodrigues, products): the SVD would not change it
+        return R.copy()
     U, _, Vt = np.linalg.svd(R)
     return U @ Vt
+
+
+@numba.njit(cache=True, nogil=True)
+def _orthonormality(R: np.ndarray) -> tuple[float, float]:
+    """(max |RᵀR − I|, det R) of a (3, 3) float64 matrix, compiled: NumPy's three calls on a 3 × 3 cost
+    ≈ 30 µs, and a pose is checked at every PnP solve and edge fit."""
+    err = 0.0
+    for i in range(3):
+        for j in range(3):
+            dot = R[0, i] * R[0, j] + R[1, i] * R[1, j] + R[2, i] * R[2, j]
+            err = max(err, abs(dot - (1.0 if i == j else 0.0)))
+    det = (R[0, 0] * (R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1]) - R[0, 1] * (R[1, 0] * R[2, 2] - R[1, 2] * R[2, 0])
+           + R[0, 2] * (R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0]))
+    return err, det
 
 
 def as_unit_direction(d, name: str, meaning: str = "") -> np.ndarray:

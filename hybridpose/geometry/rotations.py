@@ -6,6 +6,9 @@ branches; scipy is the independent oracle in the tests.
 """
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 from .checks import as_unit_quat
@@ -104,6 +107,8 @@ def quat_angle_between(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
 def rotvec_to_matrix(omega: np.ndarray) -> np.ndarray:
     """SO(3) exponential: (..., 3) rotation vector (rad) → (..., 3, 3) (Rodrigues)."""
     omega = np.asarray(omega, dtype=np.float64)
+    if omega.shape == (3,):
+        return rotvec_to_matrix_one(np.ascontiguousarray(omega))
     theta = np.linalg.norm(omega, axis=-1)[..., None, None]
     W = skew(omega)
     small = theta < 1e-4
@@ -111,6 +116,26 @@ def rotvec_to_matrix(omega: np.ndarray) -> np.ndarray:
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(safe) / safe)
     b = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, (1 - np.cos(safe)) / (safe * safe))
+    return np.eye(3) + a * W + b * (W @ W)
+
+
+@numba.njit(cache=True, nogil=True)
+def rodrigues_coeffs(t2: float) -> tuple[float, float]:
+    """``(sin θ / θ, (1 − cos θ) / θ²)`` of the SO(3) exponential for ``t2 = θ²``, by their series
+    below θ = 1e-4 (the batched :func:`rotvec_to_matrix`'s branches, compiled for the scalar paths)."""
+    if t2 < 1e-8:
+        return 1 - t2 / 6 + t2 * t2 / 120, 0.5 - t2 / 24 + t2 * t2 / 720
+    theta = math.sqrt(t2)
+    return math.sin(theta) / theta, (1 - math.cos(theta)) / t2
+
+
+@numba.njit(cache=True, nogil=True)
+def rotvec_to_matrix_one(omega: np.ndarray) -> np.ndarray:
+    """:func:`rotvec_to_matrix` of one (3,) float64 rotation vector, compiled: the batched NumPy path
+    costs ≈ 60 µs on one vector (a dozen array operations), and PnP makes a pose from one per call."""
+    w0, w1, w2 = omega[0], omega[1], omega[2]
+    a, b = rodrigues_coeffs(w0 * w0 + w1 * w1 + w2 * w2)
+    W = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
     return np.eye(3) + a * W + b * (W @ W)
 
 

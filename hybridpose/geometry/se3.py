@@ -9,7 +9,7 @@ import math
 import numba
 import numpy as np
 
-from .rotations import matrix_to_rotvec, rotvec_to_matrix, skew
+from .rotations import matrix_to_rotvec, rodrigues_coeffs, rotvec_to_matrix, skew
 
 
 def _left_jacobian_coeffs(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -48,14 +48,12 @@ def se3_exp_one(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Gauss–Newton step of the trackers, and their compiled kernels call it)."""
     w0, w1, w2 = xi[0], xi[1], xi[2]
     t2 = w0 * w0 + w1 * w1 + w2 * w2
-    theta = math.sqrt(t2)
-    if theta < 1e-4:
-        a, b_rot = 1 - t2 / 6 + t2 * t2 / 120, 0.5 - t2 / 24 + t2 * t2 / 720
+    a, b_rot = rodrigues_coeffs(t2)
+    if t2 < 1e-8:
         b_left, c = 0.5 - t2 / 24, 1.0 / 6 - t2 / 120
     else:
-        s, co = math.sin(theta), math.cos(theta)
-        a, b_rot = s / theta, (1 - co) / t2
-        b_left, c = b_rot, (theta - s) / (t2 * theta)
+        theta = math.sqrt(t2)
+        b_left, c = b_rot, (theta - math.sin(theta)) / (t2 * theta)
     W = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
     W2 = W @ W
     return np.eye(3) + a * W + b_rot * W2, (np.eye(3) + b_left * W + c * W2) @ xi[3:]

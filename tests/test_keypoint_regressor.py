@@ -109,6 +109,41 @@ def test_solve_pnp_recovers_the_pose_and_rejects_outliers(truss, rng, camera):
     assert np.all(np.linalg.eigvalsh(cov) > 0) and np.isfinite(nees(res.pose.local(pose), cov))
 
 
+def test_solve_pnp_without_ransac_gives_none_where_most_points_disagree(truss, rng, camera):
+    pose = _pose(rng)
+    uv = camera.project(truss.keypoints, pose) + rng.normal(0, 0.3, (len(truss.keypoints), 2))
+    few = uv.copy()
+    few[[2, 7]] += [[40.0, -25.0], [-30.0, 35.0]]
+    a = solve_pnp(few, truss.keypoints, camera.K, threshold_px=3.0)
+    b = solve_pnp(few, truss.keypoints, camera.K, threshold_px=3.0, outliers="drop-worst-only")
+    assert a.pose.allclose(b.pose, atol=1e-12) and np.array_equal(a.inliers, b.inliers)
+    most = uv.copy()
+    most[: len(uv) // 2 + 1] = rng.uniform(0, 640, (len(uv) // 2 + 1, 2))
+    assert solve_pnp(most, truss.keypoints, camera.K, threshold_px=3.0, outliers="drop-worst-only") is None
+
+
+def test_turned_passes_use_their_own_outlier_strategy(tiny_checkpoint, truss, camera, monkeypatch):
+    """``turn_pnp_outliers`` reaches the PnP of the turned crops only (the first pass keeps ``pnp_outliers``);
+    by default the turned crops use ``pnp_outliers`` too, and the edge-on expert inherits both."""
+    from hybridpose.regressors import predictor
+    from hybridpose.render import Renderer
+
+    cam = Camera.default().scaled(160)
+    with Renderer(truss, cam) as r:
+        frame = Frame(r.render(Pose.from_rotvec_t([0.2, 0.1, 0.0], [0.0, 0.0, 0.7])).rgb, cam, 0.0)
+    seen, solve = [], predictor.solve_pnp
+    monkeypatch.setattr(predictor, "solve_pnp", lambda *a, outliers, **k: seen.append(outliers) or solve(*a, outliers=outliers, **k))
+    CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, edge_on_expert=None).predict(frame)
+    # (an untrained network: its box may give no plausible pose, and the dim fallback makes its passes again)
+    assert seen and len(seen) % 5 == 0 and set(seen) == {"drop-worst"}
+    seen.clear()
+    reg = CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, turn_pnp_outliers="drop-worst-only",
+                              edge_on_expert=tiny_checkpoint, expert_below_deg=90.0)
+    assert reg.expert.turn_pnp_outliers == "drop-worst-only"
+    reg.predict(frame)
+    assert seen and len(seen) % 5 == 0 and seen == (["drop-worst"] + ["drop-worst-only"] * 4) * (len(seen) // 5)
+
+
 def test_solve_pnp_gives_none_for_collapsed_points(truss, camera):
     assert solve_pnp(np.full((len(truss.keypoints), 2), 100.0), truss.keypoints, camera.K) is None
     with pytest.raises(ValueError, match="finite"):
@@ -272,8 +307,10 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
     for bad_turns in ("on", None, 20):
         with pytest.raises(ValueError, match="turns: expected one of auto, always, off"):
             CheckpointRegressor(tiny_checkpoint, turns=bad_turns)
-    with pytest.raises(ValueError, match="pnp_outliers: expected one of drop-worst, ransac, got 'lmeds'"):
+    with pytest.raises(ValueError, match="pnp_outliers: expected one of drop-worst, ransac, drop-worst-only, got 'lmeds'"):
         CheckpointRegressor(tiny_checkpoint, pnp_outliers="lmeds")
+    with pytest.raises(ValueError, match="turn_pnp_outliers: expected None or one of drop-worst, .*got 'off'"):
+        CheckpointRegressor(tiny_checkpoint, turn_pnp_outliers="off")
     with pytest.raises(ValueError, match="outliers: expected one of drop-worst, ransac"):
         solve_pnp(np.zeros((12, 2)), np.zeros((12, 3)), np.eye(3), outliers="all")
     with pytest.raises(ValueError, match="device: expected 'auto', 'cpu', 'cuda' or 'cuda:N', got 'gpu0'"):
@@ -309,12 +346,14 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
 
     data = tiny_checkpoint.parent.parent / "ds"
     assert main(["eval", "--checkpoint", str(tiny_checkpoint), "--data", str(data), "--out", str(tmp_path / "rep"),
-                 "--limit", "10", "--turns", "always", "--pnp-outliers", "ransac", "--edge-on-expert", str(tiny_checkpoint),
+                 "--limit", "10", "--turns", "always", "--pnp-outliers", "ransac", "--turn-pnp-outliers", "drop-worst-only",
+                 "--edge-on-expert", str(tiny_checkpoint),
                  "--expert-rule", "pooled", "--no-dim-fallback", "--max-depth", "auto", "--engine", "onnxruntime",
                  "--roi", "truth"]) == 0
     rep = json.loads((tmp_path / "rep" / "report.json").read_text())
     s = rep["summary"]
     assert s["turns"] == "always" and s["pnp_outliers"] == "ransac" and s["engine"] == "onnxruntime"
+    assert s["turn_pnp_outliers"] == "drop-worst-only"
     assert s["roi"] == "truth"
     assert s["max_depth_m"] == pytest.approx(3.6)                    # 3 × the 1.2 m the tiny run recorded
     assert s["expert_rule"] == "pooled" and s["dim_fallback"] is False and s["edge_on_expert"] == str(tiny_checkpoint)
@@ -630,7 +669,7 @@ def test_sun_turn_aligns_the_light_with_the_training_sun(tiny_checkpoint, truss)
     # every network pass of predict starts from the sun turn
     reg = CheckpointRegressor(tiny_checkpoint, turns="always", passes=1)
     seen, solve = [], reg._solve_turned
-    reg._solve_turned = lambda crop, K, angles: seen.append(tuple(angles)) or solve(crop, K, angles)
+    reg._solve_turned = lambda crop, K, angles, *rest: seen.append(tuple(angles)) or solve(crop, K, angles, *rest)
     from hybridpose.render import Renderer
 
     cam = Camera.default().scaled(160)
@@ -749,7 +788,7 @@ def test_turned_pass_wins_only_with_more_keypoints_kept(tiny_checkpoint, monkeyp
     ratio = {0.0: 0.6, **{a: 0.5 for a in TURNS_DEG}, TURNS_DEG[2]: 0.8}
     uv0 = np.zeros((len(reg.keypoints_m), 2))
 
-    def fake(crop, K_crop, angles):
+    def fake(crop, K_crop, angles, outliers=None):
         return [(SimpleNamespace(inlier_ratio=ratio[a], rms_px=1.0, angle=a), uv0, [0, 1, 2, 3], None) for a in angles]
 
     monkeypatch.setattr(reg, "_solve_turned", fake)

@@ -53,7 +53,7 @@ AZIMUTH_BINS_DEG = np.arange(0.0, 361.0, 45.0)
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 100,
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
                         device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
-                        sun_known: bool = False, mirror_verifier="auto",
+                        turn_pnp_outliers=None, sun_known: bool = False, mirror_verifier="auto",
                         edge_on_expert="auto", expert_rule: str = "pooled-unsure", dim_fallback: bool = True,
                         max_depth_m=None, engine: str = "auto", roi: str = "none") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`) on every image of ``data``.
@@ -64,7 +64,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     ms/image timings are then those of that device with 1 and 2 CPU threads beside it. ``verifier``:
     the twin verifier (:class:`CheckpointRegressor`'s argument: ``"auto"``, a path or None);
     ``turns``: the test-time crop turns (its argument too: ``"auto"``, ``"always"``, ``"off"``);
-    ``pnp_outliers``: ``"drop-worst"`` or ``"ransac"`` (ditto). ``sun_known``: give the regressor each
+    ``pnp_outliers``: ``"drop-worst"`` or ``"ransac"`` (ditto); ``turn_pnp_outliers``: the turned crops' (ditto). ``sun_known``: give the regressor each
     image's sun as the dataset records it (``predict(..., sun_direction_cam=...)``: what a caller
     with a sun sensor can do). ``mirror_verifier``: the edge-on mirror check (``"auto"``, a path or
     None, as ``verifier``); ``edge_on_expert``: the edge-on expert (``"auto"``, a path or None, ditto);
@@ -80,7 +80,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier,
-                              turns=turns, pnp_outliers=pnp_outliers, mirror_verifier=mirror_verifier,
+                              turns=turns, pnp_outliers=pnp_outliers, turn_pnp_outliers=turn_pnp_outliers,
+                              mirror_verifier=mirror_verifier,
                               edge_on_expert=edge_on_expert, expert_rule=expert_rule, dim_fallback=dim_fallback,
                               max_depth_m=max_depth_m, engine=engine)
     scenes = [BopScene(p) for p in find_scenes(data)]
@@ -126,7 +127,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
         "refine_edges": reg.refine_edges and reg.twin_check is not None, "passes": reg.passes, "turns": reg.turns,
-        "pnp_outliers": reg.pnp_outliers, "sun_known": bool(sun_known), "roi": roi,
+        "pnp_outliers": reg.pnp_outliers, "turn_pnp_outliers": reg.turn_pnp_outliers, "sun_known": bool(sun_known), "roi": roi,
         "mirror_check": reg.mirror_verifier is not None,
         "edge_on_expert": None if reg.expert is None else str(reg.expert.path),
         "expert_rule": None if reg.expert is None else reg.expert_rule, "dim_fallback": reg.dim_fallback,

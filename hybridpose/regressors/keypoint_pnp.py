@@ -70,7 +70,7 @@ def _drop_worst_fit(pts3, pts2, K, threshold_px, min_inliers, max_drop: int | No
     return None
 
 
-OUTLIER_STRATEGIES = ("drop-worst", "ransac")
+OUTLIER_STRATEGIES = ("drop-worst", "ransac", "drop-worst-only")
 
 
 def solve_pnp(points_2d: np.ndarray, points_m: np.ndarray, K: np.ndarray, threshold_px: float = 4.0,
@@ -86,7 +86,9 @@ def solve_pnp(points_2d: np.ndarray, points_m: np.ndarray, K: np.ndarray, thresh
         outliers: ``"drop-worst"`` (default): leave the worst point out and fit again while any
             is beyond ``threshold_px``, RANSAC only when more than half would go
             (:func:`_drop_worst_fit`); ``"ransac"``: RANSAC (100 SQPnP minimal solves) whenever the
-            fit on all points leaves one beyond ``threshold_px`` (hybridpose ≤ session 13).
+            fit on all points leaves one beyond ``threshold_px`` (hybridpose ≤ session 13);
+            ``"drop-worst-only"``: drop-worst with no RANSAC after it (None where more than half
+            would go: a fit no majority of the points agrees with).
     """
     if outliers not in OUTLIER_STRATEGIES:
         raise ValueError(f"outliers: expected one of {', '.join(OUTLIER_STRATEGIES)}, got {outliers!r}")
@@ -99,6 +101,8 @@ def solve_pnp(points_2d: np.ndarray, points_m: np.ndarray, K: np.ndarray, thresh
         return None  # too few or collapsed points: no pose to find (and SQPnP would assert)
     inl = _drop_worst_fit(pts3, pts2, K, threshold_px, min_inliers, max_drop=0 if outliers == "ransac" else None)
     if inl is None:
+        if outliers == "drop-worst-only":
+            return None
         try:
             ok, rvec, tvec, idx = cv2.solvePnPRansac(pts3, pts2, K, None, iterationsCount=100,
                                                      reprojectionError=float(threshold_px), confidence=0.999,

@@ -399,6 +399,9 @@ class CheckpointRegressor(PoseRegressor):
             ``"always"``, or ``"off"``.
         pnp_outliers: keypoint models — how PnP sets outlying keypoints aside (:func:`solve_pnp`'s
             ``outliers``): ``"drop-worst"`` (default) or ``"ransac"`` (the path before session 14).
+        turn_pnp_outliers: keypoint models — the same for the passes on the turned crops (``turns``):
+            None (default): ``pnp_outliers``; ``"drop-worst-only"``: no RANSAC there, a turned pass
+            that no majority of its keypoints agrees with gives no pose (rule 22, session 33).
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
             one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
             the edge fit always run on the CPU.
@@ -447,7 +450,7 @@ class CheckpointRegressor(PoseRegressor):
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
-                 mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
+                 turn_pnp_outliers: str | None = None, mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
                  expert_rule: str = "pooled-unsure", dim_fallback: bool = True, max_depth_m=None,
                  engine: str = "auto") -> None:
         from .train import load_checkpoint
@@ -522,6 +525,10 @@ class CheckpointRegressor(PoseRegressor):
         if pnp_outliers not in OUTLIER_STRATEGIES:
             raise ValueError(f"pnp_outliers: expected one of {', '.join(OUTLIER_STRATEGIES)}, got {pnp_outliers!r}")
         self.pnp_outliers = pnp_outliers
+        if turn_pnp_outliers is not None and turn_pnp_outliers not in OUTLIER_STRATEGIES:
+            raise ValueError(f"turn_pnp_outliers: expected None or one of {', '.join(OUTLIER_STRATEGIES)}, "
+                             f"got {turn_pnp_outliers!r}")
+        self.turn_pnp_outliers = pnp_outliers if turn_pnp_outliers is None else turn_pnp_outliers
         self.expert_below_deg = float(expert_below_deg)
         if not 0.0 <= self.expert_below_deg <= 90.0:
             raise ValueError(f"expert_below_deg: expected a view elevation in [0, 90] degrees, got {expert_below_deg!r}")
@@ -566,7 +573,7 @@ class CheckpointRegressor(PoseRegressor):
         path = Path(expert)
         reg = CheckpointRegressor(path, object=obj, check_twins=False, refine_edges=False, passes=self.passes,
                                   device=self.device, verifier=None, turns=self.turns, pnp_outliers=self.pnp_outliers,
-                                  mirror_verifier=None, edge_on_expert=None, max_depth_m=self.max_depth_m,
+                                  turn_pnp_outliers=self.turn_pnp_outliers, mirror_verifier=None, edge_on_expert=None, max_depth_m=self.max_depth_m,
                                   engine=self.engine.name)
         same = (reg.kind == "keypoints" and reg.keypoints_m is not None and self.keypoints_m is not None
                 and reg.keypoints_m.shape == self.keypoints_m.shape and np.allclose(reg.keypoints_m, self.keypoints_m)
@@ -681,7 +688,8 @@ class CheckpointRegressor(PoseRegressor):
         crop, K_crop = self._crop(image, K, *box)
         best = self._solve_turned(crop, K_crop, (sun_turn,))[0]
         if turns and self._turn_crop(best[0]):
-            best = min([best, *self._solve_turned(crop, K_crop, [sun_turn + a for a in TURNS_DEG])], key=_pass_rank)
+            turned = self._solve_turned(crop, K_crop, [sun_turn + a for a in TURNS_DEG], self.turn_pnp_outliers)
+            best = min([best, *turned], key=_pass_rank)
         res, uv, order, prob = best
         return res, uv, K_crop, order, prob
 
@@ -690,10 +698,12 @@ class CheckpointRegressor(PoseRegressor):
             return res is None or res.inlier_ratio < TURNS_BELOW_INLIERS
         return self.turns == "always"
 
-    def _solve_turned(self, crop: np.ndarray, K_crop: np.ndarray, angles_deg) -> list:
+    def _solve_turned(self, crop: np.ndarray, K_crop: np.ndarray, angles_deg, outliers: str | None = None) -> list:
         """Network passes on ``crop`` turned in-plane by each of ``angles_deg`` (about its centre, one
-        batch), keypoints mapped back to the unturned crop, then PnP: [(result or None, keypoints
-        (N, 2) in crop pixels, twin order, twin probabilities)] per angle."""
+        batch), keypoints mapped back to the unturned crop, then PnP (``outliers``: :func:`solve_pnp`'s,
+        default ``pnp_outliers``): [(result or None, keypoints (N, 2) in crop pixels, twin order, twin
+        probabilities)] per angle."""
+        outliers = self.pnp_outliers if outliers is None else outliers
         centre = ((self.image_size - 1) / 2.0,) * 2
         turns = [np.vstack([cv2.getRotationMatrix2D(centre, float(a), 1.0), [0.0, 0.0, 1.0]]) for a in angles_deg]
         crops = [crop if a == 0 else cv2.warpAffine(crop, A[:2], crop.shape[1::-1], flags=cv2.INTER_LINEAR,
@@ -705,7 +715,7 @@ class CheckpointRegressor(PoseRegressor):
             back = np.linalg.inv(A)
             uv = uv_all[i].float().cpu().numpy().astype(np.float64) @ back[:2, :2].T + back[:2, 2]
             res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size,
-                            outliers=self.pnp_outliers)
+                            outliers=outliers)
             order, prob = list(range(len(self.twins) + 1)), None
             if self.has_twin_head:
                 prob = torch.softmax(twin[i].float(), 0).cpu().numpy()

@@ -53,7 +53,7 @@ def test_onnxruntime_sessions_follow_torchs_thread_count(truss):
             engine(torch.rand(1, 3, 64, 64))
     finally:
         torch.set_num_threads(before)
-    assert sorted(engine._sessions) == [1, 2]
+    assert sorted(engine.onnx._sessions) == [1, 2]
 
 
 def test_auto_engine_is_onnxruntime_on_the_cpu_and_falls_back_to_torch(truss, monkeypatch, caplog):

@@ -317,3 +317,32 @@ def test_train_verifier_on_the_estimates_of_the_default_and_its_edge_on_expert(v
                  "--estimates-from", str(default), str(tmp_path / "missing.pt")]) == 2
     assert "missing.pt: checkpoint not found" in capsys.readouterr().err
     assert not (bad / "pairs").exists()
+
+
+def test_verifier_on_onnxruntime_scores_what_torch_does(views, truss, tmp_path, monkeypatch, caplog):
+    """The shipped verifier's probabilities on either engine agree to float rounding; "auto" falls back to
+    torch (saying why) where ONNX Runtime is missing, "onnxruntime" then fails naming the package."""
+    import logging
+    import sys
+
+    from hybridpose.regressors.predictor import WEIGHTS_DIR
+
+    path = WEIGHTS_DIR / "twin_verifier.pt"
+    on_torch, on_ort = TwinVerifier(path, truss, engine="torch"), TwinVerifier(path, truss)
+    assert on_torch.engine == "torch" and on_ort.engine == "onnxruntime"
+    scene = BopScene(find_scenes(views)[0])
+    gt = scene.image(scene.image_ids[0])
+    image = scene.rgb(gt.im_id)
+    candidates = [gt.pose, *(gt.pose @ S for S in box_half_turns(truss))]
+    p_torch = on_torch.probabilities_of_sets(image, gt.camera.K, [candidates, candidates[::-1]])
+    p_ort = on_ort.probabilities_of_sets(image, gt.camera.K, [candidates, candidates[::-1]])
+    assert p_ort.shape == (2, len(candidates))
+    np.testing.assert_allclose(p_ort, p_torch, atol=1e-5)
+    with pytest.raises(ValueError, match="engine: expected one of auto, torch, onnxruntime, got 'int8'"):
+        TwinVerifier(path, truss, engine="int8")
+    monkeypatch.setitem(sys.modules, "onnxruntime", None)  # as if not installed
+    with caplog.at_level(logging.INFO, logger="hybridpose.regressors.twin_verifier"):
+        assert TwinVerifier(path, truss).engine == "torch"
+    assert "needs the onnxruntime package" in caplog.text
+    with pytest.raises(RuntimeError, match="pip install onnxruntime"):
+        TwinVerifier(path, truss, engine="onnxruntime")

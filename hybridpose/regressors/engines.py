@@ -58,41 +58,39 @@ class TorchEngine:
         return uv.float().cpu(), spread.float().cpu(), None if twin is None else twin.float().cpu()
 
 
-class OnnxRuntimeEngine:
-    """The same network exported to ONNX and run by ONNX Runtime's CPU provider; same call as
-    :class:`TorchEngine`. ``model``: an ONNX model of it to run instead (bytes; the 8-bit one of
-    :mod:`hybridpose.regressors.quantize`, whose ``name`` is then given). Raises RuntimeError (naming
-    the cause) when onnxruntime or onnx is missing, the export fails or ONNX Runtime cannot load the
-    model (checked at construction, on torch's current thread count)."""
+class OnnxModule:
+    """A torch module of one tensor argument exported to ONNX (batch dimension dynamic) and run by ONNX
+    Runtime's CPU provider, one session per thread count (torch's at each call). ``model``: an ONNX model
+    of it to run instead (bytes). Raises RuntimeError (naming ``name`` and the cause) when onnxruntime
+    or onnx is missing, the export fails or ONNX Runtime cannot load the model (checked at
+    construction, on torch's current thread count)."""
 
-    def __init__(self, net: nn.Module, image_size: int, model: bytes | None = None, name: str = "onnxruntime") -> None:
+    def __init__(self, module: nn.Module, example: torch.Tensor, output_names: list[str], model: bytes | None = None,
+                 name: str = "onnxruntime") -> None:
         try:
             import onnxruntime
         except ImportError as exc:
             raise RuntimeError(f"engine={name!r} needs the onnxruntime package (pip install onnxruntime onnx)") from exc
         self._ort, self.name = onnxruntime, name
-        self.has_twin = getattr(net, "twin_head", None) is not None
         self._sessions: dict[int, object] = {}
-        self.model = model if model is not None else self._export(net, image_size, self.has_twin)
-        try:  # a model ONNX Runtime cannot load fails here, with its reason, not at the first predict
+        self.model = model if model is not None else self._export(module, example, output_names, name)
+        try:  # a model ONNX Runtime cannot load fails here, with its reason, not at the first call
             self.session(torch.get_num_threads())
         except Exception as exc:  # noqa: BLE001 — onnxruntime raises its own exception types
             raise RuntimeError(f"engine={name!r}: ONNX Runtime cannot run the network ({exc})") from exc
 
     @staticmethod
-    def _export(net: nn.Module, image_size: int, has_twin: bool) -> bytes:
-        example = torch.zeros(1, 3, int(image_size), int(image_size))
+    def _export(module: nn.Module, example: torch.Tensor, output_names: list[str], name: str) -> bytes:
         buffer = io.BytesIO()
         try:
             with warnings.catch_warnings():
                 # the TorchScript exporter is deprecated in favour of torch.export's, 20× slower here; its
-                # tracer warns about the net's input checks, which the regressor has made before any call
+                # tracer warns about the nets' input checks, which their callers have made before any call
                 warnings.simplefilter("ignore")
-                torch.onnx.export(_TwinOutputs(net.cpu()).eval(), (example,), buffer, input_names=["x"],
-                                  output_names=["uv", "spread"] + (["twin"] if has_twin else []),
+                torch.onnx.export(module.cpu().eval(), (example,), buffer, input_names=["x"], output_names=output_names,
                                   dynamic_axes={"x": {0: "batch"}}, opset_version=17, dynamo=False)
         except Exception as exc:  # noqa: BLE001 — any exporter failure means: this net cannot run here
-            raise RuntimeError(f"engine='onnxruntime': exporting the network to ONNX failed ({exc})") from exc
+            raise RuntimeError(f"engine={name!r}: exporting the network to ONNX failed ({exc})") from exc
         return buffer.getvalue()
 
     def session(self, threads: int):
@@ -106,10 +104,29 @@ class OnnxRuntimeEngine:
                                                                  providers=["CPUExecutionProvider"])
         return self._sessions[threads]
 
-    def __call__(self, x: torch.Tensor):
+    def __call__(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """The module's outputs (float tensors on the CPU) for ``x`` (on the CPU)."""
         outs = self.session(torch.get_num_threads()).run(None, {"x": x.detach().cpu().contiguous().numpy()})
-        uv, spread = torch.from_numpy(outs[0]), torch.from_numpy(outs[1])
-        return uv, spread, torch.from_numpy(outs[2]) if self.has_twin else None
+        return [torch.from_numpy(o) for o in outs]
+
+
+class OnnxRuntimeEngine:
+    """The same network exported to ONNX and run by ONNX Runtime's CPU provider (:class:`OnnxModule`);
+    same call as :class:`TorchEngine`. ``model``: an ONNX model of it to run instead (bytes; the 8-bit one
+    of :mod:`hybridpose.regressors.quantize`, whose ``name`` is then given). Raises RuntimeError as
+    :class:`OnnxModule` does."""
+
+    def __init__(self, net: nn.Module, image_size: int, model: bytes | None = None, name: str = "onnxruntime") -> None:
+        self.name = name
+        self.has_twin = getattr(net, "twin_head", None) is not None
+        example = torch.zeros(1, 3, int(image_size), int(image_size))
+        self.onnx = OnnxModule(_TwinOutputs(net.cpu()), example, ["uv", "spread"] + (["twin"] if self.has_twin else []),
+                               model=model, name=name)
+        self.model = self.onnx.model
+
+    def __call__(self, x: torch.Tensor):
+        outs = self.onnx(x)
+        return outs[0], outs[1], outs[2] if self.has_twin else None
 
 
 def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_size: int,

@@ -444,7 +444,9 @@ class CheckpointRegressor(PoseRegressor):
             CPU, same outputs to float rounding, equivalent accuracy by rule 19), torch where it cannot
             run or on a GPU; ``"onnxruntime"`` (an error where it cannot run); ``"torch"``; ``"onnxruntime-int8"``: the 8-bit model ``hybridpose quantize`` wrote
             beside the checkpoint (shipped for the ``default`` and its expert). The edge-on expert uses
-            the same engine. Direct models always run on torch.
+            the same engine; the twin verifiers run on torch with ``"torch"``, else on ONNX Runtime in
+            float32 (:class:`~hybridpose.regressors.twin_verifier.TwinVerifier`'s ``engine="auto"``,
+            session 33). Direct models always run on torch.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
@@ -603,11 +605,16 @@ class CheckpointRegressor(PoseRegressor):
             if not path.is_file():
                 return None
             try:
-                return TwinVerifier(path, obj)
+                return TwinVerifier(path, obj, engine=self._verifier_engine())
             except ValueError as exc:  # the shipped ones are for the built-in truss
                 log.info("shipped %s not used: %s", shipped, exc)
                 return None
-        return TwinVerifier(verifier, obj)
+        return TwinVerifier(verifier, obj, engine=self._verifier_engine())
+
+    def _verifier_engine(self) -> str:
+        """The twin verifiers' engine: torch with a network on torch, else ONNX Runtime where it runs
+        (float32 also beside the 8-bit keypoint model)."""
+        return "torch" if self.engine is None or self.engine.name == "torch" else "auto"
 
     # --- checks ----------------------------------------------------------------------------------
     def _check_object(self, obj) -> None:

@@ -334,7 +334,7 @@ def train_verifier(pairs, out, obj, epochs: int = 4, batch: int = 64, lr: float 
     if init_from is not None:
         from .twin_verifier import TwinVerifier
 
-        start_net = TwinVerifier(init_from, obj).net
+        start_net = TwinVerifier(init_from, obj, engine="torch").net
         if start_net.width != width:
             raise ValueError(f"init_from: {init_from} has width {start_net.width}, the run asks for width {width}")
         net.load_state_dict(start_net.state_dict())

@@ -215,7 +215,7 @@ def cmd_eval(args) -> int:
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
-                            pnp_outliers=args.pnp_outliers, turn_pnp_outliers=args.turn_pnp_outliers,
+                            pnp_outliers=args.pnp_outliers, turn_pnp_outliers=None if args.turn_pnp_outliers == "same" else args.turn_pnp_outliers,
                             sun_known=args.sun_known,
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier,
                             mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier,
@@ -431,9 +431,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--pnp-outliers", choices=("drop-worst", "ransac"), default="drop-worst",
                    help="keypoint models: PnP leaves the worst keypoint out until the rest agree (drop-worst, the "
                         "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")
-    e.add_argument("--turn-pnp-outliers", choices=("drop-worst", "ransac", "drop-worst-only"), default=None,
-                   help="keypoint models: the same for the passes on the turned crops (default: as --pnp-outliers; "
-                        "drop-worst-only: no RANSAC there, a turned pass most of whose keypoints disagree gives no pose)")
+    e.add_argument("--turn-pnp-outliers", choices=("drop-worst", "ransac", "drop-worst-only", "same"),
+                   default="drop-worst-only",
+                   help="keypoint models: the same for the passes on the turned crops (drop-worst-only, the default "
+                        "since rule 22: no RANSAC there, a turned pass most of whose keypoints disagree gives no pose; "
+                        "same: as --pnp-outliers)")
     e.add_argument("--roi", choices=("none", "truth"), default="none",
                    help="none (default): no prior, the object found by detection (the parallel VGG-19 crops around its "
                         "own translation where nothing is detected); truth: each view's true object box from scene_gt_info.json, as a tracker on the object "

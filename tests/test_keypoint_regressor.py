@@ -124,7 +124,8 @@ def test_solve_pnp_without_ransac_gives_none_where_most_points_disagree(truss, r
 
 def test_turned_passes_use_their_own_outlier_strategy(tiny_checkpoint, truss, camera, monkeypatch):
     """``turn_pnp_outliers`` reaches the PnP of the turned crops only (the first pass keeps ``pnp_outliers``);
-    by default the turned crops use ``pnp_outliers`` too, and the edge-on expert inherits both."""
+    by default (rule 22) no RANSAC there, with None the turned crops use ``pnp_outliers`` too, and the edge-on
+    expert inherits both."""
     from hybridpose.regressors import predictor
     from hybridpose.render import Renderer
 
@@ -133,12 +134,13 @@ def test_turned_passes_use_their_own_outlier_strategy(tiny_checkpoint, truss, ca
         frame = Frame(r.render(Pose.from_rotvec_t([0.2, 0.1, 0.0], [0.0, 0.0, 0.7])).rgb, cam, 0.0)
     seen, solve = [], predictor.solve_pnp
     monkeypatch.setattr(predictor, "solve_pnp", lambda *a, outliers, **k: seen.append(outliers) or solve(*a, outliers=outliers, **k))
-    CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, edge_on_expert=None).predict(frame)
+    CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, edge_on_expert=None,
+                        turn_pnp_outliers=None).predict(frame)
     # (an untrained network: its box may give no plausible pose, and the dim fallback makes its passes again)
     assert seen and len(seen) % 5 == 0 and set(seen) == {"drop-worst"}
     seen.clear()
-    reg = CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, turn_pnp_outliers="drop-worst-only",
-                              edge_on_expert=tiny_checkpoint, expert_below_deg=90.0)
+    reg = CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, edge_on_expert=tiny_checkpoint,
+                              expert_below_deg=90.0)
     assert reg.expert.turn_pnp_outliers == "drop-worst-only"
     reg.predict(frame)
     assert seen and len(seen) % 5 == 0 and seen == (["drop-worst"] + ["drop-worst-only"] * 4) * (len(seen) // 5)

@@ -53,7 +53,7 @@ AZIMUTH_BINS_DEG = np.arange(0.0, 361.0, 45.0)
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 100,
                         gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
                         device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
-                        turn_pnp_outliers=None, sun_known: bool = False, mirror_verifier="auto",
+                        turn_pnp_outliers="drop-worst-only", sun_known: bool = False, mirror_verifier="auto",
                         edge_on_expert="auto", expert_rule: str = "pooled-unsure", dim_fallback: bool = True,
                         max_depth_m=None, engine: str = "auto", roi: str = "none") -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`) on every image of ``data``.

@@ -400,8 +400,9 @@ class CheckpointRegressor(PoseRegressor):
         pnp_outliers: keypoint models — how PnP sets outlying keypoints aside (:func:`solve_pnp`'s
             ``outliers``): ``"drop-worst"`` (default) or ``"ransac"`` (the path before session 14).
         turn_pnp_outliers: keypoint models — the same for the passes on the turned crops (``turns``):
-            None (default): ``pnp_outliers``; ``"drop-worst-only"``: no RANSAC there, a turned pass
-            that no majority of its keypoints agrees with gives no pose (rule 22, session 33).
+            ``"drop-worst-only"`` (default since rule 22, session 33): no RANSAC there, a turned pass
+            that no majority of its keypoints agrees with gives no pose (on 6000 fresh views −0.19° mean
+            rotation, 95 % CI −0.45…+0.04, and 2.2 ms/view less than RANSAC there); None: ``pnp_outliers``.
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
             one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
             the edge fit always run on the CPU.
@@ -452,7 +453,7 @@ class CheckpointRegressor(PoseRegressor):
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
                  check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
-                 turn_pnp_outliers: str | None = None, mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
+                 turn_pnp_outliers: str | None = "drop-worst-only", mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
                  expert_rule: str = "pooled-unsure", dim_fallback: bool = True, max_depth_m=None,
                  engine: str = "auto") -> None:
         from .train import load_checkpoint

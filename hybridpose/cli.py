@@ -215,7 +215,8 @@ def cmd_eval(args) -> int:
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
-                            pnp_outliers=args.pnp_outliers, turn_pnp_outliers=None if args.turn_pnp_outliers == "same" else args.turn_pnp_outliers,
+                            pnp_outliers=args.pnp_outliers,
+                            turn_pnp_outliers=None if args.turn_pnp_outliers == "same" else args.turn_pnp_outliers,
                             sun_known=args.sun_known,
                             device=args.device, verifier=None if args.verifier == "none" else args.verifier,
                             mirror_verifier=None if args.mirror_verifier == "none" else args.mirror_verifier,

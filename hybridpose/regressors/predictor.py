@@ -615,7 +615,7 @@ class CheckpointRegressor(PoseRegressor):
     def _verifier_engine(self) -> str:
         """The twin verifiers' engine: torch with a network on torch, else ONNX Runtime where it runs
         (float32 also beside the 8-bit keypoint model)."""
-        return "torch" if self.engine is None or self.engine.name == "torch" else "auto"
+        return "torch" if self.engine.name == "torch" else "auto"
 
     # --- checks ----------------------------------------------------------------------------------
     def _check_object(self, obj) -> None:

@@ -136,7 +136,12 @@ class TwinVerifierNet(nn.Module):
         if x.ndim != 5 or x.shape[2] != 2:
             raise ValueError(f"x: expected (B, C, 2, H, W) image/drawing pairs, got {tuple(x.shape)}")
         b, c = x.shape[:2]
-        return self.score(self.features(x.flatten(0, 1))).view(b, c)
+        return self.pair_scorer()(x.flatten(0, 1)).view(b, c)
+
+    def pair_scorer(self) -> nn.Module:
+        """The per-pair part of :meth:`forward`: (N, 2, H, W) pairs → (N, 1) logits (what an engine
+        exports; shares this net's layers)."""
+        return nn.Sequential(self.features, self.score)
 
 
 def pairs_tensor(strip: np.ndarray, drawings: np.ndarray) -> torch.Tensor:
@@ -179,10 +184,14 @@ class TwinVerifier:
         self.net.load_state_dict(ck["model"])
         self.net.eval()
         self.onnx = None if engine == "torch" else self._onnx_pairs(engine)
-        self.engine = "torch" if self.onnx is None else "onnxruntime"
         self.obj = obj
         self.renderer = HypothesisRenderer(obj)
         self.path = path
+
+    @property
+    def engine(self) -> str:
+        """What scores the pairs: ``"onnxruntime"`` or ``"torch"``."""
+        return "torch" if self.onnx is None else "onnxruntime"
 
     def _onnx_pairs(self, engine: str):
         """The pair scorer (features → score of (N, 2, H, W) pairs) on ONNX Runtime, or None (torch) where
@@ -190,8 +199,7 @@ class TwinVerifier:
         from .engines import OnnxModule
 
         try:
-            return OnnxModule(nn.Sequential(self.net.features, self.net.score), torch.zeros(1, 2, STRIP_H, STRIP_W),
-                              ["score"], name=engine)
+            return OnnxModule(self.net.pair_scorer(), torch.zeros(1, 2, STRIP_H, STRIP_W), ["score"], name=engine)
         except RuntimeError as exc:
             if engine == "onnxruntime":
                 raise

@@ -106,12 +106,19 @@ def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
         "rot_mean_deg": 20.0, "rot_median_deg": 10.0, "trans_mean_m": 0.05}}))
     runs = [vgg_runs.read_run(tmp_path, m) for m in vgg_runs.MODELS]
     assert runs[0]["epochs"] == 3 and runs[0]["val_best"]["epoch"] == 1 and runs[0]["epoch_s_mean"] == 45
-    assert runs[0]["test"]["rot_mean_deg"] == 111.0 and runs[1] == {"model": "vgg19"}
+    assert runs[0]["test"]["rot_mean_deg"] == 111.0 and runs[1] == {"model": "vgg19", "run": "vgg19"}
     md = vgg_runs.markdown(runs, "note")
     assert ("| **vgg16** | 3 × 45 | 110.0 / 112.0 / 0.150 (epoch 1) | 111.00 | 115.00 | 0.149 | 2.100 | 0.00 | 96.8% | "
             "3.6 | 20.00 / 10.00 / 0.050 |") in md
     assert "| **vgg19** | – × – | – | – | – | – | – | – | – | – | – |" in md
     assert "| paper: Parallel VGG-19 (their data, GPU, 100 epochs, ImageNet) | 100 | – | 4.61 | 4.41 | 0.03 |" in md
+    # two runs of one model in folders of their own (session 34): one paper row, each run named by its folder
+    (tmp_path / "seed1").mkdir()
+    (tmp_path / "seed1" / "metrics.csv").write_text(head + "0,22,22.2,126,129,0.16,1e-4,50,100\n")
+    two = [vgg_runs.read_run(tmp_path, "vgg16"), vgg_runs.read_run(tmp_path, "vgg16", "seed1")]
+    md = vgg_runs.markdown(two, "note", title="Two runs")
+    assert md.startswith("## Two runs") and md.count("| paper: VGG-16") == 1
+    assert "| **vgg16 (`seed1`)** | 1 × 50 | 126.0 / 129.0 / 0.160 (epoch 0) | – |" in md
 
 
 def test_bounded_crop_agreement_and_training_jitter():

@@ -35,7 +35,11 @@ if [ "$phase" = start ]; then bash "$0" setup && bash "$0" render && exec bash "
 if [ "$phase" = start-vgg ]; then
     bash "$0" setup && bash "$0" render && bash "$0" launch-vgg && exec bash "$0" wait-vgg "${2:?start-vgg OUTDIR SECONDS}" "${3:?}"
 fi
-VGG_RUNS=(vgg16 vgg19 branched-vgg19 parallel-vgg19)
+# which VGG models launch-vgg trains (all four by default; session 34: VGG_RUNS=parallel-vgg19 alone), the
+# validation share (the paper: an 80/20 split, VAL_FRACTION=0.2), loader workers (WORKERS: one number for every
+# run; default 3, 5 for the parallel model when four share the machine) and the last.pt interval
+read -r -a VGG_RUNS <<< "${VGG_RUNS:-vgg16 vgg19 branched-vgg19 parallel-vgg19}"
+VAL_FRACTION=${VAL_FRACTION:-0.05} CHECKPOINT_EVERY=${CHECKPOINT_EVERY:-10}
 case "$phase" in
 setup)
     for f in .gl/*.deb; do dpkg -x "$f" /; done
@@ -78,12 +82,14 @@ launch-vgg)
     bash "$0" cache-vgg
     declare -A workers=([vgg16]=3 [vgg19]=3 [branched-vgg19]=3 [parallel-vgg19]=5)  # parallel reads each view twice
     for m in "${VGG_RUNS[@]}"; do
-        setsid nohup bash -c "python3 -m hybridpose train --model $m --data $DATA/train --seed 0 --val-fraction 0.05 \
-            --patience 0 --epochs 100 --batch 32 --amp --workers ${workers[$m]} --time-limit $TIME_LIMIT --out $RUNS/$m \
-            --checkpoint-every 10 --cache-images $DATA/cache \
+        rm -f "$RUNS/$m.done"
+        setsid nohup bash -c "python3 -m hybridpose train --model $m --data $DATA/train --seed 0 --val-fraction $VAL_FRACTION \
+            --patience 0 --epochs 100 --batch 32 --amp --workers ${WORKERS:-${workers[$m]}} --time-limit $TIME_LIMIT \
+            --out $RUNS/$m --checkpoint-every $CHECKPOINT_EVERY --cache-images $DATA/cache \
             > $RUNS/$m.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt --data $DATA/test --device cuda \
             --out $RUNS/${m}_eval > $RUNS/${m}_eval.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt \
-            --data $DATA/test --device cuda --roi truth --out $RUNS/${m}_eval_roi > $RUNS/${m}_eval_roi.log 2>&1" > /dev/null 2>&1 &
+            --data $DATA/test --device cuda --roi truth --out $RUNS/${m}_eval_roi > $RUNS/${m}_eval_roi.log 2>&1; \
+            touch $RUNS/$m.done" > /dev/null 2>&1 &
     done
     sleep 45
     tail -n 2 "$RUNS"/*.log
@@ -91,8 +97,14 @@ launch-vgg)
     ;;
 wait-vgg)
     out=${2:?wait-vgg OUTDIR SECONDS}
-    left=$(( ${CALL_START:-$(date +%s)} + ${3:?} - $(date +%s) ))
-    if [ "$left" -gt 0 ]; then sleep "$left"; fi
+    # sleep until SECONDS after the call began, or until every run and its evaluations are done
+    deadline=$(( ${CALL_START:-$(date +%s)} + ${3:?} ))
+    while [ "$(date +%s)" -lt "$deadline" ]; do
+        pending=0
+        for m in "${VGG_RUNS[@]}"; do [ -f "$RUNS/$m.done" ] || pending=1; done
+        if [ "$pending" = 0 ]; then echo "all runs done"; break; fi
+        sleep 5
+    done
     for m in "${VGG_RUNS[@]}"; do
         echo "== $m"; tail -n 3 "$RUNS/$m/metrics.csv" 2>/dev/null || tail -c 400 "$RUNS/$m.log" 2>/dev/null || true
         tail -n 2 "$RUNS/${m}_eval.log" 2>/dev/null || true

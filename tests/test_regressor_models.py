@@ -74,6 +74,21 @@ def test_vgg_shapes_and_unit_quaternions():
         VGGPose("vgg16")(torch.rand(3, 64, 64))
 
 
+@torch.no_grad()
+def test_every_vgg_stream_sees_the_image_at_initialisation():
+    # With torch's layer defaults the plain VGG streams' outputs differed across images by ~1e-9 m: no
+    # image in the gradient, and training from scratch sat at the constant pose (benchmarks/vgg_init.py)
+    torch.manual_seed(0)
+    x = torch.rand(4, 3, 64, 64)
+    models = {"vgg16": VGGPose("vgg16"), "vgg19": VGGPose("vgg19"), "branched": BranchedVGG19(image_size=64),
+              "parallel": ParallelVGG19(image_size=64)}
+    for name, m in models.items():
+        t, q = m.eval()(x, x) if name == "parallel" else m.eval()(x)
+        assert t.std(0).max() > 1e-4 and q.std(0).max() > 1e-3, name
+    conv = models["vgg19"].features[2]
+    assert conv.bias.abs().max() == 0 and conv.weight.std() == pytest.approx((2 / (64 * 9)) ** 0.5, rel=0.05)  # He, fan-out
+
+
 def test_paper_branch_size_at_224():
     b = BranchedVGG19(image_size=224)
     assert b.branch[2].in_features == 100352 and b.classifier[0].in_features == 25088 + 1024
@@ -193,6 +208,7 @@ def test_parallel_model_crops_around_the_detected_object_or_else_its_translation
     np.testing.assert_allclose(crops[-1], crop_box((40, 30, 30, 20), CROP_MARGIN), atol=2.5)  # detection: ±1 px at half size
     reg.predict(Frame(image, cam, 0.0), roi=(10, 10, 20, 20))
     np.testing.assert_allclose(crops[-1], crop_box((10, 10, 20, 20), CROP_MARGIN))
-    reg.predict(Frame(np.zeros_like(image), cam, 0.0))           # nothing to detect
+    black = reg.predict(Frame(np.zeros_like(image), cam, 0.0))   # nothing to detect
+    assert black.lost and black.pose is None  # zero biases on a black frame: a zero quaternion, lost (not NaN)
     np.testing.assert_allclose(crops[-1][:2], (cam.K @ (t / t[2]))[:2], atol=1e-3)
     assert crops[-1][2] == pytest.approx(CROP_MARGIN * max(cam.fx, cam.fy) * 0.5 / t[2], rel=1e-6)

@@ -1067,7 +1067,9 @@ class CheckpointRegressor(PoseRegressor):
         else:
             t_, q_ = self.net(x)
             t, q = t_[0].float().cpu().numpy().astype(np.float64), q_[0].float().cpu().numpy().astype(np.float64)
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or t[2] <= 0:
+        # a raw quaternion of (near) zero length names no rotation: a network with zero biases gives it
+        # on a black frame (every ReLU off), so it is a lost view, not a NaN pose
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or t[2] <= 0 or np.linalg.norm(q) < 1e-12:
             return self._lost(frame)
         pose = Pose.from_quat_t(q / np.linalg.norm(q), t)
         cal = self.calibration

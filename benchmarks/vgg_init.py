@@ -33,25 +33,16 @@ from torch import nn
 from _common import environment, publish
 from hybridpose.datasets.torch_dataset import PoseDataset
 from hybridpose.regressors.losses import pose_loss
-from hybridpose.regressors.vgg import BranchedVGG19, ParallelVGG19, VGGPose
+from hybridpose.regressors.models import build_model
 
-INITS = ("torch-default", "torchvision")
+INITS = ("torch-default", "torchvision")  # hybridpose.regressors.vgg.VGG_INITS, old start first
 MODELS = ("vgg16", "vgg19", "branched-vgg19", "parallel-vgg19")
 
 
 def build(model: str, init: str, size: int, dropout: float = 0.5) -> nn.Module:
-    """``model`` at ``size`` px with its own initialisation (torchvision's) or torch's layer defaults."""
-    if model == "parallel-vgg19":
-        m = ParallelVGG19(image_size=size, dropout=dropout)
-    elif model == "branched-vgg19":
-        m = BranchedVGG19(7, image_size=size, dropout=dropout)
-    else:
-        m = VGGPose(model, 7, dropout=dropout)
-    if init == "torch-default":
-        for layer in m.modules():
-            if isinstance(layer, (nn.Conv2d, nn.Linear)):
-                layer.reset_parameters()
-    return m
+    """``model`` at ``size`` px, its weights started as ``init`` says (``hybridpose train --vgg-init``)."""
+    kw = {"image_size": size} if model in ("branched-vgg19", "parallel-vgg19") else {}
+    return build_model(model, dropout=dropout, init=init, **kw)
 
 
 def views(data: str, n: int, size: int) -> dict:

@@ -87,6 +87,11 @@ def test_every_vgg_stream_sees_the_image_at_initialisation():
         assert t.std(0).max() > 1e-4 and q.std(0).max() > 1e-3, name
     conv = models["vgg19"].features[2]
     assert conv.bias.abs().max() == 0 and conv.weight.std() == pytest.approx((2 / (64 * 9)) ** 0.5, rel=0.05)  # He, fan-out
+    # the start before session 34 (`hybridpose train --vgg-init torch-default`): the image is all but lost
+    t, _ = build_model("parallel-vgg19", image_size=64, init="torch-default").eval()(x, x)
+    assert t.std(0).max() < 1e-6
+    with pytest.raises(ValueError, match="init: expected one of torchvision, torch-default"):
+        VGGPose("vgg16", init="he")
 
 
 def test_paper_branch_size_at_224():

@@ -285,3 +285,8 @@ def test_cli_options_reach_the_config():
     assert (cfg.twin_weight, cfg.time_limit_min, cfg.image_size, cfg.lr) == (1.5, 30.0, 128, 1e-3)
     default = config_from_args(p.parse_args(["--model", "vgg16", "--data", "d", "--out", "o"]))
     assert (default.twin_weight, default.image_size, default.lr, default.schedule) == (TWIN_CE_WEIGHT, 224, 1e-4, "constant")
+    assert default.vgg_init == "torchvision"
+    old = config_from_args(p.parse_args(["--model", "vgg16", "--data", "d", "--out", "o", "--vgg-init", "torch-default"]))
+    assert old.vgg_init == "torch-default"
+    with pytest.raises(ValueError, match="vgg_init: expected one of torchvision, torch-default"):
+        TrainConfig(model="vgg16", data="d", out="o", vgg_init="kaiming")

@@ -35,11 +35,15 @@ if [ "$phase" = start ]; then bash "$0" setup && bash "$0" render && exec bash "
 if [ "$phase" = start-vgg ]; then
     bash "$0" setup && bash "$0" render && bash "$0" launch-vgg && exec bash "$0" wait-vgg "${2:?start-vgg OUTDIR SECONDS}" "${3:?}"
 fi
-# which VGG models launch-vgg trains (all four by default; session 34: VGG_RUNS=parallel-vgg19 alone), the
-# validation share (the paper: an 80/20 split, VAL_FRACTION=0.2), loader workers (WORKERS: one number for every
-# run; default 3, 5 for the parallel model when four share the machine) and the last.pt interval
+# which VGG models launch-vgg trains (all four by default; session 34: VGG_RUNS=parallel-vgg19 alone; MODEL@INIT
+# trains MODEL with `--vgg-init INIT` in the folder MODEL-INIT, e.g. "vgg19@torchvision vgg19@torch-default" for an
+# A/B of the initialisation), the validation share (the paper: an 80/20 split, VAL_FRACTION=0.2), loader workers
+# (WORKERS: one number for every run; default 3, 5 for the parallel model when four share the machine) and the
+# last.pt interval
 read -r -a VGG_RUNS <<< "${VGG_RUNS:-vgg16 vgg19 branched-vgg19 parallel-vgg19}"
 VAL_FRACTION=${VAL_FRACTION:-0.05} CHECKPOINT_EVERY=${CHECKPOINT_EVERY:-10}
+run_name() { if [[ $1 == *@* ]]; then echo "${1%@*}-${1#*@}"; else echo "$1"; fi; }
+RUN_NAMES=(); for spec in "${VGG_RUNS[@]}"; do RUN_NAMES+=("$(run_name "$spec")"); done
 case "$phase" in
 setup)
     for f in .gl/*.deb; do dpkg -x "$f" /; done
@@ -81,15 +85,17 @@ launch-vgg)
     mkdir -p "$RUNS"
     bash "$0" cache-vgg
     declare -A workers=([vgg16]=3 [vgg19]=3 [branched-vgg19]=3 [parallel-vgg19]=5)  # parallel reads each view twice
-    for m in "${VGG_RUNS[@]}"; do
-        rm -f "$RUNS/$m.done"
-        setsid nohup bash -c "python3 -m hybridpose train --model $m --data $DATA/train --seed 0 --val-fraction $VAL_FRACTION \
-            --patience 0 --epochs 100 --batch 32 --amp --workers ${WORKERS:-${workers[$m]}} --time-limit $TIME_LIMIT \
-            --out $RUNS/$m --checkpoint-every $CHECKPOINT_EVERY --cache-images $DATA/cache \
-            > $RUNS/$m.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt --data $DATA/test --device cuda \
-            --out $RUNS/${m}_eval > $RUNS/${m}_eval.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$m/best.pt \
-            --data $DATA/test --device cuda --roi truth --out $RUNS/${m}_eval_roi > $RUNS/${m}_eval_roi.log 2>&1; \
-            touch $RUNS/$m.done" > /dev/null 2>&1 &
+    for spec in "${VGG_RUNS[@]}"; do
+        m=${spec%@*} r=$(run_name "$spec") init=()
+        if [[ $spec == *@* ]]; then init=(--vgg-init "${spec#*@}"); fi
+        rm -f "$RUNS/$r.done"
+        setsid nohup bash -c "python3 -m hybridpose train --model $m ${init[*]} --data $DATA/train --seed 0 \
+            --val-fraction $VAL_FRACTION --patience 0 --epochs 100 --batch 32 --amp --workers ${WORKERS:-${workers[$m]}} \
+            --time-limit $TIME_LIMIT --out $RUNS/$r --checkpoint-every $CHECKPOINT_EVERY --cache-images $DATA/cache \
+            > $RUNS/$r.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$r/best.pt --data $DATA/test --device cuda \
+            --out $RUNS/${r}_eval > $RUNS/${r}_eval.log 2>&1; python3 -m hybridpose eval --checkpoint $RUNS/$r/best.pt \
+            --data $DATA/test --device cuda --roi truth --out $RUNS/${r}_eval_roi > $RUNS/${r}_eval_roi.log 2>&1; \
+            touch $RUNS/$r.done" > /dev/null 2>&1 &
     done
     sleep 45
     tail -n 2 "$RUNS"/*.log
@@ -101,11 +107,11 @@ wait-vgg)
     deadline=$(( ${CALL_START:-$(date +%s)} + ${3:?} ))
     while [ "$(date +%s)" -lt "$deadline" ]; do
         pending=0
-        for m in "${VGG_RUNS[@]}"; do [ -f "$RUNS/$m.done" ] || pending=1; done
+        for m in "${RUN_NAMES[@]}"; do [ -f "$RUNS/$m.done" ] || pending=1; done
         if [ "$pending" = 0 ]; then echo "all runs done"; break; fi
         sleep 5
     done
-    for m in "${VGG_RUNS[@]}"; do
+    for m in "${RUN_NAMES[@]}"; do
         echo "== $m"; tail -n 3 "$RUNS/$m/metrics.csv" 2>/dev/null || tail -c 400 "$RUNS/$m.log" 2>/dev/null || true
         tail -n 2 "$RUNS/${m}_eval.log" 2>/dev/null || true
     done
@@ -134,7 +140,7 @@ crop-check)
 collect-vgg)
     out=${2:?collect-vgg OUTDIR}
     (cd "$RUNS" && find . -maxdepth 2 \( -name '*.log' -o -name metrics.csv -o -name history.json \) -print0 \
-        | tar --null -T - -czf "$out/vgg_runs.tgz" $(ls -d *_eval 2>/dev/null))
+        | tar --null -T - -czf "$out/vgg_runs.tgz" $(ls -d *_eval *_eval_roi 2>/dev/null))
     ls -la "$out"
     ;;
 status)

@@ -42,7 +42,8 @@ def available_models() -> list[str]:
 
 
 def build_model(name: str, **kwargs) -> nn.Module:
-    """Build an untrained network; kwargs: ``dropout``, ``freeze_features``, ``image_size`` (branched/parallel)."""
+    """Build an untrained network; kwargs: ``dropout``, ``freeze_features``, ``init`` (VGG models: ``VGG_INITS``),
+    ``image_size`` (branched/parallel)."""
     try:
         factory = MODELS[name]
     except KeyError:

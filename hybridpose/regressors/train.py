@@ -31,7 +31,7 @@ from .calibration import calibrate, keypoint_pnp_batch
 from .keypoint_net import keypoint_loss, widen_state_dict
 from .verify import box_half_turns
 from .models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
-from .vgg import load_imagenet_weights
+from .vgg import VGG_INITS, load_imagenet_weights
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,10 @@ class TrainConfig:
         patience: epochs without validation improvement before stopping (0 = never).
         augment: photometric augmentations (brightness, contrast, gamma, noise, blur).
         freeze_features: train the FC head only (the paper's baselines).
+        vgg_init: how a VGG model's weights start, ``"torchvision"`` (``init_vgg_weights``: He-normal
+            convolutions, small linear layers; the default since session 34) or ``"torch-default"``
+            (torch's per-layer defaults, under which a plain VGG's output hardly depends on the image
+            at the start: to reproduce runs before session 34). Keypoint models ignore it.
         imagenet_weights: optional local torchvision-format VGG state dict.
         workers: DataLoader worker processes. device: "auto", "cpu" or "cuda".
         schedule: learning rate over epochs, "constant" (the paper) or "cosine" (to 1 % of lr).
@@ -100,6 +104,7 @@ class TrainConfig:
     patience: int = 10
     augment: bool = True
     freeze_features: bool = False
+    vgg_init: str = "torchvision"
     imagenet_weights: str | None = None
     workers: int = 0
     device: str = "auto"
@@ -119,6 +124,8 @@ class TrainConfig:
         for name in ("epochs", "batch", "image_size", "checkpoint_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected ≥ 1, got {getattr(self, name)}")
+        if self.vgg_init not in VGG_INITS:
+            raise ValueError(f"vgg_init: expected one of {', '.join(VGG_INITS)}, got {self.vgg_init!r}")
         if self.schedule not in SCHEDULES:
             raise ValueError(f"schedule: expected one of {SCHEDULES}, got {self.schedule!r}")
         if self.lr <= 0 or not math.isfinite(self.lr):
@@ -392,7 +399,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
     rank, world, device = _distributed(torch_device(cfg.device))
     main_process = rank == 0
     torch.manual_seed(cfg.seed)
-    kw = {"freeze_features": cfg.freeze_features}
+    kw = {"freeze_features": cfg.freeze_features, "init": cfg.vgg_init}
     if cfg.model in ("branched-vgg19", "parallel-vgg19"):
         kw["image_size"] = cfg.image_size
     obj, twins, label_sets = None, [], None
@@ -639,6 +646,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--patience", type=int, default=10)
     p.add_argument("--no-augment", action="store_true")
     p.add_argument("--freeze-features", action="store_true")
+    p.add_argument("--vgg-init", choices=VGG_INITS, default="torchvision",
+                   help="VGG models: how the weights start (torch-default: as before session 34)")
     p.add_argument("--imagenet-weights", default=None, help="local torchvision-format VGG state dict")
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--schedule", choices=SCHEDULES, default=None, help="lr schedule (default: constant; cosine for default/keypoints)")
@@ -670,7 +679,7 @@ def config_from_args(args) -> TrainConfig:
     return TrainConfig(model=args.model, data=args.data, out=args.out, epochs=args.epochs, batch=args.batch,
                        lr=lr, beta=args.beta, image_size=image_size, seed=args.seed,
                        patience=args.patience, augment=not args.no_augment, freeze_features=args.freeze_features,
-                       imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
+                       vgg_init=args.vgg_init, imagenet_weights=args.imagenet_weights, workers=args.workers, device=args.device,
                        max_batches=args.max_batches, schedule=schedule, twin_loss=not args.no_twin_loss,
                        twin_weight=args.twin_weight,
                        init_from=args.init_from, val_fraction=args.val_fraction, amp=args.amp,

@@ -21,6 +21,9 @@ CFG = {
 }
 FEATURE_DIM = 512 * 7 * 7
 BRANCH_DIM = 1024
+# how a VGG model's weights start: "torchvision" (init_vgg_weights, the default since session 34) or
+# "torch-default" (torch's per-layer defaults, which the models had before: to reproduce those runs)
+VGG_INITS = ("torchvision", "torch-default")
 
 
 def make_features(cfg: list) -> nn.Sequential:
@@ -33,6 +36,11 @@ def make_features(cfg: list) -> nn.Sequential:
             layers += [nn.Conv2d(c, v, 3, padding=1), nn.ReLU(inplace=True)]
             c = v
     return nn.Sequential(*layers)
+
+
+def _check_init(init: str) -> None:
+    if init not in VGG_INITS:
+        raise ValueError(f"init: expected one of {', '.join(VGG_INITS)}, got {init!r}")
 
 
 def init_vgg_weights(module: nn.Module) -> None:
@@ -74,18 +82,22 @@ class VGGPose(nn.Module):
     """VGG baseline: features → 7×7 average pool → FC-4096 → FC-4096 → ``out_dim``.
 
     ``out_dim`` = 7 gives (t (B, 3) metres, q (B, 4) unit); 3 or 4 give one of them (used by the
-    parallel model). ``freeze_features`` trains the head only, as the paper's baselines did.
+    parallel model). ``freeze_features`` trains the head only, as the paper's baselines did. ``init``:
+    how the weights start (``VGG_INITS``; :func:`init_vgg_weights` by default).
     """
 
-    def __init__(self, arch: str = "vgg19", out_dim: int = 7, dropout: float = 0.5, freeze_features: bool = False) -> None:
+    def __init__(self, arch: str = "vgg19", out_dim: int = 7, dropout: float = 0.5, freeze_features: bool = False,
+                 init: str = "torchvision") -> None:
         super().__init__()
         if arch not in CFG:
             raise ValueError(f"arch: expected one of {sorted(CFG)}, got {arch!r}")
+        _check_init(init)
         self.arch, self.out_dim = arch, out_dim
         self.features = make_features(CFG[arch])
         self.avgpool = nn.AdaptiveAvgPool2d((7, 7))
         self.classifier = _classifier(FEATURE_DIM, out_dim, dropout)
-        init_vgg_weights(self)
+        if init == "torchvision":
+            init_vgg_weights(self)
         if freeze_features:
             self.features.requires_grad_(False)
 
@@ -104,8 +116,9 @@ class BranchedVGG19(VGGPose):
     ``image_size`` fixes the branch's FC input (128 · (S/8)² for an S×S image; 224 → 100 352).
     """
 
-    def __init__(self, out_dim: int = 7, image_size: int = 224, dropout: float = 0.5, freeze_features: bool = False) -> None:
-        super().__init__("vgg19", out_dim, dropout, freeze_features)
+    def __init__(self, out_dim: int = 7, image_size: int = 224, dropout: float = 0.5, freeze_features: bool = False,
+                 init: str = "torchvision") -> None:
+        super().__init__("vgg19", out_dim, dropout, freeze_features, init)
         self.image_size = int(image_size)
         if self.image_size % 32:
             raise ValueError(f"image_size: expected a multiple of 32 pixels, got {image_size}")
@@ -113,8 +126,9 @@ class BranchedVGG19(VGGPose):
         side = self.image_size // 8
         self.branch = nn.Sequential(nn.MaxPool2d(2, 2), nn.Flatten(), nn.Linear(128 * side * side, BRANCH_DIM), nn.ReLU(True))
         self.classifier = _classifier(FEATURE_DIM + BRANCH_DIM, out_dim, dropout)
-        init_vgg_weights(self.branch)
-        init_vgg_weights(self.classifier)
+        if init == "torchvision":
+            init_vgg_weights(self.branch)
+            init_vgg_weights(self.classifier)
 
     def forward(self, x: torch.Tensor):
         _check_image(x)
@@ -132,10 +146,11 @@ class ParallelVGG19(nn.Module):
     ``forward(image, crop)`` → (t (B, 3) metres, q (B, 4) unit).
     """
 
-    def __init__(self, image_size: int = 224, dropout: float = 0.5, freeze_features: bool = False) -> None:
+    def __init__(self, image_size: int = 224, dropout: float = 0.5, freeze_features: bool = False,
+                 init: str = "torchvision") -> None:
         super().__init__()
-        self.translation = VGGPose("vgg19", 3, dropout, freeze_features)
-        self.rotation = BranchedVGG19(4, image_size, dropout, freeze_features)
+        self.translation = VGGPose("vgg19", 3, dropout, freeze_features, init)
+        self.rotation = BranchedVGG19(4, image_size, dropout, freeze_features, init)
 
     def forward(self, image: torch.Tensor, crop: torch.Tensor | None = None):
         if crop is None:

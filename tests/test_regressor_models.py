@@ -156,6 +156,10 @@ def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
     img, cam = gradcam(reg, Frame(image, Camera.default().scaled("128x96"), 0.0))
     assert img.shape == (64, 64, 3) and cam.shape == (64, 64)
     assert np.isfinite(cam).all() and 0.0 <= cam.min() and cam.max() <= 1.0
+    if name == "parallel-vgg19":  # the rotation stream's map (its hooks fired), on its bounded image, not the whole frame
+        import cv2
+
+        assert not np.array_equal(img, cv2.resize(image, (64, 64), interpolation=cv2.INTER_AREA))
     # the report's bare-call timing feeds every input the model takes (the parallel one's two streams)
     assert network_call_ms(reg, calls=1, repeats=1) > 0
 

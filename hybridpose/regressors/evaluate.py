@@ -421,7 +421,9 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
     """(H, W) float in [0, 1]: Grad-CAM of the network's deepest feature map for ``frame``.
 
     The score differentiated is the sum of each keypoint heatmap's peak logit (keypoint models)
-    or the sum of the pose outputs (direct models); the map is shown on the network's input.
+    or the sum of the pose outputs (direct models); the map is shown on the network's input. For the
+    parallel model it is its rotation stream's, on the bounded image it crops at inference (the sheet
+    ranks views by rotation error; its translation stream sees the whole frame).
     """
     import cv2
 
@@ -431,7 +433,8 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
     net = reg.net
     # direct models: the last module of the VGG features (its final max-pool), not the features
     # Sequential itself — the branched model runs slices of it, which a hook on the whole never sees
-    layer = net.layer4 if reg.kind == "keypoints" else (net.features if hasattr(net, "features") else net.translation.features)[-1]
+    parallel = reg.model_name == "parallel-vgg19"
+    layer = net.layer4 if reg.kind == "keypoints" else (net.rotation.features if parallel else net.features)[-1]
     feats = {}
     h1 = layer.register_forward_hook(lambda m, i, o: feats.__setitem__("a", o))
     h2 = layer.register_full_backward_hook(lambda m, gi, go: feats.__setitem__("g", go[0]))
@@ -441,14 +444,19 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
             box = detect_bright_object(frame.image)
             box = crop_box(box, CROP_MARGIN) if box else ((frame.camera.width - 1) / 2, (frame.camera.height - 1) / 2, float(frame.camera.width))
             img, _ = reg._crop(frame.image, frame.camera.K, *box)
+        elif parallel:  # the crop predict gives the rotation stream without a roi
+            with torch.no_grad():
+                full = reg._tensor(cv2.resize(frame.image, (S, S), interpolation=cv2.INTER_AREA))
+                t = net.translation(full)[0].float().cpu().numpy().astype(np.float64)
+            img, _ = reg._crop(frame.image, frame.camera.K, *reg._bounded_box(frame.image, frame.camera, t))
         else:
             img = cv2.resize(frame.image, (S, S), interpolation=cv2.INTER_AREA)
         x = reg._tensor(img).requires_grad_(True)
         with torch.enable_grad():
             if reg.kind == "keypoints":
                 score = net.heatmaps(x).flatten(2).max(-1).values.sum()
-            elif reg.model_name == "parallel-vgg19":
-                score = net.translation(x).sum()
+            elif parallel:
+                score = net.rotation(x).sum()
             else:
                 t, q = net(x)
                 score = t.sum() + q.sum()

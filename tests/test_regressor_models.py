@@ -221,3 +221,22 @@ def test_parallel_model_crops_around_the_detected_object_or_else_its_translation
     assert black.lost and black.pose is None  # zero biases on a black frame: a zero quaternion, lost (not NaN)
     np.testing.assert_allclose(crops[-1][:2], (cam.K @ (t / t[2]))[:2], atol=1e-3)
     assert crops[-1][2] == pytest.approx(CROP_MARGIN * max(cam.fx, cam.fy) * 0.5 / t[2], rel=1e-6)
+
+
+def test_checkpoint_weights_that_do_not_fit_the_network_name_the_file(tmp_path):
+    """The network is built without weights (meta device) and given the checkpoint's: a wrong shape or a missing
+    tensor is refused naming the file, and a good checkpoint leaves no tensor without storage."""
+    from hybridpose.regressors.predictor import CheckpointRegressor
+    from hybridpose.regressors.train import save_checkpoint
+
+    good = build_model("vgg16").state_dict()
+    wrong_shape = {**good, "classifier.6.weight": torch.zeros(5, 4096)}
+    missing = {k: v for k, v in good.items() if k != "classifier.6.bias"}
+    for name, state, match in (("shape", wrong_shape, "size mismatch"), ("missing", missing, "Missing key")):
+        save_checkpoint(tmp_path / f"{name}.pt", {"config": {"model": "vgg16", "image_size": 64}, "build": {}, "model": state})
+        with pytest.raises(ValueError, match=f"(?s){name}.pt: weights do not fit the 'vgg16' network .*{match}"):
+            CheckpointRegressor(tmp_path / f"{name}.pt")
+    save_checkpoint(tmp_path / "good.pt", {"config": {"model": "vgg16", "image_size": 64}, "build": {}, "model": good})
+    reg = CheckpointRegressor(tmp_path / "good.pt")
+    assert all(not t.is_meta for t in [*reg.net.parameters(), *reg.net.buffers()])
+    torch.testing.assert_close(reg.net.classifier[6].weight, good["classifier.6.weight"])

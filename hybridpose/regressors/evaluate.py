@@ -446,9 +446,7 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
             img, _ = reg._crop(frame.image, frame.camera.K, *box)
         elif parallel:  # the crop predict gives the rotation stream without a roi
             with torch.no_grad():
-                full = reg._tensor(cv2.resize(frame.image, (S, S), interpolation=cv2.INTER_AREA))
-                t = net.translation(full)[0].float().cpu().numpy().astype(np.float64)
-            img, _ = reg._crop(frame.image, frame.camera.K, *reg._bounded_box(frame.image, frame.camera, t))
+                img = reg._translation_and_bounded_image(*reg._undistorted(frame))[1]
         else:
             img = cv2.resize(frame.image, (S, S), interpolation=cv2.INTER_AREA)
         x = reg._tensor(img).requires_grad_(True)

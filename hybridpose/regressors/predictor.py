@@ -1063,18 +1063,17 @@ class CheckpointRegressor(PoseRegressor):
         S = self.image_size
         x = self._tensor(cv2.resize(image, (S, S), interpolation=cv2.INTER_AREA))
         if self.model_name == "parallel-vgg19":
-            t = self.net.translation(x)[0].float().cpu().numpy().astype(np.float64)
-            box = crop_box(roi, CROP_MARGIN) if roi is not None else self._bounded_box(image, cam, t)
-            crop, _ = self._crop(image, cam.K, *box)
+            t, crop = self._translation_and_bounded_image(image, cam, roi, x)
             q = self.net.rotation(self._tensor(crop))[0].float().cpu().numpy().astype(np.float64)
         else:
             t_, q_ = self.net(x)
             t, q = t_[0].float().cpu().numpy().astype(np.float64), q_[0].float().cpu().numpy().astype(np.float64)
+        q_norm = np.linalg.norm(q)
         # a raw quaternion of (near) zero length names no rotation: a network with zero biases gives it
         # on a black frame (every ReLU off), so it is a lost view, not a NaN pose
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or t[2] <= 0 or np.linalg.norm(q) < 1e-12:
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or t[2] <= 0 or q_norm < 1e-12:
             return self._lost(frame)
-        pose = Pose.from_quat_t(q / np.linalg.norm(q), t)
+        pose = Pose.from_quat_t(q / q_norm, t)
         cal = self.calibration
         cov = np.asarray((cal if cal and "covariance" in cal else uncalibrated_record(self.kind))["covariance"])
         # a direct regressor has no per-image residual: quality only says whether the pose is plausible
@@ -1082,6 +1081,16 @@ class CheckpointRegressor(PoseRegressor):
         inside = 0 <= uv[0] < cam.width and 0 <= uv[1] < cam.height
         return Measurement(pose=pose, covariance=cov, quality=1.0 if inside else 0.0, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
+
+    def _translation_and_bounded_image(self, image: np.ndarray, cam: Camera, roi=None, x: torch.Tensor | None = None):
+        """The parallel model's translation stream on the undistorted ``image`` (``x``: its resized tensor, when
+        the caller has it) and the crop its rotation stream sees: (t (3,) m, (S, S, 3) uint8 "bounded image"
+        around ``roi`` or, without one, :meth:`_bounded_box`)."""
+        if x is None:
+            x = self._tensor(cv2.resize(image, (self.image_size,) * 2, interpolation=cv2.INTER_AREA))
+        t = self.net.translation(x)[0].float().cpu().numpy().astype(np.float64)
+        box = crop_box(roi, CROP_MARGIN) if roi is not None else self._bounded_box(image, cam, t)
+        return t, self._crop(image, cam.K, *box)[0]
 
     def _bounded_box(self, image: np.ndarray, cam: Camera, t: np.ndarray) -> tuple[float, float, float]:
         """The parallel model's "bounded image" without a ``roi``: :func:`detected_crop`, else

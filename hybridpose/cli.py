@@ -214,6 +214,7 @@ def cmd_eval(args) -> int:
     from .regressors.evaluate import evaluate_checkpoint
 
     s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
+                            timing_images=args.timing_images,
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
                             pnp_outliers=args.pnp_outliers,
                             turn_pnp_outliers=None if args.turn_pnp_outliers == "same" else args.turn_pnp_outliers,
@@ -225,10 +226,11 @@ def cmd_eval(args) -> int:
                             max_depth_m=None if args.max_depth == "none" else args.max_depth, engine=args.engine,
                             roi=args.roi)
     ms = s["ms_per_image"]
+    timed = (f"{ms['1_thread']:.1f} ms/img (1 thread; the bare network {ms['network_1_thread']:.1f} ms a call on "
+             f"{s['engine']} on this CPU)" if "1_thread" in ms else f"not timed (engine {s['engine']})")
     print(f"eval {s['model']} on {s['images']} images: rotation mean {s['rot_mean_deg']:.2f}° / median "
           f"{s['rot_median_deg']:.2f}°, translation mean {s['trans_mean_m']:.3f} m, SPEED {s['speed_score']:.3f}, "
-          f"ADD-0.1d {s['add_0.1d_recall']:.2f}, {s['failures']} failures, {ms.get('1_thread', 0):.1f} ms/img (1 thread; "
-          f"the bare network {ms.get('network_1_thread', 0):.1f} ms a call on {s['engine']} on this CPU) → {Path(args.out) / 'report.md'}")
+          f"ADD-0.1d {s['add_0.1d_recall']:.2f}, {s['failures']} failures, {timed} → {Path(args.out) / 'report.md'}")
     return 0
 
 
@@ -422,6 +424,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--data", required=True, help="held-out BOP dataset (e.g. hybridpose render --kind random --seed 100)")
     e.add_argument("--out", required=True, help="report folder (report.json/.md, error_vs_distance.png, gradcam.png)")
     e.add_argument("--limit", type=int, default=None, help="evaluate the first N images only")
+    e.add_argument("--timing-images", type=int, default=100,
+                   help="time the whole predict path on the first N images at 1 and 2 threads (default 100; 0: "
+                        "no timing, e.g. for accuracy runs of many sets side by side)")
     e.add_argument("--no-refine", action="store_true", help="keypoint models: CNN + PnP + twin check only, no edge refinement")
     e.add_argument("--passes", choices=("1", "2", "auto"), default="auto",
                    help="keypoint models: network passes (2 = again on the crop re-centred on the first pose; "

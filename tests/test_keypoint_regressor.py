@@ -400,6 +400,23 @@ def test_eval_without_gradcam_writes_no_sheet(tiny_checkpoint, tmp_path):
     assert not (tmp_path / "rep" / "gradcam.png").exists()
 
 
+def test_eval_without_timing_has_no_timings(tiny_checkpoint, tmp_path, capsys):
+    """timing_images=0 (eval --timing-images 0): accuracy only, no timing keys, and the CLI says so."""
+    from hybridpose.cli import main
+    from hybridpose.regressors.evaluate import evaluate_checkpoint
+
+    data = tiny_checkpoint.parent.parent / "ds"
+    s = evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=2, timing_images=0, gradcam_count=0)
+    assert s["images"] == 2 and s["ms_per_image"] == {}
+    assert "| – | – |\n" in (tmp_path / "rep" / "report.md").read_text()   # the ms columns: not timed
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="timing_images: expected a whole number"):
+            evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=2, timing_images=bad)
+    assert main(["eval", "--checkpoint", str(tiny_checkpoint), "--data", str(data), "--out", str(tmp_path / "r2"),
+                 "--limit", "2", "--timing-images", "0"]) == 0
+    assert "not timed (engine" in capsys.readouterr().out
+
+
 def test_eval_can_give_the_regressor_each_images_sun(tiny_checkpoint, tmp_path):
     import shutil
 
@@ -538,8 +555,13 @@ def test_compare_reports_pairs_the_views(tmp_path, capsys):
     assert lo <= 0.3 <= hi and c["rot_median_diff_deg"]["estimate"] == pytest.approx(0.3, abs=0.05)
     want_mean = (np.where(np.arange(400) == 5, 180.0, rot_b) - rot_a).mean()
     assert c["rot_mean_diff_deg"]["estimate"] == pytest.approx(want_mean)
+    # gross shares 4/400 (A) and 3/400 (B): B − A = −1/400, inside its own bootstrap interval
+    gross = c["gross_share_diff"]
+    assert gross["estimate"] == pytest.approx(-1 / 400) and gross["ci95"][0] <= -1 / 400 <= gross["ci95"][1]
+    assert gross["ci95"][0] < gross["ci95"][1]
     assert main(["compare", str(a), str(b), "--out", str(tmp_path / "c.json")]) == 0
-    assert "gross in A only 3, in B only 2, in both 1" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "gross in A only 3, in B only 2, in both 1" in out and "B − A -0.25 points" in out
     assert (tmp_path / "c.json").is_file()
     # two test sets pooled: the counts add up, the views of both are resampled together
     a2, b2 = _write_report(tmp_path / "a2", [1.0, 100.0, 2.0]), _write_report(tmp_path / "b2", [1.0, 1.0, 99.0])

@@ -77,6 +77,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     """
     if roi not in ROI_SOURCES:
         raise ValueError(f"roi: expected one of {', '.join(ROI_SOURCES)}, got {roi!r}")
+    if isinstance(timing_images, bool) or not isinstance(timing_images, (int, np.integer)) or timing_images < 0:
+        raise ValueError(f"timing_images: expected a whole number of images ≥ 0 (0: no timing), got {timing_images!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier,
@@ -286,6 +288,8 @@ def time_inference(reg: CheckpointRegressor, items, threads=(1, 2), repeats: int
     (key ``"1_thread"``, ``"2_threads"``, …), that run's per-image median, 95th percentile and
     largest ms (``"1_thread_p50"``, ``"1_thread_p95"``, ``"1_thread_max"``): the latency a caller must
     budget for a re-initialisation is the tail's, not the mean's."""
+    if not items:  # nothing to time (evaluate_checkpoint(timing_images=0)): no timing keys at all
+        return {}
     before = torch.get_num_threads()
     out = {}
     try:
@@ -518,7 +522,7 @@ def report_markdown(s: dict) -> str:
     ms = s["ms_per_image"]
     lines.append(f"| **ours: {s['model']}** | {s['rot_mean_deg']:.2f} | {s['rot_median_deg']:.2f} | {s['trans_mean_m']:.3f} | "
                  f"{s['speed_score']:.3f} | {s['add_0.1d_recall']:.2f} | {s['gross_error_share']:.1%} | {s['failures']} | "
-                 f"{ms.get('1_thread', float('nan')):.1f} | {ms.get('2_threads', float('nan')):.1f} |")
+                 f"{_ms_cell(ms, '1_thread')} | {_ms_cell(ms, '2_threads')} |")
     lines += ["", "Failures (no pose) count as 180° / 1 m in the means. Error vs distance: `error_vs_distance.png`; "
               "Grad-CAM of the best and worst predictions: `gradcam.png`."]
     if "network_1_thread" in ms:
@@ -606,7 +610,8 @@ def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resa
     Returns:
         ``{"images", "a", "b"`` (each: path, model, rot_mean_deg, rot_median_deg, gross_share),
         ``"gross_only_a", "gross_only_b", "gross_both", "mcnemar_p",
-        "rot_mean_diff_deg", "rot_median_diff_deg"`` (each: estimate, ci95 low, high; B − A)}.
+        "rot_mean_diff_deg", "rot_median_diff_deg", "gross_share_diff"`` (each: estimate, ci95 low, high;
+        B − A; the last a share of the views, 0..1)}.
     """
     if not (gross_deg > 0 and np.isfinite(gross_deg)):
         raise ValueError(f"gross_deg: expected a rotation error > 0 degrees, got {gross_deg}")
@@ -649,6 +654,7 @@ def paired_comparison(rot_a, rot_b, gross_deg: float = GROSS_ERROR_DEG, resample
     idx = rng.integers(0, len(rot_a), size=(resamples, len(rot_a)))
     boot_mean = rot_b[idx].mean(1) - rot_a[idx].mean(1)
     boot_median = np.median(rot_b[idx], 1) - np.median(rot_a[idx], 1)
+    boot_gross = gross_b[idx].mean(1) - gross_a[idx].mean(1)
 
     def interval(estimate, boot):
         lo, hi = np.percentile(boot, [2.5, 97.5])
@@ -664,6 +670,8 @@ def paired_comparison(rot_a, rot_b, gross_deg: float = GROSS_ERROR_DEG, resample
         "mcnemar_p": float(binomtest(only_b, only_a + only_b).pvalue) if only_a + only_b else 1.0,
         "rot_mean_diff_deg": interval(rot_b.mean() - rot_a.mean(), boot_mean),
         "rot_median_diff_deg": interval(np.median(rot_b) - np.median(rot_a), boot_median),
+        # a share (0..1), not %: what a non-inferiority margin on the gross errors is set on
+        "gross_share_diff": interval(gross_b.mean() - gross_a.mean(), boot_gross),
     }
 
 
@@ -688,6 +696,11 @@ def _report_rows(report) -> tuple[Path, str | None, list[dict]]:
     return path, report.get("summary", {}).get("model"), rows
 
 
+def _ms_cell(ms: dict, key: str) -> str:
+    """A table cell of ms: ``ms[key]`` to 0.1 ms, or – where it was not timed (``timing_images=0``)."""
+    return f"{ms[key]:.1f}" if key in ms else "–"
+
+
 def comparison_markdown(c: dict) -> str:
     """The result of :func:`compare_reports` as a short Markdown table and verdict."""
     a, b = c["a"], c["b"]
@@ -701,4 +714,8 @@ def comparison_markdown(c: dict) -> str:
              f"McNemar exact p = {c['mcnemar_p']:.3f}",
              f"- mean rotation B − A {mean['estimate']:+.2f}° (95 % paired bootstrap {mean['ci95'][0]:+.2f} … {mean['ci95'][1]:+.2f})",
              f"- median rotation B − A {med['estimate']:+.3f}° ({med['ci95'][0]:+.3f} … {med['ci95'][1]:+.3f})"]
+    if "gross_share_diff" in c:  # comparisons saved before session 35 lack it
+        g = c["gross_share_diff"]
+        lines.append(f"- share of views > {c['gross_deg']:g}° B − A {100 * g['estimate']:+.2f} points "
+                     f"({100 * g['ci95'][0]:+.2f} … {100 * g['ci95'][1]:+.2f})")
     return "\n".join(lines) + "\n"

@@ -87,6 +87,10 @@ def test_every_vgg_stream_sees_the_image_at_initialisation():
         assert t.std(0).max() > 1e-4 and q.std(0).max() > 1e-3, name
     conv = models["vgg19"].features[2]
     assert conv.bias.abs().max() == 0 and conv.weight.std() == pytest.approx((2 / (64 * 9)) ** 0.5, rel=0.05)  # He, fan-out
+    # the branched model's classifier (built once at its final width) and branch start as torchvision's FCs do
+    branched = models["branched"]
+    for fc in (branched.classifier[0], branched.classifier[3], branched.branch[2]):
+        assert fc.bias.abs().max() == 0 and fc.weight.std() == pytest.approx(0.01, rel=0.05)
     # the start before session 34 (`hybridpose train --vgg-init torch-default`): the image is all but lost
     t, _ = build_model("parallel-vgg19", image_size=64, init="torch-default").eval()(x, x)
     assert t.std(0).max() < 1e-6

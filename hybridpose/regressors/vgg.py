@@ -87,7 +87,7 @@ class VGGPose(nn.Module):
     """
 
     def __init__(self, arch: str = "vgg19", out_dim: int = 7, dropout: float = 0.5, freeze_features: bool = False,
-                 init: str = "torchvision") -> None:
+                 init: str = "torchvision", extra_dim: int = 0) -> None:
         super().__init__()
         if arch not in CFG:
             raise ValueError(f"arch: expected one of {sorted(CFG)}, got {arch!r}")
@@ -95,7 +95,9 @@ class VGGPose(nn.Module):
         self.arch, self.out_dim = arch, out_dim
         self.features = make_features(CFG[arch])
         self.avgpool = nn.AdaptiveAvgPool2d((7, 7))
-        self.classifier = _classifier(FEATURE_DIM, out_dim, dropout)
+        # extra_dim: features a subclass concatenates before the first FC (the branched model's branch), so
+        # its classifier is built once at its final size (not built, initialised and replaced: 100 M weights)
+        self.classifier = _classifier(FEATURE_DIM + int(extra_dim), out_dim, dropout)
         if init == "torchvision":
             init_vgg_weights(self)
         if freeze_features:
@@ -118,17 +120,15 @@ class BranchedVGG19(VGGPose):
 
     def __init__(self, out_dim: int = 7, image_size: int = 224, dropout: float = 0.5, freeze_features: bool = False,
                  init: str = "torchvision") -> None:
-        super().__init__("vgg19", out_dim, dropout, freeze_features, init)
-        self.image_size = int(image_size)
-        if self.image_size % 32:
+        if int(image_size) % 32:
             raise ValueError(f"image_size: expected a multiple of 32 pixels, got {image_size}")
+        super().__init__("vgg19", out_dim, dropout, freeze_features, init, extra_dim=BRANCH_DIM)
+        self.image_size = int(image_size)
         self._split = 10  # index just after the 2nd max-pool in features
         side = self.image_size // 8
         self.branch = nn.Sequential(nn.MaxPool2d(2, 2), nn.Flatten(), nn.Linear(128 * side * side, BRANCH_DIM), nn.ReLU(True))
-        self.classifier = _classifier(FEATURE_DIM + BRANCH_DIM, out_dim, dropout)
         if init == "torchvision":
             init_vgg_weights(self.branch)
-            init_vgg_weights(self.classifier)
 
     def forward(self, x: torch.Tensor):
         _check_image(x)

@@ -448,9 +448,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "passes it in the hybrid (the paper's 'bounded image')")
     e.add_argument("--device", default="cpu", help="where the network runs: cpu (default) or cuda[:N] (the VGG models)")
     e.add_argument("--engine", choices=("auto", "onnxruntime", "torch", "onnxruntime-int8"), default="auto",
-                   help="keypoint models: what runs the network: auto (default: ONNX Runtime on the CPU, torch where it "
-                        "cannot run), onnxruntime (an error where it cannot run), torch, or the 8-bit model made by "
-                        "hybridpose quantize (onnxruntime-int8)")
+                   help="keypoint models: what runs the network: auto (default: ONNX Runtime on the CPU, on the "
+                        "checkpoint's 8-bit model where hybridpose quantize made one from it, as for the shipped "
+                        "default, else in float32; torch where it cannot run), onnxruntime (float32; an error where "
+                        "it cannot run), torch, or onnxruntime-int8 (the 8-bit model; an error without one)")
     e.add_argument("--verifier", default="auto", help="keypoint models: twin-verifier checkpoint (train-verifier), "
                                                       "'auto' (the shipped one, if any) or 'none'")
     e.add_argument("--mirror-verifier", default="auto",

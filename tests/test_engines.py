@@ -62,7 +62,8 @@ def test_auto_engine_is_onnxruntime_on_the_cpu_and_falls_back_to_torch(truss, mo
     net = _net(truss)
     assert keypoint_engine("torch", net, torch.device("cpu"), 64).name == "torch"
     assert keypoint_engine("auto", net, torch.device("cpu"), 64).name == "onnxruntime"
-    assert CheckpointRegressor(shipped_checkpoint("default")).engine.name == "onnxruntime"   # the default
+    shipped = CheckpointRegressor(shipped_checkpoint("default"))     # the default: its 8-bit models (rule 23)
+    assert shipped.engine.name == "onnxruntime-int8" and shipped.expert.engine.name == "onnxruntime-int8"
     assert engines.call_ms(TorchEngine(net, torch.device("cpu")), torch.zeros(1, 3, 64, 64), calls=2, repeats=2) > 0
     monkeypatch.setitem(sys.modules, "onnxruntime", None)  # as if not installed
     with caplog.at_level(logging.INFO, logger="hybridpose.regressors.engines"):
@@ -149,3 +150,23 @@ def test_int8_engine_refuses_a_missing_stale_or_foreign_file(tiny_checkpoint, tm
     save_checkpoint(tmp_path / "vgg.pt", {"config": {"model": "vgg16"}, "model": {}, "build": {}})
     assert main(["quantize", "--checkpoint", str(tmp_path / "vgg.pt"), "--data", str(tmp_path)]) == 2
     assert "holds a direct 'vgg16' model; only keypoint models" in capsys.readouterr().err
+
+
+def test_auto_engine_runs_the_8bit_model_made_from_this_very_checkpoint(tiny_checkpoint, tmp_path, caplog):
+    """engine='auto': the 8-bit file beside the checkpoint where it was made from it; float32 where there is
+    none, or where the checkpoint changed since (a warning naming the file, not a silent older network)."""
+    from hybridpose.regressors.quantize import quantize_checkpoint
+    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+
+    ck = tmp_path / "net.pt"
+    ck.write_bytes(tiny_checkpoint.read_bytes())
+    assert CheckpointRegressor(ck).engine.name == "onnxruntime"                # nothing beside it
+    quantize_checkpoint(ck, tiny_checkpoint.parent.parent / "ds", crops=4)
+    assert CheckpointRegressor(ck).engine.name == "onnxruntime-int8"
+    assert CheckpointRegressor(ck, engine="onnxruntime").engine.name == "onnxruntime"   # asked for: float32
+    state = load_checkpoint(ck)
+    state["model"] = {k: v * 1.01 if v.is_floating_point() else v for k, v in state["model"].items()}
+    save_checkpoint(ck, state)                                                   # retrained since
+    with caplog.at_level(logging.WARNING, logger="hybridpose.regressors.engines"):
+        assert CheckpointRegressor(ck).engine.name == "onnxruntime"
+    assert "net.pt: its 8-bit model is not used" in caplog.text and "quantized from another" in caplog.text

@@ -175,7 +175,8 @@ def test_quality_carries_the_twin_heads_belief(truss, belief):
 
         reg.engine = forced
         m = reg.predict(frame)
-        assert m.pose is not None and rotation_error_deg(m.pose, truth) < 5.0
+        # the right pose, not a box twin (≈ 180° off); without the edge fit the 8-bit default's is ≈ 5° off here
+        assert m.pose is not None and rotation_error_deg(m.pose, truth) < 10.0
         qualities[p] = m.quality
     assert qualities[belief] == pytest.approx(belief * qualities[sure], rel=1e-6)
 

@@ -28,7 +28,7 @@ from ..metrics import add, add_recall, rotation_error_deg, speed_score, translat
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .calibration import MIN_BAND_POSES, nees, quality_scale
-from .engines import call_ms
+from .engines import call_ms, keypoint_engine
 from .predictor import CheckpointRegressor, uncalibrated_record
 
 log = logging.getLogger(__name__)
@@ -244,6 +244,11 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
         raise ValueError(f"coverage: expected a probability in [0.5, 1), got {coverage}")
     ck = load_checkpoint(checkpoint)
     reg = CheckpointRegressor(checkpoint, **options)
+    if "engine" not in options and reg.engine is not None and reg.engine.name == "onnxruntime-int8":
+        # the calibrated file is not the one the 8-bit model beside `checkpoint` was made from (engine="auto"
+        # skips it there as stale), so the path is measured as the output will run it: this network in float
+        # (no checkpoint given: no 8-bit lookup), the edge-on expert on whatever its own file resolves to
+        reg.engine = keypoint_engine("auto", reg.net, reg.device, reg.image_size, reg.memory_format)
     # a checkpoint whose training calibration failed starts from the inflated default the predictor uses;
     # the errors are measured under its single scale (bands fitted before are not applied)
     cal = {k: v for k, v in (ck.get("calibration") or uncalibrated_record(reg.kind)).items() if k != "quality_scale"}

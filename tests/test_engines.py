@@ -170,3 +170,21 @@ def test_auto_engine_runs_the_8bit_model_made_from_this_very_checkpoint(tiny_che
     with caplog.at_level(logging.WARNING, logger="hybridpose.regressors.engines"):
         assert CheckpointRegressor(ck).engine.name == "onnxruntime"
     assert "net.pt: its 8-bit model is not used" in caplog.text and "quantized from another" in caplog.text
+
+
+def test_stale_int8_names_an_8bit_file_not_made_from_the_checkpoint(tiny_checkpoint, tmp_path):
+    """What `hybridpose calibrate` checks after writing --out (in place, the 8-bit model goes stale)."""
+    from hybridpose.regressors.quantize import int8_path, quantize_checkpoint, stale_int8
+    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+
+    ck = tmp_path / "net.pt"
+    ck.write_bytes(tiny_checkpoint.read_bytes())
+    assert stale_int8(ck) is None                                   # none beside it
+    quantize_checkpoint(ck, tiny_checkpoint.parent.parent / "ds", crops=4)
+    assert stale_int8(ck) is None                                   # made from it
+    state = load_checkpoint(ck)
+    state["calibration"] = {"scale": 2.0}
+    save_checkpoint(ck, state)                                      # re-calibrated in place
+    assert stale_int8(ck) == int8_path(ck)
+    int8_path(ck).write_bytes(b"not a model")
+    assert stale_int8(ck) == int8_path(ck)

@@ -157,6 +157,19 @@ def read_record(path) -> dict:
     return json.loads(meta[META_KEY])
 
 
+def stale_int8(checkpoint) -> Path | None:
+    """The 8-bit model file beside ``checkpoint`` (:func:`int8_path`) when it was not made from this very
+    file (retrained or re-calibrated since, or unreadable), else None (none there, or up to date)."""
+    path = int8_path(checkpoint)
+    if not path.is_file():
+        return None
+    try:
+        made_from = read_record(path).get("checkpoint_sha256")
+    except ValueError:
+        return path
+    return None if made_from == file_sha256(checkpoint) else path
+
+
 def load_int8(checkpoint, path=None) -> tuple[bytes, dict]:
     """The 8-bit model of ``checkpoint`` (bytes) and its record; ValueError naming the file when it is
     missing or was made from another checkpoint."""

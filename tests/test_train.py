@@ -9,7 +9,7 @@ from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera
 from hybridpose.regressors import models
 from hybridpose.regressors.losses import normalize_quat
-from hybridpose.regressors.train import TrainConfig, load_checkpoint, train
+from hybridpose.regressors.train import TrainConfig, load_checkpoint, run_summary, train
 
 
 class TinyPose(nn.Module):
@@ -40,7 +40,8 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
     cfg = TrainConfig(model="tiny", data=str(data), out=str(tmp_path / "run"), epochs=2, batch=4, lr=1e-2,
                       image_size=32, patience=0)
     best = train(cfg, progress=False)
-    assert set(best) >= {"val_loss", "rot_mean_deg", "rot_median_deg", "trans_mean_m"}
+    assert set(best) >= {"val_loss", "rot_mean_deg", "rot_median_deg", "trans_mean_m", "epochs_run", "stopped"}
+    assert best["stopped"] == "ran all 2 epochs" and best["epochs_run"] == 2
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
     assert [r["epoch"] for r in hist] == [0, 1]
     assert [r["train_images"] for r in hist] == [16, 16]       # 20 views, 4 held out for validation
@@ -159,8 +160,13 @@ def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):
 def test_early_stop(data, tmp_path, tiny):
     cfg = TrainConfig(model="tiny", data=str(data), out=str(tmp_path / "es"), epochs=50, batch=4, lr=1e-12,
                       image_size=32, patience=2, augment=False)
-    train(cfg, progress=False)
-    assert len(json.loads((tmp_path / "es" / "history.json").read_text())) < 50
+    best = train(cfg, progress=False)
+    ran = len(json.loads((tmp_path / "es" / "history.json").read_text()))
+    assert ran < 50 and best["epochs_run"] == ran
+    assert best["stopped"] == f"early stop after epoch {ran - 1}: no validation improvement for 2 epochs (--patience)"
+    line = run_summary(best, tmp_path / "es")
+    assert line.startswith(f"train: {ran} epochs recorded (early stop after epoch {ran - 1}") and "best.pt" in line
+    assert run_summary({"epochs_run": 0, "stopped": "ran all 3 epochs"}, "r").startswith("train: no epoch ran")
 
 
 def test_time_limit_stops_cleanly_and_amp_trains(data, tmp_path, tiny, caplog):
@@ -169,6 +175,7 @@ def test_time_limit_stops_cleanly_and_amp_trains(data, tmp_path, tiny, caplog):
     with caplog.at_level("INFO", logger="hybridpose.regressors.train"):
         best = train(cfg, progress=False)
     assert "time limit: stopping after epoch 0 of 5" in caplog.text
+    assert best["epochs_run"] == 1 and best["stopped"].startswith("time limit after epoch 0 of 5")
     hist = json.loads((tmp_path / "tl" / "history.json").read_text())
     assert len(hist) == 1 and all(map(torch.isfinite, torch.tensor([hist[0]["train_loss"], best["val_loss"]])))
     ck = load_checkpoint(tmp_path / "tl" / "best.pt")

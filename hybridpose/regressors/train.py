@@ -470,6 +470,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
     run_start = time.perf_counter()
     best_payload = None  # a best.pt not written yet (checkpoint_every > 1)
+    stopped = f"ran all {cfg.epochs} epochs"  # why the run ended, for the caller's summary
     for epoch in range(start_epoch, cfg.epochs):
         if sampler is not None:
             sampler.set_epoch(epoch)
@@ -533,6 +534,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         stop = bool(cfg.patience and stale >= cfg.patience)
         if stop:
             log.info("early stop at epoch %d: no validation improvement for %d epochs", epoch, stale)
+            stopped = f"early stop after epoch {epoch}: no validation improvement for {stale} epochs (--patience)"
         written = stop or epoch + 1 == cfg.epochs or (epoch + 1) % cfg.checkpoint_every == 0
         if written:  # before the time limit is judged: the writes are part of an epoch's time
             _write_checkpoints(out, best_payload, payload)
@@ -542,6 +544,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         if cfg.time_limit_min and epoch + 1 < cfg.epochs and elapsed_min * (epoch + 2 - start_epoch) / (epoch + 1 - start_epoch) > cfg.time_limit_min:
             log.info("time limit: stopping after epoch %d of %d (%.1f of %.1f min used)",
                      epoch, cfg.epochs, elapsed_min, cfg.time_limit_min)
+            stopped = (f"time limit after epoch {epoch} of {cfg.epochs}: {elapsed_min:.1f} of {cfg.time_limit_min:g} "
+                       "min used (--time-limit; --resume continues)")
             stop = True
             if not written:
                 _write_checkpoints(out, best_payload, payload)
@@ -560,7 +564,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         dist.barrier()
         dist.destroy_process_group()
     best_row = min(history, key=lambda r: r["val_loss"]) if history else {}
-    return best_row
+    return {**best_row, "epochs_run": len(history), "stopped": stopped}
 
 
 def channels_last(model: torch.nn.Module) -> torch.nn.Module:
@@ -691,8 +695,20 @@ def run(args: argparse.Namespace) -> int:
     """Train from parsed :func:`add_train_arguments` options and print the best validation metrics."""
     best = train(config_from_args(args), resume=args.resume)
     if int(os.environ.get("RANK", "0")) == 0:
+        print(run_summary(best, args.out))
         print(json.dumps(best, indent=2))
     return 0
+
+
+def run_summary(best: dict, out) -> str:
+    """One line for the end of ``hybridpose train``: why the run stopped, its best validation epoch
+    (whose weights are ``out``/best.pt) and that epoch's metrics."""
+    if "epoch" not in best:
+        return f"train: no epoch ran ({best.get('stopped', 'nothing to do')}); nothing written to {out}"
+    return (f"train: {best['epochs_run']} epochs recorded ({best['stopped']}); best validation epoch "
+            f"{best['epoch']} (loss {best['val_loss']:.3f}, rotation {best['rot_mean_deg']:.2f}° mean / "
+            f"{best['rot_median_deg']:.2f}° median, translation {best['trans_mean_m']:.3f} m) → "
+            f"{Path(out) / 'best.pt'}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -212,8 +212,9 @@ def cmd_track(args) -> int:
 
 def cmd_eval(args) -> int:
     from .regressors.evaluate import evaluate_checkpoint
+    from .regressors.predictor import checkpoint_or_shipped
 
-    s = evaluate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("eval"),
+    s = evaluate_checkpoint(checkpoint_or_shipped(args.checkpoint), args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             timing_images=args.timing_images,
                             refine_edges=not args.no_refine, passes=args.passes, turns=args.turns,
                             pnp_outliers=args.pnp_outliers,
@@ -251,8 +252,9 @@ def cmd_compare(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from .regressors.evaluate import calibrate_checkpoint
+    from .regressors.predictor import checkpoint_or_shipped
 
-    cal = calibrate_checkpoint(args.checkpoint, args.data, args.out, limit=args.limit, progress=_progress("calibrate"),
+    cal = calibrate_checkpoint(checkpoint_or_shipped(args.checkpoint), args.data, args.out, limit=args.limit, progress=_progress("calibrate"),
                                coverage=args.coverage, by_quality=not args.single_scale)
     fp = cal["full_path"]
     print(f"calibrate: {fp['poses']} poses on {args.data}: {fp['inside_share_before']:.0%} were inside the "
@@ -405,7 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     cal = sub.add_parser("calibrate", help="re-scale a regressor checkpoint's covariance on its whole inference path "
                                            "(held-out rendered views), so the fusion layer gets honest uncertainties")
-    cal.add_argument("--checkpoint", required=True, help="checkpoint to re-scale (best.pt or an export)")
+    cal.add_argument("--checkpoint", required=True,
+                     help="checkpoint to re-scale (best.pt, an export, or a shipped one by name: default)")
     cal.add_argument("--data", required=True, help="held-out BOP dataset, another seed than training and test sets")
     cal.add_argument("--out", required=True, help="where to write the re-scaled checkpoint (may be --checkpoint)")
     cal.add_argument("--limit", type=int, default=None, help="use the first N images only")
@@ -426,7 +429,8 @@ def build_parser() -> argparse.ArgumentParser:
     qz.set_defaults(func=cmd_quantize)
 
     e = sub.add_parser("eval", help="evaluate a trained regressor: paper table, SPEED, ADD-0.1d, plots, Grad-CAM, ms/img")
-    e.add_argument("--checkpoint", required=True, help="best.pt of a training run")
+    e.add_argument("--checkpoint", required=True,
+                   help="best.pt of a training run, an export, or a shipped checkpoint by name (default)")
     e.add_argument("--data", required=True, help="held-out BOP dataset (e.g. hybridpose render --kind random --seed 100)")
     e.add_argument("--out", required=True, help="report folder (report.json/.md, error_vs_distance.png, gradcam.png)")
     e.add_argument("--limit", type=int, default=None, help="evaluate the first N images only")

@@ -47,6 +47,8 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     assert "dataset not found" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["render", "--kind", "sequence", "--trajectory", "spiral", "--out", str(tmp_path / "y")])
+    assert main(["eval", "--checkpoint", "defualt", "--data", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
+    assert "defualt: checkpoint not found (no such file, and not the name of one shipped" in capsys.readouterr().err
 
 
 def test_demo(tmp_path, capsys):

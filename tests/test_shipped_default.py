@@ -8,7 +8,7 @@ from hybridpose.core import Frame
 from hybridpose.geometry import Camera
 from hybridpose.metrics import rotation_error_deg, translation_error_m
 from hybridpose.registry import create
-from hybridpose.regressors.predictor import detect_bright_object, shipped_checkpoint
+from hybridpose.regressors.predictor import checkpoint_or_shipped, detect_bright_object, shipped_checkpoint
 from hybridpose.render import Renderer, SpaceLighting, random_poses
 from hybridpose.datasets.generate import sun_directions_in_cone
 
@@ -49,6 +49,20 @@ def test_shipped_checkpoint_is_small_and_describes_itself():
     light = ck["dataset"]["lighting"]
     np.testing.assert_allclose(light["sun_direction_cam"], np.array(SpaceLighting().sun_direction_cam))
     assert light["sun_cone_deg"] == 40.0
+
+
+def test_checkpoint_arguments_take_a_file_or_a_shipped_name(tmp_path, monkeypatch):
+    """`hybridpose eval/calibrate --checkpoint default`: the shipped file, unless a file of that name exists."""
+    assert checkpoint_or_shipped("default") == shipped_checkpoint("default")
+    assert checkpoint_or_shipped("edge_on_expert") == shipped_checkpoint("edge_on_expert")
+    (tmp_path / "default").write_bytes(b"x")
+    monkeypatch.chdir(tmp_path)
+    assert checkpoint_or_shipped("default").resolve() == tmp_path / "default"
+    with pytest.raises(FileNotFoundError, match="defualt: checkpoint not found .*shipped with hybridpose: default, "
+                                                "edge_on_expert"):
+        checkpoint_or_shipped("defualt")
+    with pytest.raises(FileNotFoundError, match="twin_verifier: checkpoint not found"):
+        checkpoint_or_shipped("twin_verifier")  # ships, but is not a regressor
 
 
 @pytest.mark.parametrize("passes, turns", [(1, "auto"), (2, "auto"), ("auto", "auto"), ("auto", "off"),

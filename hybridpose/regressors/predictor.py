@@ -40,6 +40,8 @@ from .models import available_models, build_model, fold_batch_norm, model_kind, 
 log = logging.getLogger(__name__)
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
+# the regressor checkpoints in WEIGHTS_DIR (NAME.pt; twin_verifier.pt is not a regressor)
+SHIPPED_REGRESSORS = ("default", "edge_on_expert")
 CROP_MARGIN = 1.2
 UNCALIBRATED_SCALE = 100.0  # covariance inflation for a checkpoint without calibration
 QUALITY_RMS = 0.02  # RMS reprojection error (fraction of the crop side) at which quality falls to 1/e
@@ -205,6 +207,19 @@ def shipped_checkpoint(name: str = "default") -> Path:
             f"(train one with `hybridpose train --model {name} ...`)"
         )
     return path
+
+
+def checkpoint_or_shipped(value) -> Path:
+    """The checkpoint file ``value`` names: the path itself where that file exists, else the checkpoint
+    shipped under that name (``"default"``, ``"edge_on_expert"``: what the command line's
+    ``--checkpoint default`` means). Raises FileNotFoundError naming both where neither exists."""
+    path = Path(value)
+    if path.is_file():
+        return path
+    if str(value) in SHIPPED_REGRESSORS:
+        return shipped_checkpoint(str(value))
+    raise FileNotFoundError(f"{value}: checkpoint not found (no such file, and not the name of one shipped with "
+                            f"hybridpose: {', '.join(SHIPPED_REGRESSORS)})")
 
 
 def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:

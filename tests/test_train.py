@@ -167,6 +167,8 @@ def test_early_stop(data, tmp_path, tiny):
     line = run_summary(best, tmp_path / "es")
     assert line.startswith(f"train: {ran} epochs recorded (early stop after epoch {ran - 1}") and "best.pt" in line
     assert run_summary({"epochs_run": 0, "stopped": "ran all 3 epochs"}, "r").startswith("train: no epoch ran")
+    one = {**best, "epoch": 0, "epochs_run": 1, "stopped": "ran all 1 epoch"}
+    assert run_summary(one, "r").startswith("train: 1 epoch recorded (ran all 1 epoch); best validation epoch 0")
 
 
 def test_time_limit_stops_cleanly_and_amp_trains(data, tmp_path, tiny, caplog):

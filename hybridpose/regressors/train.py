@@ -470,7 +470,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
     run_start = time.perf_counter()
     best_payload = None  # a best.pt not written yet (checkpoint_every > 1)
-    stopped = f"ran all {cfg.epochs} epochs"  # why the run ended, for the caller's summary
+    stopped = f"ran all {_epochs(cfg.epochs)}"  # why the run ended, for the caller's summary
     for epoch in range(start_epoch, cfg.epochs):
         if sampler is not None:
             sampler.set_epoch(epoch)
@@ -700,12 +700,16 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _epochs(n: int) -> str:
+    return f"{n} epoch" + ("" if n == 1 else "s")
+
+
 def run_summary(best: dict, out) -> str:
     """One line for the end of ``hybridpose train``: why the run stopped, its best validation epoch
     (whose weights are ``out``/best.pt) and that epoch's metrics."""
     if "epoch" not in best:
         return f"train: no epoch ran ({best.get('stopped', 'nothing to do')}); nothing written to {out}"
-    return (f"train: {best['epochs_run']} epochs recorded ({best['stopped']}); best validation epoch "
+    return (f"train: {_epochs(best['epochs_run'])} recorded ({best['stopped']}); best validation epoch "
             f"{best['epoch']} (loss {best['val_loss']:.3f}, rotation {best['rot_mean_deg']:.2f}° mean / "
             f"{best['rot_median_deg']:.2f}° median, translation {best['trans_mean_m']:.3f} m) → "
             f"{Path(out) / 'best.pt'}")

@@ -12,8 +12,8 @@ edge check), without the crop turns, with RANSAC for PnP's outliers, without the
 edge-on expert (where one is shipped), with the expert's quality rule (the default before session 26),
 without the final edge refinement, with always one and always two passes, with each view's true
 object box as ``roi`` (what a tracker on the object passes), with float32 networks instead of the 8-bit
-ones ``engine="auto"`` runs, and what a quality gate keeps (accuracy by quality); copies its plots to ``benchmarks/results/`` and writes the "regressor-accuracy" section
-of RESULTS.md.
+ones ``engine="auto"`` runs, and what a quality gate keeps (accuracy by quality); copies its plots to
+``benchmarks/results/`` and writes the "regressor-accuracy" section of RESULTS.md.
 """
 from __future__ import annotations
 

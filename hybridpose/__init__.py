@@ -4,8 +4,10 @@ Conventions (see docs/conventions.md): ``Pose`` is ``T_cam_obj`` in metres, Open
 quaternions (w, x, y, z), tangent ``[ω, v]``, images (H, W, 3) uint8 RGB.
 """
 from .core import Estimate, Frame, Measurement
+from .estimator import HybridConfig, HybridEstimator
 from .geometry import Camera, Pose
 from .objects import ObjectModel
 
 __version__ = "0.1.0"
-__all__ = ["Camera", "Estimate", "Frame", "Measurement", "ObjectModel", "Pose", "__version__"]
+__all__ = ["Camera", "Estimate", "Frame", "HybridConfig", "HybridEstimator", "Measurement", "ObjectModel", "Pose",
+           "__version__"]

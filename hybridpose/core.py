@@ -49,15 +49,25 @@ class Frame:
 
 @dataclass(frozen=True, eq=False)
 class Measurement:
-    """What one estimator says about one frame.
+    """What one estimator (a tracker or a regressor) says about one frame.
+
+    One meaning for every backend of every role:
+
+    - ``lost == (pose is None)``: a backend that has lost the object, or never found it, says nothing
+      about the pose. ``Measurement(pose=None, ...)`` is lost whatever ``lost`` says; a pose with
+      ``lost=True`` is refused.
+    - ``covariance`` is what the fusion layer weighs: the backend's own uncertainty of ``pose``.
+    - ``quality`` is a 0..1 summary for people, plots and thresholds inside the backend (1: the best
+      fit the backend knows, 0: nothing found); each backend documents how it computes it. Fusion
+      never uses it as a second uncertainty.
 
     Attributes:
         pose: ``T_cam_obj`` or None when the estimator has nothing to say.
         covariance: (6, 6) tangent ``[ω, v]`` right-perturbation covariance (rad², m²).
-        quality: 0..1, backend-specific meaning documented per backend.
-        source: e.g. ``"tracker:rapid-gos"`` or ``"regressor:default"``.
+        quality: 0..1, see above.
+        source: ``"<role>:<backend>"``, e.g. ``"tracker:edges"`` or ``"regressor:default"``.
         timestamp: seconds.
-        lost: True when the estimator believes it has lost the object.
+        lost: True exactly when ``pose`` is None.
     """
 
     pose: Pose | None
@@ -68,11 +78,18 @@ class Measurement:
     lost: bool = False
 
     def __post_init__(self) -> None:
+        if self.pose is not None and not isinstance(self.pose, Pose):
+            raise TypeError(f"pose: expected a hybridpose Pose (T_cam_obj) or None, got {type(self.pose).__name__}")
+        if self.pose is not None and self.lost:
+            raise ValueError("lost: a lost measurement carries no pose (pass pose=None)")
+        object.__setattr__(self, "lost", self.pose is None)
         object.__setattr__(self, "covariance", as_covariance6(self.covariance))
         q = float(self.quality)
         if not 0.0 <= q <= 1.0:
             raise ValueError(f"quality: expected a value in [0, 1], got {self.quality}")
         object.__setattr__(self, "quality", q)
+        if not np.isfinite(self.timestamp):
+            raise ValueError(f"timestamp: expected finite seconds, got {self.timestamp}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +102,10 @@ class Estimate:
         velocity: (6,) body-frame twist ``[ω (rad/s), v (m/s)]``.
         status: one of ``"init"``, ``"tracking"``, ``"lost"``, ``"reinit"``.
         timestamp: seconds.
+        sources: the measurements fused into this estimate, e.g. ``("tracker:edges",
+            "regressor:default")`` (empty when only predicted).
+        timings_ms: milliseconds spent per component on this frame (``"tracker"``, ``"regressor"``,
+            ``"fusion"``, ``"total"``).
     """
 
     pose: Pose | None
@@ -92,6 +113,8 @@ class Estimate:
     timestamp: float
     status: str = "init"
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    sources: tuple[str, ...] = ()
+    timings_ms: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.status not in ESTIMATE_STATUSES:

@@ -65,3 +65,50 @@ def se3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     V = so3_left_jacobian(omega)
     v = np.linalg.solve(V, np.asarray(t, dtype=np.float64)[..., None])[..., 0]
     return np.concatenate([omega, v], -1)
+
+
+@numba.njit(cache=True, nogil=True)
+def so3_log_one(R: np.ndarray) -> np.ndarray:
+    """:func:`~hybridpose.geometry.matrix_to_rotvec` of one (3, 3) rotation, compiled (the filters take
+    hundreds of logarithms per frame). Through the quaternion (Shepperd's branch choice), so it is
+    well conditioned near π as well as near 0; angle in [0, π]."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    if tr > max(R[0, 0], R[1, 1], R[2, 2]):
+        s = 2.0 * math.sqrt(1.0 + tr)
+        w, x, y, z = 0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
+    elif R[0, 0] >= R[1, 1] and R[0, 0] >= R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        w, x, y, z = (R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s
+    elif R[1, 1] >= R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        w, x, y, z = (R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        w, x, y, z = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    n = math.sqrt(x * x + y * y + z * z)
+    if n < 1e-12:
+        k = 2.0 / max(w, 1e-12)
+    else:
+        k = 2.0 * math.atan2(n, w) / n
+    return np.array([x * k, y * k, z * k])
+
+
+@numba.njit(cache=True, nogil=True)
+def se3_log_one(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """:func:`se3_log` of one pose (R (3, 3), t (3,)), compiled: ``[ω, V(ω)⁻¹ t]``."""
+    w = so3_log_one(R)
+    t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    # V⁻¹ = I − ½[ω]× + c·[ω]×², c = (1 − θ sinθ / (2 (1 − cosθ))) / θ²
+    if t2 < 1e-8:
+        c = 1.0 / 12.0 + t2 / 720.0
+    else:
+        theta = math.sqrt(t2)
+        c = (1.0 - theta * math.sin(theta) / (2.0 * (1.0 - math.cos(theta)))) / t2
+    W = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    v = (np.eye(3) - 0.5 * W + c * (W @ W)) @ t
+    out = np.empty(6)
+    out[:3] = w
+    out[3:] = v
+    return out

@@ -1096,10 +1096,11 @@ class CheckpointRegressor(PoseRegressor):
         pose = Pose.from_quat_t(q / q_norm, t)
         cal = self.calibration
         cov = np.asarray((cal if cal and "covariance" in cal else uncalibrated_record(self.kind))["covariance"])
-        # a direct regressor has no per-image residual: quality only says whether the pose is plausible
+        # a direct regressor has no per-image residual: a centre outside the image is no pose at all
         uv = cam.K @ (t / t[2])
-        inside = 0 <= uv[0] < cam.width and 0 <= uv[1] < cam.height
-        return Measurement(pose=pose, covariance=cov, quality=1.0 if inside else 0.0, source=f"regressor:{self.name}",
+        if not (0 <= uv[0] < cam.width and 0 <= uv[1] < cam.height):
+            return self._lost(frame)
+        return Measurement(pose=pose, covariance=cov, quality=1.0, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 
     def _translation_and_bounded_image(self, image: np.ndarray, cam: Camera, roi=None, x: torch.Tensor | None = None):

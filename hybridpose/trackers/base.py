@@ -53,8 +53,10 @@ class Tracker(ABC):
     def track(self, frame: Frame, prior: Pose | None = None) -> Measurement:
         """Pose in ``frame``, searched around ``prior`` (default: the last pose).
 
-        Returns a :class:`Measurement` with quality in 0..1 and ``lost`` True when quality falls
-        below ``lost_quality`` (the pose is then the tracker's best guess, not to be trusted).
+        Returns a :class:`Measurement` with quality in 0..1. When quality falls below
+        ``lost_quality`` or the solve fails, ``lost`` is True and ``pose`` is None (the contract of
+        every backend of every role: ``lost == (pose is None)``); the next ``track`` without a prior
+        still searches from the solver's last pose.
         """
         if self.pose is None or self.frame is None:
             raise RuntimeError(f"{self.name}: track() called before init(frame, pose)")
@@ -70,13 +72,15 @@ class Tracker(ABC):
             pose, cov, quality = None, None, 0.0
         finite = pose is not None and np.all(np.isfinite(pose.matrix)) and cov is not None and np.all(np.isfinite(cov))
         if not finite or pose.t[2] <= MIN_DEPTH_M:
-            m = Measurement(pose=start, covariance=LOST_COVARIANCE, quality=0.0, source=f"tracker:{self.name}",
+            pose, quality = None, 0.0
+        quality = float(np.clip(quality, 0.0, 1.0))
+        if pose is None or quality < self.lost_quality:
+            m = Measurement(pose=None, covariance=LOST_COVARIANCE, quality=quality, source=f"tracker:{self.name}",
                             timestamp=frame.timestamp, lost=True)
         else:
-            quality = float(np.clip(quality, 0.0, 1.0))
             m = Measurement(pose=pose, covariance=cov, quality=quality, source=f"tracker:{self.name}",
-                            timestamp=frame.timestamp, lost=quality < self.lost_quality)
-        self._accept(frame, m)
+                            timestamp=frame.timestamp)
+        self._accept(frame, pose, quality)
         return m
 
     def reset(self) -> None:
@@ -92,11 +96,12 @@ class Tracker(ABC):
     def _track(self, frame: Frame, start: Pose) -> tuple[Pose | None, np.ndarray | None, float]:
         """(pose, (6, 6) covariance over ``[ω, v]``, quality) in ``frame`` starting from ``start``."""
 
-    def _accept(self, frame: Frame, m: Measurement) -> None:
-        """Remember the result: the next search starts from it, lost or not (a caller with a better
-        idea — the fusion layer — passes ``prior``); a failed solve keeps the previous pose."""
-        if m.pose is not None and m.quality > 0:
-            self.pose = m.pose
+    def _accept(self, frame: Frame, pose: Pose | None, quality: float) -> None:
+        """Remember the result: the next search starts from the solver's pose, even one below
+        ``lost_quality`` (a caller with a better idea — the estimator — passes ``prior``); a failed
+        solve keeps the previous pose."""
+        if pose is not None and quality > 0:
+            self.pose = pose
         self.frame = frame
 
     # --- checks ------------------------------------------------------------------------------------

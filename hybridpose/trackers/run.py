@@ -111,6 +111,12 @@ class TrackResult:
     out: Path
 
 
+def pose_row(frame: Frame, pose: Pose | None, quality: float, lost: bool) -> list:
+    """One ``poses.csv`` row (:data:`CSV_FIELDS`); a frame without a pose has empty pose cells."""
+    cells = ([f"{v:.9f}" for v in pose.quat_wxyz] + [f"{v:.6f}" for v in pose.t]) if pose is not None else [""] * 7
+    return [frame.index, f"{frame.timestamp:.6f}", *cells, f"{quality:.4f}", int(lost)]
+
+
 def draw_tracking(frame: Frame, obj, m: Measurement, label: str) -> np.ndarray:
     """The frame with the model's edges at the measured pose (green tracking, red lost) and a label."""
     color = (255, 60, 60) if m.lost else (60, 255, 60)
@@ -148,10 +154,9 @@ def track_sequence(frames: Iterator[Frame], tracker: Tracker, init_pose: Pose, o
                 m = tracker.track(frame)
                 elapsed += time.perf_counter() - t0
             n_lost += int(m.lost)
-            q, t = m.pose.quat_wxyz, m.pose.t
-            rows.append([frame.index, f"{frame.timestamp:.6f}", *(f"{v:.9f}" for v in q), *(f"{v:.6f}" for v in t),
-                         f"{m.quality:.4f}", int(m.lost)])
-            scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(m.pose)}]
+            rows.append(pose_row(frame, m.pose, m.quality, m.lost))
+            if m.pose is not None:
+                scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(m.pose)}]
             overlay = draw_tracking(frame, tracker.object, m, f"{tracker.name} #{frame.index}")
             writer.write(cv2.cvtColor(overlay, cv2.COLOR_RGB2BGR))
             if on_frame:

@@ -1,0 +1,164 @@
+"""The three modes on the same frames, and what each did per frame.
+
+- ``tracker``: the tracker alone, given the true pose at frame 0 and never re-initialised;
+- ``cnn``: the regressor on every frame, no prior;
+- ``hybrid``: :class:`~hybridpose.estimator.HybridEstimator`, no ground truth at all.
+
+Each returns one :class:`FrameRecord` per frame; :func:`sequence_stats` turns them into the figures
+a benchmark reports (errors on the frames where the object is at least half visible, silent failures,
+loss and recovery, cost).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core import Frame
+from ..geometry import Pose
+from ..metrics import rotation_error_deg, translation_error_m
+
+HALF_VISIBLE = 0.5  # errors are reported on frames where at least this share of the object is visible
+COVERED = 0.05  # below this visible share the object counts as covered
+SILENT_DEG = 5.0  # a frame with a larger error that is not flagged lost is a silent failure
+RECOVERED_DEG = 2.0  # recovery: rotation error back below this (and a trusted pose)
+
+
+@dataclass(frozen=True)
+class SequenceFrame:
+    """One frame of a benchmark sequence and its truth."""
+
+    frame: Frame
+    truth: Pose
+    visible: float  # visible share of the object, 0..1
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """What a mode said about one frame: ``pose`` (None when it said nothing), ``trusted`` (False when
+    it flagged the object lost), milliseconds, CNN calls made for this frame, the hybrid's status."""
+
+    pose: Pose | None
+    trusted: bool
+    ms: float
+    cnn_calls: int = 0
+    status: str = ""
+
+
+def load_sequence(scene_dir) -> list[SequenceFrame]:
+    """Frames, true poses and visible shares of a rendered BOP scene (``scene_meta.json`` timestamps
+    where present, else 30 fps)."""
+    from ..datasets.bop import BopScene
+    from ..io import read_json
+
+    scene = BopScene(scene_dir)
+    meta_path = Path(scene_dir) / "scene_meta.json"
+    meta = read_json(meta_path).get("frames", {}) if meta_path.is_file() else {}
+    out = []
+    for k, i in enumerate(scene.image_ids):
+        img = scene.image(i)
+        t = float(meta.get(str(i), {}).get("timestamp_s", k / 30.0))
+        out.append(SequenceFrame(Frame(scene.rgb(i), img.camera, t, i), img.pose, img.visib_fract))
+    return out
+
+
+def run_tracker(seq: list[SequenceFrame], tracker) -> list[FrameRecord]:
+    """The tracker from the true first pose, never re-initialised (its own last pose as the prior)."""
+    first = seq[0]
+    t0 = time.perf_counter()
+    tracker.init(first.frame, first.truth)
+    records = [FrameRecord(first.truth, True, 1000 * (time.perf_counter() - t0))]
+    for s in seq[1:]:
+        t0 = time.perf_counter()
+        m = tracker.track(s.frame)
+        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0)))
+    return records
+
+
+def run_cnn(seq: list[SequenceFrame], regressor) -> list[FrameRecord]:
+    """The regressor on every frame, full image, no prior."""
+    records = []
+    for s in seq:
+        t0 = time.perf_counter()
+        m = regressor.predict(s.frame)
+        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0), cnn_calls=1))
+    return records
+
+
+def run_hybrid(seq: list[SequenceFrame], estimator) -> list[FrameRecord]:
+    """The hybrid estimator from scratch (``reset`` first), no ground truth."""
+    estimator.reset()
+    records = []
+    for s in seq:
+        before = estimator.regressor_calls
+        e = estimator.step(s.frame)
+        records.append(FrameRecord(e.pose, e.status != "lost" and e.pose is not None, e.timings_ms["total"],
+                                   cnn_calls=estimator.regressor_calls - before, status=e.status))
+    return records
+
+
+def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord]) -> dict:
+    """Per-sequence figures of one mode.
+
+    Errors (``rot_*_deg``, ``trans_*``) are over the frames where the object is at least half visible
+    and the mode gave a trusted pose; ``coverage`` is the share of those frames that had one.
+    ``silent_failures``: frames (any visibility) with a trusted pose more than ``SILENT_DEG`` off.
+    ``covered_tracking_10deg``: frames with the object < ``COVERED`` visible and a trusted pose more
+    than 10° off. ``recover_frames``: after each full occlusion, the frames from the first frame the
+    object is half visible again until a trusted pose within ``RECOVERED_DEG`` (None: never).
+    """
+    rot, trans, pct, silent, covered_bad, lost = [], [], [], 0, 0, 0
+    considered = 0
+    for s, r in zip(seq, records):
+        err = rotation_error_deg(r.pose, s.truth) if r.pose is not None else None
+        if not r.trusted:
+            lost += 1
+        if r.trusted and err is not None:
+            silent += int(err > SILENT_DEG)
+            covered_bad += int(s.visible < COVERED and err > 10.0)
+        if s.visible >= HALF_VISIBLE:
+            considered += 1
+            if r.trusted and err is not None:
+                te = translation_error_m(r.pose, s.truth)
+                rot.append(err)
+                trans.append(te)
+                pct.append(100 * te / s.truth.distance_m)
+    rot_a = np.array(rot) if rot else np.array([np.nan])
+    return {
+        "frames": len(seq),
+        "frames_half_visible": considered,
+        "coverage": len(rot) / max(considered, 1),
+        "rot_mean_deg": float(np.mean(rot_a)),
+        "rot_median_deg": float(np.median(rot_a)),
+        "rot_p90_deg": float(np.percentile(rot_a, 90)),
+        "rot_max_deg": float(np.max(rot_a)),
+        "trans_mean_m": float(np.mean(trans)) if trans else float("nan"),
+        "trans_mean_pct": float(np.mean(pct)) if pct else float("nan"),
+        "silent_failures": silent,
+        "covered_tracking_10deg": covered_bad,
+        "frames_lost": lost,
+        "recover_frames": _recovery(seq, records),
+        "ms_per_frame": float(np.mean([r.ms for r in records])),
+        "cnn_calls_per_100": 100.0 * sum(r.cnn_calls for r in records) / len(records),
+    }
+
+
+def _recovery(seq: list[SequenceFrame], records: list[FrameRecord]) -> list[int | None]:
+    out, covered = [], False
+    k = 0
+    while k < len(seq):
+        if seq[k].visible < COVERED:
+            covered = True
+        elif covered and seq[k].visible >= HALF_VISIBLE:
+            covered = False
+            n = None
+            for j in range(k, len(seq)):
+                r = records[j]
+                if r.trusted and r.pose is not None and rotation_error_deg(r.pose, seq[j].truth) <= RECOVERED_DEG:
+                    n = j - k
+                    break
+            out.append(n)
+        k += 1
+    return out

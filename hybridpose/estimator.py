@@ -1,0 +1,330 @@
+"""``HybridEstimator``: the policy that combines a model-based tracker, a CNN pose regressor and a
+fusion filter — the only place where the three roles meet.
+
+Status machine, one :meth:`HybridEstimator.step` per frame::
+
+    init ──CNN pose──▶ tracking ──tracker lost / k gate rejections──▶ lost
+                          ▲  │                                         │
+                          │  └─CNN disagrees k checks in a row─▶ reinit│
+                          └──────────────────── reinit ◀──two CNN answers agree
+
+- **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker,
+  started from the CNN pose, confirms it (not lost); the tracker's fit starts the fusion.
+- **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
+  gated (Mahalanobis) and fused. Every ``check_period`` frames the CNN runs on a crop around the
+  predicted projection, and the tracker fits the edges from the CNN pose too. The check disagrees
+  when the CNN pose is far from the fused one (``disagreement_chi2`` with both covariances) or when
+  the fit from the CNN pose lands elsewhere and matches the image better than the current track
+  (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
+  at once) restart everything from that fit — the drift the tracker did not flag. A CNN pose that
+  agrees is fused.
+- **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
+  fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
+  consecutive answers agree (``reacquire_chi2``) and the tracker, started from the latest, confirms it
+  (not lost: under the arm the CNN can repeat the same wrong answer, but the edges do not match);
+  then everything restarts from the tracker's fit (**reinit**).
+
+Every threshold is a field of :class:`HybridConfig`, its default chosen on the tuning seeds of the
+occlusion suite (``benchmarks/hybrid_sequences.py``; evidence in ``docs/decisions.md``).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
+from .fusion.base import pose_mahalanobis2 as _mahalanobis2
+from .geometry import Camera, Pose
+from .objects import ObjectModel
+
+_CHI2_6_999 = float(chi2.ppf(0.999, 6))
+
+
+@dataclass(frozen=True)
+class HybridConfig:
+    """The hybrid policy's parameters.
+
+    Attributes:
+        check_period: frames between CNN checks while tracking (0: never check).
+        disagreement_chi2: squared Mahalanobis distance (fused pose vs CNN pose, both covariances)
+            above which a CNN check disagrees.
+        confirm_checks: consecutive disagreeing checks that re-initialise from the CNN (1: trust
+            every check; 2 or more: a single CNN outlier is ignored).
+        lost_after_rejections: consecutive tracker measurements refused by the fusion's gate that
+            declare the object lost.
+        reacquire_chi2: squared Mahalanobis distance below which two consecutive CNN answers agree
+            while lost (both covariances, plus the motion possible in between).
+        check_roi_margin: the CNN check's crop is the box of the object's projection at the
+            predicted pose, grown by this fraction on each side.
+        switch_quality_margin: at a check, the tracker also fits the model edges from the CNN pose;
+            when that fit lands elsewhere (``disagreement_chi2``) and its quality beats the current
+            track's by this margin, the check disagrees even where the CNN's own covariance is too
+            wide to tell (the image's edges decide between the two poses).
+    """
+
+    check_period: int = 10
+    disagreement_chi2: float = _CHI2_6_999
+    confirm_checks: int = 2
+    lost_after_rejections: int = 3
+    reacquire_chi2: float = _CHI2_6_999
+    check_roi_margin: float = 0.15
+    switch_quality_margin: float = 0.1
+
+    def __post_init__(self) -> None:
+        if int(self.check_period) != self.check_period or self.check_period < 0:
+            raise ValueError(f"check_period: expected a whole number of frames ≥ 0, got {self.check_period}")
+        for name in ("confirm_checks", "lost_after_rejections"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{name}: expected a whole number ≥ 1, got {v}")
+        for name in ("disagreement_chi2", "reacquire_chi2"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
+        if not 0 <= self.switch_quality_margin <= 1:
+            raise ValueError(f"switch_quality_margin: expected a quality difference in [0, 1], got {self.switch_quality_margin}")
+        if not 0 <= self.check_roi_margin <= 2:
+            raise ValueError(f"check_roi_margin: expected a fraction in [0, 2], got {self.check_roi_margin}")
+
+
+@dataclass
+class _Counters:
+    since_check: int = 0
+    disagreements: int = 0
+    rejections: int = 0
+    last_cnn: Measurement | None = None
+
+
+class HybridEstimator:
+    """Track a known object in a monocular sequence with no initial pose.
+
+    Args:
+        tracker: a :class:`~hybridpose.trackers.base.Tracker` (``init`` / ``track`` / ``reset``).
+        regressor: a :class:`~hybridpose.regressors.base.PoseRegressor` (``predict(frame, roi)``).
+        fusion: a :class:`~hybridpose.fusion.base.Fusion` (``reset`` / ``predict`` / ``update``).
+        config: the policy's thresholds (:class:`HybridConfig`).
+
+    ``step(frame)`` returns an :class:`~hybridpose.core.Estimate` per frame: pose (``T_cam_obj``,
+    metres; None until the CNN first finds the object), 6×6 covariance, body twist, status, the
+    measurement sources fused and the milliseconds per component.
+    """
+
+    def __init__(self, tracker, regressor, fusion, config: HybridConfig | None = None) -> None:
+        for name, obj, methods in (("tracker", tracker, ("init", "track", "reset")),
+                                   ("regressor", regressor, ("predict",)),
+                                   ("fusion", fusion, ("reset", "predict", "update"))):
+            missing = [m for m in methods if not callable(getattr(obj, m, None))]
+            if missing:
+                raise TypeError(f"{name}: expected an object with {', '.join(methods)}; "
+                                f"{type(obj).__name__} lacks {', '.join(missing)}")
+        self.tracker, self.regressor, self.fusion = tracker, regressor, fusion
+        self.config = config or HybridConfig()
+        if not isinstance(self.config, HybridConfig):
+            raise TypeError(f"config: expected a HybridConfig, got {type(config).__name__}")
+        self.object: ObjectModel | None = getattr(tracker, "object", None)
+        self.regressor_calls = 0  # since construction: the CNN's share of the work
+        self.reset()
+
+    @classmethod
+    def from_names(cls, object: str | ObjectModel = "truss", tracker: str = "edges", regressor: str = "default",
+                   fusion: str = "ukf", config: HybridConfig | None = None, scale: float = 1.0,
+                   tracker_kw: dict | None = None, regressor_kw: dict | None = None,
+                   fusion_kw: dict | None = None) -> "HybridEstimator":
+        """Build every part from :mod:`hybridpose.registry` names.
+
+        Args:
+            object: a built-in object name (``"truss"``), a mesh file, or an :class:`ObjectModel`.
+            tracker, fusion: registered names (``registry.available("tracker")`` ...).
+            regressor: a registered name, or the path of a trained checkpoint (``runs/x/best.pt``).
+            scale: mesh units → metres for a mesh file (0.001 for mm).
+            tracker_kw, regressor_kw, fusion_kw: keyword arguments of each backend.
+        """
+        from .objects import load_object
+        from .registry import available, create
+
+        obj = object if isinstance(object, ObjectModel) else load_object(object, scale=scale)
+        trk = create("tracker", tracker, object=obj, **(tracker_kw or {}))
+        if regressor not in available("regressor") and (Path(regressor).suffix == ".pt" or Path(regressor).is_file()):
+            from .regressors.predictor import CheckpointRegressor
+
+            if not Path(regressor).is_file():
+                raise FileNotFoundError(f"regressor: {regressor}: no such checkpoint file")
+            reg = CheckpointRegressor(regressor, object=obj, **(regressor_kw or {}))
+        else:
+            reg = create("regressor", regressor, object=obj, **(regressor_kw or {}))
+        fus = create("fusion", fusion, **(fusion_kw or {}))
+        return cls(trk, reg, fus, config=config)
+
+    # --- public API --------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget everything: the next frame starts from the CNN again."""
+        self.status = "init"
+        self.camera: Camera | None = None
+        self.last_timestamp: float | None = None
+        self._n = _Counters()
+        self.tracker.reset()
+
+    def step(self, frame: Frame) -> Estimate:
+        """Estimate the pose in ``frame`` (frames in time order, one camera)."""
+        self._check_frame(frame)
+        timings = {"tracker": 0.0, "regressor": 0.0, "fusion": 0.0}
+        t_start = time.perf_counter()
+        if self.status == "init":
+            estimate = self._initialise(frame, timings)
+        elif self.status == "lost":
+            estimate = self._reacquire(frame, timings)
+        else:
+            estimate = self._track(frame, timings)
+        self.last_timestamp = frame.timestamp
+        timings["total"] = 1000 * (time.perf_counter() - t_start)
+        estimate.timings_ms.update(timings)
+        return estimate
+
+    def run(self, frames):
+        """``step`` over an iterable of frames; yields (frame, estimate)."""
+        for frame in frames:
+            yield frame, self.step(frame)
+
+    # --- the three states --------------------------------------------------------------------------
+    def _initialise(self, frame: Frame, timings: dict) -> Estimate:
+        m = self._cnn(frame, None, timings)
+        fit = self._confirmed(frame, m, timings)
+        if fit is None:
+            return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status="init")
+        self._restart(frame, fit, timings)
+        self.status = "tracking"
+        return self._estimate("init", (m.source, fit.source))
+
+    def _track(self, frame: Frame, timings: dict) -> Estimate:
+        prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
+        m = self._timed(timings, "tracker", self.tracker.track, frame, prior.pose)
+        sources = []
+        if m.lost:
+            return self._declare_lost(frame, timings)
+        if self._timed(timings, "fusion", self.fusion.update, m):
+            sources.append(m.source)
+            self._n.rejections = 0
+        else:
+            self._n.rejections += 1
+            if self._n.rejections >= self.config.lost_after_rejections:
+                return self._declare_lost(frame, timings)
+        status = "tracking"
+        self._n.since_check += 1
+        due = self.config.check_period > 0 and (self._n.since_check >= self.config.check_period
+                                                or self._n.disagreements > 0)
+        if due:
+            self._n.since_check = 0
+            fused = self.fusion.estimate
+            c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings)
+            if c.pose is not None:
+                far = _mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
+                fit = self._timed(timings, "tracker", self.tracker.track, frame, c.pose)
+                better = (fit.pose is not None and fit.quality > m.quality + self.config.switch_quality_margin
+                          and _mahalanobis2(fused.pose, fused.covariance, fit.pose, fit.covariance)
+                          > self.config.disagreement_chi2)
+                if far or better:
+                    self._n.disagreements += 1
+                    if self._n.disagreements >= self.config.confirm_checks and fit.pose is not None:
+                        self._restart(frame, fit, timings)
+                        return self._estimate("reinit", (c.source, fit.source))
+                else:
+                    self._n.disagreements = 0
+                    if self._timed(timings, "fusion", self.fusion.update, c):
+                        sources.append(c.source)
+                # (the trial fit leaves the tracker's own last pose there; harmless: every track call
+                # here passes the fused prediction as its prior)
+        return self._estimate(status, tuple(sources))
+
+    def _reacquire(self, frame: Frame, timings: dict) -> Estimate:
+        self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
+        m = self._cnn(frame, None, timings)
+        previous, self._n.last_cnn = self._n.last_cnn, m
+        if m.pose is not None and previous is not None and previous.pose is not None:
+            dt = m.timestamp - previous.timestamp
+            motion = getattr(self.fusion, "initial_twist_covariance", np.zeros((6, 6))) * dt**2
+            if _mahalanobis2(previous.pose, previous.covariance + motion, m.pose, m.covariance) <= self.config.reacquire_chi2:
+                fit = self._confirmed(frame, m, timings)
+                if fit is not None:
+                    self._restart(frame, fit, timings)
+                    self.status = "tracking"
+                    return self._estimate("reinit", (m.source, fit.source))
+        return self._estimate("lost", ())
+
+    # --- helpers -----------------------------------------------------------------------------------
+    def _declare_lost(self, frame: Frame, timings: dict) -> Estimate:
+        self.status = "lost"
+        self._n = _Counters()
+        # the CNN starts looking at once; its answer here is the first of the two that must agree
+        self._n.last_cnn = self._cnn(frame, None, timings)
+        return self._estimate("lost", ())
+
+    def _confirmed(self, frame: Frame, m: Measurement, timings: dict) -> Measurement | None:
+        """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found
+        nothing or the tracker, started there, is lost (the model's edges do not match the image)."""
+        if m.pose is None:
+            return None
+        try:
+            self._timed(timings, "tracker", self.tracker.init, frame, m.pose)
+        except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
+            return None
+        fit = self._timed(timings, "tracker", self.tracker.track, frame, m.pose)
+        return None if fit.lost else fit
+
+    def _restart(self, frame: Frame, m: Measurement, timings: dict) -> None:
+        """The fusion starts over from ``m``, the tracker's fit from a CNN pose (the tracker itself is
+        already there: its last ``track`` produced ``m``)."""
+        twist = None
+        if self.status == "tracking" and self.last_timestamp is not None:
+            twist = self.fusion.estimate.velocity  # a drift re-init keeps the motion the tracker saw
+        self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp, twist)
+        self._n = _Counters()
+
+    def _cnn(self, frame: Frame, roi, timings: dict) -> Measurement:
+        self.regressor_calls += 1
+        return self._timed(timings, "regressor", self.regressor.predict, frame, roi)
+
+    def _estimate(self, status: str, sources: tuple[str, ...]) -> Estimate:
+        e = self.fusion.estimate
+        return Estimate(pose=e.pose, covariance=e.covariance, timestamp=e.timestamp, status=status,
+                        velocity=e.velocity, sources=sources)
+
+    def _roi(self, pose: Pose, camera: Camera) -> tuple[int, int, int, int] | None:
+        """Box (x, y, w, h) px of the object's projection at ``pose``, grown by ``check_roi_margin``;
+        None when it does not overlap the image."""
+        obj = self.object
+        if obj is None or pose is None:
+            return None
+        uv = camera.project(obj.bbox_corners, pose)
+        (x0, y0), (x1, y1) = uv.min(0), uv.max(0)
+        m = self.config.check_roi_margin
+        x0, x1 = x0 - m * (x1 - x0), x1 + m * (x1 - x0)
+        y0, y1 = y0 - m * (y1 - y0), y1 + m * (y1 - y0)
+        x0, y0 = max(x0, 0.0), max(y0, 0.0)
+        x1, y1 = min(x1, camera.width - 1.0), min(y1, camera.height - 1.0)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            return None
+        return int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0))
+
+    @staticmethod
+    def _timed(timings: dict, key: str, fn, *args):
+        t0 = time.perf_counter()
+        try:
+            return fn(*args)
+        finally:
+            timings[key] += 1000 * (time.perf_counter() - t0)
+
+    def _check_frame(self, frame: Frame) -> None:
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+        if self.camera is None:
+            self.camera = frame.camera
+        elif frame.camera != self.camera:
+            raise ValueError(f"frame.camera: {frame.camera} differs from the camera of the first frame ({self.camera}); "
+                             "call reset() to start over with another camera")
+        if self.last_timestamp is not None and not frame.timestamp > self.last_timestamp:
+            raise ValueError(f"frame.timestamp: {frame.timestamp:.6f} s is not after the previous frame's "
+                             f"{self.last_timestamp:.6f} s (timestamps must increase)")
+

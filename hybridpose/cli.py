@@ -130,16 +130,25 @@ def cmd_verify(args) -> int:
     return 0
 
 
+def _mode_line(name: str, st: dict) -> str:
+    rec = st["recover_frames"]
+    rec_txt = "—" if not rec else ", ".join("never" if n is None else str(n) for n in rec)
+    return (f"  {name:8s} {st['rot_median_deg']:7.2f} {st['rot_p90_deg']:7.2f} {st['rot_max_deg']:7.2f} "
+            f"{st['trans_mean_pct']:8.2f} {100 * st['coverage']:6.0f}% {st['silent_failures']:7d} "
+            f"{st['frames_lost']:5d}   {rec_txt:10s} {st['ms_per_frame']:7.1f}")
+
+
 def cmd_demo(args) -> int:
+    from .bench.modes import FrameRecord, load_sequence, run_cnn, run_tracker, sequence_stats
     from .datasets import render_sequence_dataset
-    from .datasets.bop import BopScene
+    from .estimator import HybridEstimator
     from .io import write_image
-    from .metrics import rotation_error_deg, translation_error_m
+    from .metrics import rotation_error_deg
     from .objects import load_object
     from .registry import create
     from .render.sequences import SequenceSpec
-    from .trackers.run import read_frames, track_sequence
-    from .viz import contact_sheet
+    from .tracking import draw_estimate, run_hybrid_on_frames
+    from .viz import contact_sheet, plot_error_over_time
 
     out = Path(args.out)
     obj = load_object("truss")
@@ -147,49 +156,45 @@ def cmd_demo(args) -> int:
     spec = SequenceSpec(trajectory="tumble", frames=args.frames, fps=30.0, occlusion="arm", seed=args.seed)
     scene_dir = render_sequence_dataset(out / "seq_tumble_arm", obj, camera, spec, progress=_progress("demo: render"))
     stats = verify_dataset(out / "seq_tumble_arm", out / "verify.png", frames=12)
-    print(f"demo: rendered {spec.frames} frames of a tumbling truss with arm occlusion → {out / 'seq_tumble_arm'}")
+    print(f"demo: rendered {spec.frames} frames of a tumbling truss; a robot arm passes in front (partial, then "
+          f"full) → {out / 'seq_tumble_arm'}")
     print(f"demo: contact sheet with projected CAD edges → {out / 'verify.png'} "
           f"(mask vs CAD IoU mean {stats['iou_mean']:.4f})")
 
-    # the model-based tracker alone, from the true first pose: what it sees, when it says "lost"
-    scene = BopScene(scene_dir)
-    truth = {i: scene.image(i).pose for i in scene.image_ids}
-    keep = set(np.linspace(0, len(truth) - 1, 8).round().astype(int).tolist())
-    tiles, labels, errors, lost = [], [], [], []
+    seq = load_sequence(scene_dir)
+    regressor = create("regressor", "default", object=obj)
+    estimator = HybridEstimator(create("tracker", args.tracker, object=obj), regressor,
+                                create("fusion", args.fusion))
+    keep = set(np.linspace(0, len(seq) - 1, 8).round().astype(int).tolist())
+    tiles, labels, hybrid = [], [], []
 
-    def collect(frame, m, overlay):
-        if frame.index in keep:
-            tiles.append(overlay)
-            labels.append(f"#{frame.index} {'LOST' if m.lost else f'{rotation_error_deg(m.pose, truth[frame.index]):.1f} deg'}")
-        lost.append(m.lost)
-        if not m.lost:
-            errors.append((rotation_error_deg(m.pose, truth[frame.index]),
-                           translation_error_m(m.pose, truth[frame.index])))
+    def collect(frame, e, overlay):
+        if frame.index in keep:  # labelled after resizing, so the sheet's labels stay legible
+            tiles.append(draw_estimate(frame, obj, e, None))
+            err = f"{rotation_error_deg(e.pose, seq[len(hybrid)].truth):.1f} deg" if e.pose is not None else "no pose"
+            labels.append(f"#{frame.index} {e.status.upper()} {err}")
+        hybrid.append(FrameRecord(e.pose, e.status != "lost" and e.pose is not None, e.timings_ms["total"],
+                                  status=e.status))
 
-    tracker = create("tracker", args.tracker, object=obj)
-    res = track_sequence(read_frames(scene_dir / "rgb", camera, fps=spec.fps), tracker, truth[scene.image_ids[0]],
-                         out / "track", on_frame=collect)
+    # the hybrid has no ground truth at all: the CNN initialises it
+    res = run_hybrid_on_frames((s.frame for s in seq), estimator, out / "track", on_frame=collect)
+    records = {"tracker": run_tracker(seq, create("tracker", args.tracker, object=obj)),
+               "cnn": run_cnn(seq, regressor), "hybrid": hybrid}
     write_image(out / "tracking.png", contact_sheet(tiles, columns=4, labels=labels))
-    e = np.array(errors) if errors else np.full((1, 2), np.nan)
-    print(f"demo: tracker {args.tracker}: {res.ms_per_frame:.1f} ms/frame, median error {np.median(e[:, 0]):.2f}° / "
-          f"{1000 * np.median(e[:, 1]):.1f} mm on the {len(errors)} frames it trusted, {sum(lost)} frames flagged lost "
-          f"(the arm passes in front) → {out / 'tracking.png'}, {out / 'track' / 'overlay.mp4'}")
-
-    # the CNN: a pose from the first image alone, with no prior (how the tracker gets initialised)
-    try:
-        reg = create("regressor", "default", object=obj)
-    except FileNotFoundError as exc:
-        print(f"demo: no CNN ({exc})")
-        return 0
-    from .core import Frame
-
-    first = scene.image_ids[0]
-    m = reg.predict(Frame(scene.rgb(first), camera, 0.0, first))
-    if m.pose is None:
-        print("demo: CNN default: no pose found in the first frame")
-    else:
-        print(f"demo: CNN default on the first frame, no prior: {rotation_error_deg(m.pose, truth[first]):.1f}° / "
-              f"{1000 * translation_error_m(m.pose, truth[first]):.0f} mm (quality {m.quality:.2f})")
+    errors = {mode: [rotation_error_deg(r.pose, s.truth) if r.trusted and r.pose is not None else np.nan
+                     for s, r in zip(seq, recs)] for mode, recs in records.items()}
+    plot_error_over_time(out / "error_over_time.png", [s.frame.timestamp for s in seq], errors,
+                         [s.visible for s in seq], title=f"tumble + arm, seed {args.seed}",
+                         statuses=[r.status for r in hybrid])
+    print(f"demo: errors on the {sum(s.visible >= 0.5 for s in seq)} frames where the truss is at least half visible "
+          "(tracker: from the true first pose; CNN: every frame; hybrid: no ground truth)")
+    print("  mode     median°    p90°  worst°  trans.%  frames  silent  lost   recovery   ms/frame")
+    for mode, recs in records.items():
+        print(_mode_line(mode, sequence_stats(seq, recs)))
+    print("  (frames: share with a trusted pose; silent: frames > 5° off not flagged lost; recovery: frames after "
+          "a full occlusion until ≤ 2°)")
+    print(f"demo: hybrid overlay (green tracking, yellow (re)init, red lost) → {res.video}; "
+          f"{out / 'tracking.png'}; error over time → {out / 'error_over_time.png'}")
     return 0
 
 
@@ -201,10 +206,21 @@ def cmd_track(args) -> int:
 
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
+    frames = read_frames(args.source, camera, args.fps)
+    if args.init_pose is None:
+        from .estimator import HybridEstimator
+        from .tracking import run_hybrid_on_frames
+
+        est = HybridEstimator.from_names(object=obj, tracker=args.tracker, regressor=args.regressor,
+                                         fusion=args.fusion)
+        res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=_counter("track"))
+        print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}; "
+              f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
+              f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
+        return 0
     pose0 = load_pose(args.init_pose)
     tracker = create("tracker", args.tracker, object=obj)
-    res = track_sequence(read_frames(args.source, camera, args.fps), tracker, pose0, args.out,
-                         max_frames=args.max_frames, progress=_counter("track"))
+    res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=_counter("track"))
     print(f"track: {res.frames} frames with {args.tracker} ({res.ms_per_frame:.1f} ms/frame, {res.lost} flagged lost) → "
           f"{res.out / 'overlay.mp4'}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
     return 0
@@ -501,24 +517,30 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--out", required=True)
     x.set_defaults(func=cmd_export)
 
-    k = sub.add_parser("track", help="track your object through a video or image folder from an initial pose")
+    k = sub.add_parser("track", help="track your object through a video or image folder (the hybrid: the CNN "
+                                     "initialises; --init-pose: the tracker alone from that pose)")
     k.add_argument("source", help="video file (.mp4/.avi/...) or folder of images")
     k.add_argument("--object", required=True, help="built-in name or mesh file (.obj/.ply/.stl)")
     k.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
     k.add_argument("--camera", required=True, help="camera file (.json/.yaml: width, height, K or fx/fy/cx/cy, dist)")
-    k.add_argument("--init-pose", required=True,
-                   help="JSON: quat_wxyz + t_m (metres), R + t_m, or BOP cam_R_m2c + cam_t_m2c (mm)")
+    k.add_argument("--init-pose", default=None,
+                   help="tracker alone from this pose, no CNN, no fusion. JSON: quat_wxyz + t_m (metres), R + t_m, "
+                        "or BOP cam_R_m2c + cam_t_m2c (mm)")
+    k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
+    k.add_argument("--fusion", default="ukf", choices=registry.available("fusion"))
     k.add_argument("--tracker", default="edges", choices=registry.available("tracker"))
     k.add_argument("--fps", type=float, default=None, help="frame rate for image folders (default 30)")
     k.add_argument("--max-frames", type=int, default=None)
-    k.add_argument("--out", required=True, help="folder for overlay.mp4, poses.csv, scene_gt.json")
+    k.add_argument("--out", required=True, help="folder for the overlay video, poses.csv, scene_gt.json")
     k.set_defaults(func=cmd_track)
 
-    d = sub.add_parser("demo", help="render a short arm-occlusion sequence and its verification sheet")
+    d = sub.add_parser("demo", help="render an arm-occlusion sequence, run tracker-only, CNN-only and the hybrid "
+                                    "(no ground truth) on it, print their errors, write the overlay video and plots")
     d.add_argument("--out", default="hybridpose_demo")
     d.add_argument("--frames", type=int, default=60)
     d.add_argument("--size", default="640x480")
     d.add_argument("--tracker", default="edges", choices=registry.available("tracker"))
+    d.add_argument("--fusion", default="ukf", choices=registry.available("fusion"))
     d.add_argument("--seed", type=int, default=1)
     d.set_defaults(func=cmd_demo)
     return p

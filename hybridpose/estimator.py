@@ -231,9 +231,13 @@ class HybridEstimator:
                           > self.config.disagreement_chi2)
                 if far or better:
                     self._n.disagreements += 1
-                    if self._n.disagreements >= self.config.confirm_checks and fit.pose is not None:
-                        self._restart(frame, fit, timings)
-                        return self._estimate("reinit", (c.source, fit.source))
+                    if self._n.disagreements >= self.config.confirm_checks:
+                        # restart from the edge fit where it stayed with the CNN, else from the CNN itself
+                        stayed = fit.pose is not None and _mahalanobis2(
+                            c.pose, c.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2
+                        start = fit if stayed else c
+                        self._restart(frame, start, timings)
+                        return self._estimate("reinit", (c.source, fit.source) if stayed else (c.source,))
                 else:
                     self._n.disagreements = 0
                     if self._timed(timings, "fusion", self.fusion.update, c):
@@ -282,12 +286,14 @@ class HybridEstimator:
         return None if fit.lost else fit
 
     def _restart(self, frame: Frame, m: Measurement, timings: dict) -> None:
-        """The fusion starts over from ``m``, the tracker's fit from a CNN pose (the tracker itself is
-        already there: its last ``track`` produced ``m``)."""
-        twist = None
-        if self.status == "tracking" and self.last_timestamp is not None:
-            twist = self.fusion.estimate.velocity  # a drift re-init keeps the motion the tracker saw
-        self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp, twist)
+        """Fusion and tracker start over from ``m``, the tracker's fit from a CNN pose."""
+        # the twist starts again from zero with the fusion's initial uncertainty: one estimated through
+        # a drift or a loss is not worth keeping
+        self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp)
+        try:
+            self._timed(timings, "tracker", self.tracker.init, frame, m.pose)
+        except ValueError:  # a tracker may refuse a start; its last track (which gave m) left it there
+            pass
         self._n = _Counters()
 
     def _cnn(self, frame: Frame, roi, timings: dict) -> Measurement:

@@ -57,6 +57,24 @@ def table(summary: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def _write_pages(result: dict, out: Path, results_md: bool) -> None:
+    cfg = result["config"]
+    text = (f"Split `{cfg['split']}` ({len(cfg['sequences'])} sequences, seeds {cfg['seeds'][0]}–{cfg['seeds'][-1]}), "
+            f"tracker `{cfg['tracker']}`, regressor `{cfg['regressor']}`, fusion `{cfg['fusion']}`, "
+            f"config {cfg['config']}, commit {result['commit']}, {result['seconds']:.0f} s.\n\n"
+            + table(result["summary"]) + "\n\nBy trajectory:\n\n" + table(result["by_trajectory"]) + "\n")
+    atomic_write_text(out / "summary.md", text)
+    print(text)
+    if results_md:
+        path = ROOT / "benchmarks" / "RESULTS.md"
+        page = path.read_text()
+        if MARK_BEGIN not in page:
+            raise SystemExit(f"{path}: no {MARK_BEGIN} … {MARK_END} block to replace")
+        head, rest = page.split(MARK_BEGIN, 1)
+        _, tail = rest.split(MARK_END, 1)
+        atomic_write_text(path, head + MARK_BEGIN + "\n" + text + MARK_END + tail)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--split", choices=["tuning", "report", "smoke"], default="report")
@@ -72,7 +90,15 @@ def main(argv=None) -> int:
     p.add_argument("--lost-check-period", type=int, default=None)
     p.add_argument("--limit", type=int, default=None, help="first N sequences only (a quick look)")
     p.add_argument("--results-md", action="store_true", help="write the hybrid section of benchmarks/RESULTS.md")
+    p.add_argument("--from-results", action="store_true",
+                   help="rewrite OUT/summary.md (and with --results-md the RESULTS.md block) from OUT/results.json "
+                        "without running anything")
     args = p.parse_args(argv)
+    out = Path(args.out or f"runs/hybrid_{args.split}")
+    if args.from_results:
+        result = json.loads((out / "results.json").read_text())
+        _write_pages(result, out, args.results_md)
+        return 0
 
     overrides = {k: v for k, v in (("check_period", args.check_period), ("disagreement_chi2", args.disagreement_chi2),
                                    ("confirm_checks", args.confirm_checks),
@@ -81,7 +107,6 @@ def main(argv=None) -> int:
                    config=replace(HybridConfig(), **overrides))
     entries = occlusion_suite(args.split)[: args.limit]
     scenes = render_suite(entries, args.cache)
-    out = Path(args.out or f"runs/hybrid_{args.split}")
     t0 = time.time()
     rows = run_all(scenes, spec, workers=args.workers, progress=lambda n: print(".", end="", flush=True, file=sys.stderr))
     print(file=sys.stderr)
@@ -92,19 +117,7 @@ def main(argv=None) -> int:
               "commit": _commit(), "seconds": time.time() - t0, "summary": summary, "by_trajectory": by_traj,
               "rows": rows}
     atomic_write_json(out / "results.json", result)
-    text = (f"Split `{args.split}` ({len(entries)} sequences), tracker `{spec.tracker}`, regressor `{spec.regressor}`, "
-            f"fusion `{spec.fusion}`, config {spec_dict(spec)['config']}, commit {result['commit']}.\n\n"
-            + table(summary) + "\n\nBy trajectory:\n\n" + table(by_traj) + "\n")
-    atomic_write_text(out / "summary.md", text)
-    print(text)
-    if args.results_md:
-        path = ROOT / "benchmarks" / "RESULTS.md"
-        page = path.read_text()
-        if MARK_BEGIN not in page:
-            raise SystemExit(f"{path}: no {MARK_BEGIN} … {MARK_END} block to replace")
-        head, rest = page.split(MARK_BEGIN, 1)
-        _, tail = rest.split(MARK_END, 1)
-        atomic_write_text(path, head + MARK_BEGIN + "\n" + text + MARK_END + tail)
+    _write_pages(result, out, args.results_md)
     return 0
 
 

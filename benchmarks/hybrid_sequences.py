@@ -88,6 +88,7 @@ def main(argv=None) -> int:
     p.add_argument("--disagreement-chi2", type=float, default=None)
     p.add_argument("--confirm-checks", type=int, default=None)
     p.add_argument("--lost-check-period", type=int, default=None)
+    p.add_argument("--check-below-quality", type=float, default=None)
     p.add_argument("--limit", type=int, default=None, help="first N sequences only (a quick look)")
     p.add_argument("--results-md", action="store_true", help="write the hybrid section of benchmarks/RESULTS.md")
     p.add_argument("--from-results", action="store_true",
@@ -102,7 +103,8 @@ def main(argv=None) -> int:
 
     overrides = {k: v for k, v in (("check_period", args.check_period), ("disagreement_chi2", args.disagreement_chi2),
                                    ("confirm_checks", args.confirm_checks),
-                                   ("lost_check_period", args.lost_check_period)) if v is not None}
+                                   ("lost_check_period", args.lost_check_period),
+                                   ("check_below_quality", args.check_below_quality)) if v is not None}
     spec = RunSpec(modes=tuple(args.modes.split(",")), tracker=args.tracker, fusion=args.fusion,
                    config=replace(HybridConfig(), **overrides))
     entries = occlusion_suite(args.split)[: args.limit]

@@ -63,6 +63,10 @@ class HybridConfig:
             hybrid's saving over CNN-only, at up to that many frames' delay in recovering.
         check_roi_margin: the CNN check's crop is the box of the object's projection at the
             predicted pose, grown by this fraction on each side.
+        check_below_quality: a tracker measurement of lower quality calls a CNN check at once,
+            whatever ``check_period`` says (0: never). A tracker that slid onto a wrong pose still
+            reports 0.6–0.75 where a right one reports 0.8 and more: the check it calls lets the
+            edges started from the CNN pose show the better fit.
         switch_quality_margin: at a check, the tracker also fits the model edges from the CNN pose;
             when that fit lands elsewhere (``disagreement_chi2``) and its quality beats the current
             track's by this margin, the check disagrees even where the CNN's own covariance is too
@@ -77,6 +81,7 @@ class HybridConfig:
     lost_check_period: int = 1
     check_roi_margin: float = 0.15
     switch_quality_margin: float = 0.1
+    check_below_quality: float = 0.65
 
     def __post_init__(self) -> None:
         if int(self.check_period) != self.check_period or self.check_period < 0:
@@ -130,6 +135,7 @@ class HybridEstimator:
             raise TypeError(f"config: expected a HybridConfig, got {type(config).__name__}")
         self.object: ObjectModel | None = getattr(tracker, "object", None)
         self.regressor_calls = 0  # since construction: the CNN's share of the work
+        self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.reset()
 
     @classmethod
@@ -205,6 +211,7 @@ class HybridEstimator:
     def _track(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
         m = self._timed(timings, "tracker", self.tracker.track, frame, prior.pose)
+        self.last_tracker = m
         sources = []
         if m.lost:
             return self._declare_lost(frame, timings)
@@ -217,8 +224,8 @@ class HybridEstimator:
                 return self._declare_lost(frame, timings)
         status = "tracking"
         self._n.since_check += 1
-        due = self.config.check_period > 0 and (self._n.since_check >= self.config.check_period
-                                                or self._n.disagreements > 0)
+        due = (self.config.check_period > 0 and (self._n.since_check >= self.config.check_period
+                                                 or self._n.disagreements > 0)) or m.quality < self.config.check_below_quality
         if due:
             self._n.since_check = 0
             fused = self.fusion.estimate

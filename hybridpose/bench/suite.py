@@ -16,8 +16,8 @@ from ..render.sequences import SequenceSpec
 
 OCCLUSION_TRAJECTORIES = ("tumble", "fly-around", "approach")
 OCCLUSION_KINDS = ("arm-partial", "arm-full", "arm-long")
-# seeds that tuned the hybrid's thresholds (4 per trajectory) and seeds only ever used for reporting
-TUNING_SEEDS = tuple(range(900, 904))
+# seeds that tuned the hybrid's thresholds (10 per trajectory) and seeds only ever used for reporting
+TUNING_SEEDS = tuple(range(900, 910))
 REPORT_SEEDS = tuple(range(500, 520))
 SMOKE_SEEDS = (950,)
 
@@ -36,7 +36,7 @@ def occlusion_suite(split: str = "report", frames: int = 60, fps: float = 30.0) 
     and a long occlusion (seed mod 3), ``frames`` frames at ``fps``.
 
     Args:
-        split: ``"report"`` (20 seeds per trajectory), ``"tuning"`` (4 seeds per trajectory, disjoint
+        split: ``"report"`` (20 seeds per trajectory), ``"tuning"`` (10 seeds per trajectory, disjoint
             from the report seeds) or ``"smoke"`` (one short sequence per trajectory).
     """
     seeds = {"report": REPORT_SEEDS, "tuning": TUNING_SEEDS, "smoke": SMOKE_SEEDS}

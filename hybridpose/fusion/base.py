@@ -62,8 +62,8 @@ class Fusion(ABC):
 
     name = "fusion"
 
-    def __init__(self, angular_accel_rad_s2: float = 2.0, linear_accel_m_s2: float = 0.5,
-                 initial_twist_sigma: tuple[float, float] = (1.0, 0.3), gate_chi2: float = DEFAULT_GATE_CHI2) -> None:
+    def __init__(self, angular_accel_rad_s2: float = 0.5, linear_accel_m_s2: float = 0.1,
+                 initial_twist_sigma: tuple[float, float] = (0.3, 0.1), gate_chi2: float = DEFAULT_GATE_CHI2) -> None:
         for name, value in (("angular_accel_rad_s2", angular_accel_rad_s2), ("linear_accel_m_s2", linear_accel_m_s2),
                             ("gate_chi2", gate_chi2)):
             if not value > 0:

@@ -21,7 +21,7 @@ _BUILTIN_MODULES: dict[str, tuple[str, ...]] = {
     "trajectory": ("hybridpose.render.trajectories",),
     "tracker": ("hybridpose.trackers.edges", "hybridpose.trackers.klt", "hybridpose.trackers.rapid"),
     "regressor": ("hybridpose.regressors.predictor",),
-    "fusion": ("hybridpose.fusion.ukf", "hybridpose.fusion.passthrough"),
+    "fusion": ("hybridpose.fusion.ukf", "hybridpose.fusion.passthrough", "hybridpose.fusion.isam2"),
 }
 
 _factories: dict[str, dict[str, Callable[..., Any]]] = {role: {} for role in ROLES}

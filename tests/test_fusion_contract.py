@@ -149,3 +149,17 @@ def test_pose_mahalanobis_matches_a_monte_carlo_chi2():
     d2 = [pose_mahalanobis2(START.retract(rng.multivariate_normal(np.zeros(6), cov_a)), cov_a,
                             START.retract(rng.multivariate_normal(np.zeros(6), cov_b)), cov_b) for _ in range(2000)]
     assert np.mean(d2) == pytest.approx(6.0, rel=0.08)  # E[χ²₆] = 6
+
+
+def test_isam2_memory_stays_bounded_over_a_long_run():
+    rng = np.random.default_rng(4)
+    f = create("fusion", "isam2", lag_s=0.5)
+    f.reset(START, MEAS_COV, 0.0)
+    sizes = {}
+    for k in range(1, 1501):
+        f.predict(k / FPS)
+        f.update(_meas(_noisy(START, rng), k / FPS))
+        if k in (300, 1500):
+            sizes[k] = (f.smoother.getFactors().nrFactors(), len(f.smoother.timestamps()))
+    assert sizes[1500][0] <= sizes[300][0] + 5 and sizes[1500][1] <= sizes[300][1] + 2, sizes
+    assert _rot_deg(f.estimate.pose, START) < 1.0

@@ -1,7 +1,7 @@
 """Fusion backends: one pose + twist belief over time from tracker and regressor measurements.
 
-``ukf`` (filterpy Unscented Kalman filter on SE(3)), ``isam2`` (gtsam fixed-lag smoother) and
-``none`` (pass-through, for ablations), all built through ``registry.create("fusion", name)``.
+``ukf`` (filterpy Unscented Kalman filter on SE(3)), ``isam2`` (gtsam incremental fixed-lag smoother)
+and ``none`` (pass-through, for ablations), all built through ``registry.create("fusion", name)``.
 """
 from .base import DEFAULT_GATE_CHI2, Fusion, pose_mahalanobis2, process_noise
 

@@ -42,6 +42,10 @@ def _commit() -> str:
         return "unknown"
 
 
+def _mode_name(row: dict) -> str:
+    return f"hybrid ({row['fusion']})" if row["mode"] == "hybrid" else row["mode"]
+
+
 def table(summary: dict[str, dict]) -> str:
     lines = ["| mode | sequences | rot. mean ° | per-seq mean °: median / p90 / worst | trans. mean % dist. "
              "| silent failures (frames > 5° not flagged) | covered, tracked > 10° off | recovery ≤ 2° (frames, worst) "
@@ -60,9 +64,10 @@ def table(summary: dict[str, dict]) -> str:
 def _write_pages(result: dict, out: Path, results_md: bool) -> None:
     cfg = result["config"]
     text = (f"Split `{cfg['split']}` ({len(cfg['sequences'])} sequences, seeds {cfg['seeds'][0]}–{cfg['seeds'][-1]}), "
-            f"tracker `{cfg['tracker']}`, regressor `{cfg['regressor']}`, fusion `{cfg['fusion']}`, "
+            f"tracker `{cfg['tracker']}`, regressor `{cfg['regressor']}`, fusion `{cfg.get('fusions', cfg['fusion'])}`, "
             f"config {cfg['config']}, commit {result['commit']}, {result['seconds']:.0f} s.\n\n"
-            + table(result["summary"]) + "\n\nBy trajectory:\n\n" + table(result["by_trajectory"]) + "\n")
+            + table(result["summary"]) + "\n\n" + ratios(result["summary"]) + "\n\nBy trajectory:\n\n"
+            + table(result["by_trajectory"]) + "\n")
     atomic_write_text(out / "summary.md", text)
     print(text)
     if results_md:
@@ -75,6 +80,21 @@ def _write_pages(result: dict, out: Path, results_md: bool) -> None:
         atomic_write_text(path, head + MARK_BEGIN + "\n" + text + MARK_END + tail)
 
 
+def ratios(summary: dict[str, dict]) -> str:
+    """The hybrid against CNN-only and tracker-only, as ratios measured in the same run."""
+    cnn, trk = summary.get("cnn"), summary.get("tracker")
+    lines = []
+    for name, s in summary.items():
+        if not name.startswith("hybrid") or cnn is None:
+            continue
+        line = (f"- {name}: mean rotation error ×{s['rot_mean_deg'] / cnn['rot_mean_deg']:.2f} of CNN-only's, "
+                f"cost ×{s['ms_per_frame'] / cnn['ms_per_frame']:.2f} of CNN-only's per frame")
+        if trk is not None:
+            line += f"; silent failures {s['silent_failures']} frames (tracker-only: {trk['silent_failures']})"
+        lines.append(line)
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--split", choices=["tuning", "report", "smoke"], default="report")
@@ -83,7 +103,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--modes", default="tracker,cnn,hybrid")
     p.add_argument("--tracker", default="edges")
-    p.add_argument("--fusion", default="ukf")
+    p.add_argument("--fusion", default="ukf", help="the hybrid's fusion; a comma list adds a hybrid row per backend")
     p.add_argument("--check-period", type=int, default=None)
     p.add_argument("--disagreement-chi2", type=float, default=None)
     p.add_argument("--confirm-checks", type=int, default=None)
@@ -105,17 +125,21 @@ def main(argv=None) -> int:
                                    ("confirm_checks", args.confirm_checks),
                                    ("lost_check_period", args.lost_check_period),
                                    ("check_below_quality", args.check_below_quality)) if v is not None}
-    spec = RunSpec(modes=tuple(args.modes.split(",")), tracker=args.tracker, fusion=args.fusion,
+    fusions = args.fusion.split(",")
+    spec = RunSpec(modes=tuple(args.modes.split(",")), tracker=args.tracker, fusion=fusions[0],
                    config=replace(HybridConfig(), **overrides))
     entries = occlusion_suite(args.split)[: args.limit]
     scenes = render_suite(entries, args.cache)
     t0 = time.time()
-    rows = run_all(scenes, spec, workers=args.workers, progress=lambda n: print(".", end="", flush=True, file=sys.stderr))
+    dots = lambda n: print(".", end="", flush=True, file=sys.stderr)  # noqa: E731
+    rows = run_all(scenes, spec, workers=args.workers, progress=dots)
+    for other in fusions[1:]:
+        rows += run_all(scenes, replace(spec, modes=("hybrid",), fusion=other), workers=args.workers, progress=dots)
     print(file=sys.stderr)
-    summary = summarise(rows)
-    by_traj = summarise(rows, group=lambda r: f"{r['mode']} · {r['sequence'].split('_')[0]}")
+    summary = summarise(rows, group=_mode_name)
+    by_traj = summarise(rows, group=lambda r: f"{_mode_name(r)} · {r['sequence'].split('_')[0]}")
     result = {"config": {"split": args.split, "seeds": list(TUNING_SEEDS if args.split == "tuning" else REPORT_SEEDS),
-                         "sequences": [e.name for e in entries], **spec_dict(spec)},
+                         "sequences": [e.name for e in entries], **spec_dict(spec), "fusions": fusions},
               "commit": _commit(), "seconds": time.time() - t0, "summary": summary, "by_trajectory": by_traj,
               "rows": rows}
     atomic_write_json(out / "results.json", result)

@@ -28,11 +28,11 @@ def _progress(desc: str):
     return update
 
 
-def _counter(desc: str):
+def _counter(desc: str, unit: str = "frame"):
     """Progress bar for a stream of unknown length (video frames)."""
     from tqdm import tqdm
 
-    bar = tqdm(desc=desc, unit="frame", dynamic_ncols=True)
+    bar = tqdm(desc=desc, unit=unit, dynamic_ncols=True)
 
     def update(done: int) -> None:
         bar.update(done - bar.n)
@@ -223,6 +223,40 @@ def cmd_track(args) -> int:
     res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=_counter("track"))
     print(f"track: {res.frames} frames with {args.tracker} ({res.ms_per_frame:.1f} ms/frame, {res.lost} flagged lost) → "
           f"{res.out / 'overlay.mp4'}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
+    return 0
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(n.strip() for n in text.split(",") if n.strip())
+
+
+def cmd_bench(args) -> int:
+    from .bench.command import BenchRequest, bench, write_results_page
+
+    try:
+        periods = tuple(int(p) for p in _names(args.check_periods))
+    except ValueError:
+        raise ValueError(f"--check-periods: expected whole numbers of frames, got {args.check_periods!r}") from None
+    req = BenchRequest(out=args.out, suite=None if args.data else args.suite, split=args.split, data=args.data,
+                       object=args.object, scale=args.scale, modes=_names(args.modes), trackers=_names(args.trackers),
+                       fusions=_names(args.fusions), regressor=args.regressor, check_periods=periods,
+                       workers=args.workers, ray=args.ray, video=args.video, limit=args.limit, cache=args.cache)
+    bar: list = []  # made at the first finished sequence, after every input was checked
+
+    def progress(name: str) -> None:
+        if not bar:
+            bar.append(_counter("bench", unit="sequence"))
+            bar.append(0)
+        bar[1] += 1
+        bar[0](bar[1])
+
+    result = bench(req, progress=progress)
+    out = Path(args.out)
+    print(f"bench: {len(result['rows'])} rows → {out / 'results.json'}, {out / 'report.md'}, plots in {out}")
+    print((out / "report.md").read_text())
+    if args.results_md:
+        write_results_page(args.results_md, result, result["plots"])
+        print(f"bench: results page block rewritten → {args.results_md}")
     return 0
 
 
@@ -533,6 +567,28 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--max-frames", type=int, default=None)
     k.add_argument("--out", required=True, help="folder for the overlay video, poses.csv, scene_gt.json")
     k.set_defaults(func=cmd_track)
+
+    b = sub.add_parser("bench", help="tracker-only vs CNN-only vs hybrid on a seeded sequence suite or your BOP "
+                                     "sequences: results.json, report.md, plots (resumable)")
+    b.add_argument("--suite", default="standard", help="standard (7 kinds × 20 seeds), occlusion, smoke")
+    b.add_argument("--split", default="report", choices=["report", "tuning"],
+                   help="report: seeds no tuning used (the published figures); tuning: the seeds defaults were chosen on")
+    b.add_argument("--data", default=None, help="your BOP sequences (folder) instead of a suite; needs --object")
+    b.add_argument("--object", default="truss", help="built-in name or mesh file")
+    b.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
+    b.add_argument("--modes", default="tracker,cnn,hybrid")
+    b.add_argument("--trackers", default="edges", help="comma list: tracker-only and hybrid runs per tracker")
+    b.add_argument("--fusions", default="ukf", help="comma list: a hybrid run per tracker × fusion")
+    b.add_argument("--regressor", default="default", help="registered name or checkpoint file")
+    b.add_argument("--check-periods", default="", help="comma list of CNN check periods to ablate (frames)")
+    b.add_argument("--workers", type=int, default=1, help="parallel processes (one sequence each)")
+    b.add_argument("--ray", default=None, help="run on Ray: an address, 'auto' or 'local' (pip install 'hybridpose[ray]')")
+    b.add_argument("--video", default=None, help="also write the hybrid's overlay video of this sequence")
+    b.add_argument("--limit", type=int, default=None, help="the suite's first N sequences only")
+    b.add_argument("--cache", default="runs/bench_cache", help="rendered suite sequences (reused)")
+    b.add_argument("--out", required=True)
+    b.add_argument("--results-md", default=None, help="rewrite the bench block of this results page (RESULTS.md)")
+    b.set_defaults(func=cmd_bench)
 
     d = sub.add_parser("demo", help="render an arm-occlusion sequence, run tracker-only, CNN-only and the hybrid "
                                     "(no ground truth) on it, print their errors, write the overlay video and plots")

@@ -25,7 +25,7 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   then everything restarts from the tracker's fit (**reinit**).
 
 Every threshold is a field of :class:`HybridConfig`, its default chosen on the tuning seeds of the
-occlusion suite (``benchmarks/hybrid_sequences.py``; evidence in ``docs/decisions.md``).
+suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).
 """
 from __future__ import annotations
 

@@ -1,35 +1,104 @@
-"""The sequence benchmark's machinery end to end on the smoke split (short, low-resolution): three
-modes on the same frames, rows with the reported fields, sane values, the seed splits apart."""
+"""``hybridpose bench`` end to end on the smoke suite (short sequences): three modes on the same frames,
+the results' structure and sanity (not speed), resuming, Ray, and bad input refused before long work."""
+import json
+
 import numpy as np
 import pytest
 
-from hybridpose.bench.runner import RunSpec, run_all, summarise
-from hybridpose.bench.suite import REPORT_SEEDS, SMOKE_SEEDS, TUNING_SEEDS, occlusion_suite, render_suite
-from hybridpose.geometry import Camera
+from hybridpose.bench.suite import REPORT_SEEDS, SMOKE_SEEDS, TUNING_SEEDS, occlusion_suite, suite
+from hybridpose.cli import main
+
+ROW_FIELDS = {"sequence", "mode", "tracker", "regressor", "fusion", "frames", "rot_mean_deg", "rot_median_deg",
+              "trans_mean_m", "trans_mean_pct", "add_recall", "silent_failures", "frames_lost", "recover_frames_max",
+              "ms_per_frame", "cnn_calls_per_100"}
 
 
-def test_seed_splits_never_overlap():
+def test_seed_splits_never_overlap_and_suites_are_what_they_say():
     assert not set(TUNING_SEEDS) & set(REPORT_SEEDS) and not set(SMOKE_SEEDS) & (set(TUNING_SEEDS) | set(REPORT_SEEDS))
-    report = occlusion_suite("report")
-    assert len(report) == 60 and len({e.name for e in report}) == 60
-    assert {e.spec.trajectory for e in report} == {"tumble", "fly-around", "approach"}
-    with pytest.raises(ValueError, match="split"):
-        occlusion_suite("everything")
+    standard = suite("standard")
+    assert len(standard) == 140 and len({e.name for e in standard}) == 140
+    kinds = {e.name.rsplit("_s", 1)[0].split("_")[0] for e in standard}
+    assert kinds == {"tumble", "fly-around", "approach", "distance-sweep", "tumble-eclipse", "tumble-fast", "tumble-edgeon"}
+    assert {e.spec.seed for e in suite("standard", "tuning")}.isdisjoint({e.spec.seed for e in standard})
+    assert len(occlusion_suite("report")) == 60
+    with pytest.raises(ValueError, match="suite: expected one of"):
+        suite("everything")
 
 
-def test_smoke_suite_runs_three_modes_on_the_same_frames(tmp_path):
-    entries = occlusion_suite("smoke", frames=12)[:1]
-    scenes = render_suite(entries, tmp_path / "cache", camera=Camera.default())
-    rows = run_all(scenes, RunSpec(), workers=1)
-    assert [r["mode"] for r in rows] == ["tracker", "cnn", "hybrid"]
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bench")
+    rc = main(["bench", "--suite", "smoke", "--out", str(root / "out"), "--cache", str(root / "cache")])
+    assert rc == 0
+    return root
+
+
+def test_smoke_suite_writes_results_report_and_plots(smoke):
+    out = smoke / "out"
+    result = json.loads((out / "results.json").read_text())
+    assert set(result) >= {"config", "versions", "commit", "rows"}
+    assert result["config"]["suite"] == "smoke" and result["versions"]["python"]
+    rows = result["rows"]
+    assert len(rows) == 9 and {r["mode"] for r in rows} == {"tracker", "cnn", "hybrid"}
     for r in rows:
-        assert r["frames"] == 12 and 0.0 <= r["coverage"] <= 1.0
-        assert r["frames_lost"] <= 12 and r["silent_failures"] <= 12 and r["ms_per_frame"] > 0
-    by_mode = {r["mode"]: r for r in rows}
-    assert by_mode["cnn"]["cnn_calls_per_100"] == 100.0 and by_mode["tracker"]["cnn_calls_per_100"] == 0.0
-    assert by_mode["hybrid"]["cnn_calls_per_100"] < 100.0
-    assert np.isfinite(by_mode["hybrid"]["rot_median_deg"]) and by_mode["hybrid"]["rot_median_deg"] < 5.0
-    s = summarise(rows)
-    assert set(s) == {"tracker", "cnn", "hybrid"} and s["hybrid"]["sequences"] == 1
-    # a second call reuses the rendered frames (resumable cache)
-    assert render_suite(entries, tmp_path / "cache", camera=Camera.default()) == scenes
+        assert ROW_FIELDS <= set(r), ROW_FIELDS - set(r)
+        assert r["frames"] == 12 and 0.0 <= r["coverage"] <= 1.0 and r["frames_lost"] <= 12
+        assert len(r["per_frame"]["rot_err_deg"]) == 12
+    by_mode = {m: [r for r in rows if r["mode"] == m] for m in ("tracker", "cnn", "hybrid")}
+    assert all(r["cnn_calls_per_100"] == 100.0 for r in by_mode["cnn"])
+    assert all(r["cnn_calls_per_100"] == 0.0 for r in by_mode["tracker"])
+    assert all(r["cnn_calls_per_100"] < 100.0 for r in by_mode["hybrid"])
+    assert np.nanmedian([r["rot_median_deg"] for r in by_mode["hybrid"]]) < 5.0
+    report = (out / "report.md").read_text()
+    assert "Targets for `hybrid (edges+default+ukf)`" in report and "| tracker (edges) |" in report
+    assert (out / "error_vs_distance.png").stat().st_size > 1000 and (out / "speed_accuracy.png").is_file()
+
+
+def test_a_rerun_resumes_from_the_kept_rows(smoke, capsys):
+    rows_dir = smoke / "out" / "rows"
+    kept = {p: p.stat().st_mtime_ns for p in rows_dir.rglob("*.json")}
+    victim = sorted(kept)[0]
+    victim.unlink()
+    assert main(["bench", "--suite", "smoke", "--out", str(smoke / "out"), "--cache", str(smoke / "cache")]) == 0
+    after = {p: p.stat().st_mtime_ns for p in rows_dir.rglob("*.json")}
+    assert set(after) == set(kept)
+    assert [p for p in kept if after[p] != kept[p]] == [victim]  # only the missing row was computed again
+
+
+def test_ray_gives_the_local_results(smoke, tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    assert main(["bench", "--suite", "smoke", "--limit", "1", "--modes", "tracker,hybrid", "--ray", "local",
+                 "--out", str(out), "--cache", str(smoke / "cache")]) == 0
+    local = {(r["sequence"], r["label"]): r for r in json.loads((smoke / "out" / "results.json").read_text())["rows"]}
+    for r in json.loads((out / "results.json").read_text())["rows"]:
+        mine = {k: v for k, v in r.items() if k != "ms_per_frame"}
+        theirs = {k: v for k, v in local[(r["sequence"], r["label"])].items() if k != "ms_per_frame"}
+        assert mine == theirs
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--suite", "everything"], "suite: expected one of"),
+    (["--suite", "smoke", "--trackers", "edges,nope"], "--trackers: unknown tracker 'nope'"),
+    (["--suite", "smoke", "--fusions", "kalman"], "--fusions: unknown fusion 'kalman'"),
+    (["--suite", "smoke", "--regressor", "missing.pt"], "--regressor: 'missing.pt' is neither"),
+    (["--suite", "smoke", "--modes", "oracle"], "--modes: unknown mode 'oracle'"),
+    (["--suite", "smoke", "--check-periods", "ten"], "--check-periods: expected whole numbers"),
+])
+def test_bad_names_are_refused_before_any_work(args, message, tmp_path, capsys):
+    assert main(["bench", *args, "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()  # nothing rendered
+
+
+def test_user_data_must_be_bop_and_the_regressor_must_fit_the_object(tmp_path, capsys):
+    (tmp_path / "notbop").mkdir()
+    assert main(["bench", "--data", str(tmp_path / "notbop"), "--out", str(tmp_path / "o")]) == 2
+    assert "--data:" in (err := capsys.readouterr().err) and "no BOP scene" in err
+    import trimesh
+
+    box = tmp_path / "box.stl"
+    trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(box)
+    assert main(["bench", "--suite", "smoke", "--object", str(box), "--out", str(tmp_path / "o"),
+                 "--cache", str(tmp_path / "c")]) == 2
+    assert "object" in capsys.readouterr().err and not (tmp_path / "c").exists()

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core import Frame
 from ..geometry import Pose
-from ..metrics import rotation_error_deg, translation_error_m
+from ..metrics import add, adds, auc, rotation_error_deg, speed_score, translation_error_m
 
 HALF_VISIBLE = 0.5  # errors are reported on frames where at least this share of the object is visible
 COVERED = 0.05  # below this visible share the object counts as covered
@@ -99,18 +99,27 @@ def run_hybrid(seq: list[SequenceFrame], estimator) -> list[FrameRecord]:
     return records
 
 
-def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord]) -> dict:
+ADD_AUC_MAX_M = 0.1  # the ADD(-S) AUC's largest threshold (PoseCNN / YCB-Video)
+
+
+def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=None) -> dict:
     """Per-sequence figures of one mode.
 
-    Errors (``rot_*_deg``, ``trans_*``) are over the frames where the object is at least half visible
-    and the mode gave a trusted pose; ``coverage`` is the share of those frames that had one.
+    Errors (``rot_*_deg``, ``trans_*``, ``speed``, and with the object model ``obj`` the ADD(-S)
+    figures) are over the frames where the object is at least half visible and the mode gave a
+    trusted pose; ``coverage`` is the share of those frames that had one. ``add_recall``: share of
+    those half-visible frames (a frame without a trusted pose counts as a miss) with ADD (ADD-S for a
+    symmetric object) below 0.1 × the diameter; ``add_auc``: the ADD(-S) AUC up to 0.1 m, misses
+    counted as infinite errors.
     ``silent_failures``: frames (any visibility) with a trusted pose more than ``SILENT_DEG`` off.
     ``covered_tracking_10deg``: frames with the object < ``COVERED`` visible and a trusted pose more
     than 10° off. ``recover_frames``: after each full occlusion, the frames from the first frame the
     object is half visible again until a trusted pose within ``RECOVERED_DEG`` (None: never).
     """
-    rot, trans, pct, silent, covered_bad, lost = [], [], [], 0, 0, 0
+    rot, trans, pct, speed, add_err, silent, covered_bad, lost = [], [], [], [], [], 0, 0, 0
     considered = 0
+    points = obj.sample_surface(500, rng=0) if obj is not None else None
+    add_fn = adds if obj is not None and obj.symmetric else add
     for s, r in zip(seq, records):
         err = rotation_error_deg(r.pose, s.truth) if r.pose is not None else None
         if not r.trusted:
@@ -125,7 +134,17 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord]) -> dict
                 rot.append(err)
                 trans.append(te)
                 pct.append(100 * te / s.truth.distance_m)
+                speed.append(speed_score(r.pose, s.truth))
+                if points is not None:
+                    add_err.append(add_fn(r.pose, s.truth, points))
+            elif points is not None:
+                add_err.append(np.inf)
     rot_a = np.array(rot) if rot else np.array([np.nan])
+    recover = _recovery(seq, records)
+    add_stats = {}
+    if points is not None and add_err:
+        add_stats = {"add_recall": float(np.mean(np.array(add_err) < 0.1 * obj.diameter)),
+                     "add_auc": auc(np.minimum(add_err, 1e9), ADD_AUC_MAX_M)}
     return {
         "frames": len(seq),
         "frames_half_visible": considered,
@@ -136,10 +155,13 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord]) -> dict
         "rot_max_deg": float(np.max(rot_a)),
         "trans_mean_m": float(np.mean(trans)) if trans else float("nan"),
         "trans_mean_pct": float(np.mean(pct)) if pct else float("nan"),
+        "speed_mean": float(np.mean(speed)) if speed else float("nan"),
+        **add_stats,
         "silent_failures": silent,
         "covered_tracking_10deg": covered_bad,
         "frames_lost": lost,
-        "recover_frames": _recovery(seq, records),
+        "recover_frames": recover,
+        "recover_frames_max": max((n for n in recover if n is not None), default=None),
         "ms_per_frame": float(np.mean([r.ms for r in records])),
         "cnn_calls_per_100": 100.0 * sum(r.cnn_calls for r in records) / len(records),
     }

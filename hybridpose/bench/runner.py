@@ -1,8 +1,15 @@
-"""Run the modes over many rendered sequences (in worker processes) and summarise over seeds."""
+"""Run modes × backends over many sequences — in worker processes or as Ray tasks — and resume.
+
+A :class:`RunSpec` is one mode with its backends; :func:`run_all` runs every spec on every sequence,
+one task per sequence (its frames are read once for all specs), and keeps each (sequence, spec) row
+in ``OUT/rows/`` as it finishes, so an interrupted run resumes where it stopped.
+"""
 from __future__ import annotations
 
+import hashlib
+import json
 import os
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -10,6 +17,7 @@ from typing import Callable
 import numpy as np
 
 from ..estimator import HybridConfig
+from ..io import atomic_write_json, read_json
 from .modes import load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats
 
 MODES = ("tracker", "cnn", "hybrid")
@@ -17,107 +25,221 @@ MODES = ("tracker", "cnn", "hybrid")
 
 @dataclass(frozen=True)
 class RunSpec:
-    """What to run on each sequence: modes, backends (registry names) and the hybrid's config."""
+    """One mode and its backends (registry names; ``regressor`` may also be a checkpoint file)."""
 
-    modes: tuple[str, ...] = MODES
+    mode: str = "hybrid"
     tracker: str = "edges"
     regressor: str = "default"
     fusion: str = "ukf"
     object: str = "truss"
+    scale: float = 1.0
     config: HybridConfig = field(default_factory=HybridConfig)
-    threads: int = 1  # CPU threads per worker (torch / ONNX Runtime)
+    threads: int = 1  # CPU threads per worker (ONNX Runtime / torch / OpenCV)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
+
+    @property
+    def label(self) -> str:
+        """How the results name this spec: ``tracker (edges)``, ``cnn (default)``, ``hybrid (edges+default+ukf)``."""
+        parts = {"tracker": [self.tracker], "cnn": [Path(self.regressor).stem if self._is_file() else self.regressor],
+                 "hybrid": [self.tracker, Path(self.regressor).stem if self._is_file() else self.regressor, self.fusion]}
+        extra = "" if self.config == HybridConfig() or self.mode != "hybrid" else f", {self._config_diff()}"
+        return f"{self.mode} ({'+'.join(parts[self.mode])}{extra})"
+
+    @property
+    def key(self) -> str:
+        """A file-name-safe id of everything that changes the result."""
+        blob = json.dumps(spec_dict(self), sort_keys=True).encode()
+        return f"{self.mode}-{hashlib.sha1(blob).hexdigest()[:12]}"
+
+    def _is_file(self) -> bool:
+        return Path(self.regressor).suffix == ".pt"
+
+    def _config_diff(self) -> str:
+        base, mine = asdict(HybridConfig()), asdict(self.config)
+        return ", ".join(f"{k}={v:g}" for k, v in mine.items() if v != base[k])
+
+
+def spec_dict(spec: RunSpec) -> dict:
+    d = asdict(spec)
+    d.pop("threads")
+    return d
 
 
 _parts: dict = {}
 
 
 def _backends(spec: RunSpec):
-    """One tracker, regressor and estimator per process and spec (loading a CNN takes seconds)."""
-    key = (spec.tracker, spec.regressor, spec.fusion, spec.object, spec.config, spec.threads)
-    if key not in _parts:
-        from ..estimator import HybridEstimator
-        from ..objects import load_object
-        from ..registry import create
+    """The object, tracker, regressor and estimator a spec needs, built once per process (a CNN takes
+    seconds to load); the regressor is shared by every spec that names it."""
+    from ..estimator import HybridEstimator
+    from ..objects import load_object
+    from ..registry import create
 
-        obj = load_object(spec.object)
-        regressor = create("regressor", spec.regressor, object=obj, threads=spec.threads)
-        tracker = create("tracker", spec.tracker, object=obj)
-        hybrid = HybridEstimator(create("tracker", spec.tracker, object=obj), regressor,
-                                 create("fusion", spec.fusion), config=spec.config)
-        _parts.clear()
-        _parts[key] = (tracker, regressor, hybrid)
-    return _parts[key]
+    obj_key = (spec.object, spec.scale)
+    if ("object", obj_key) not in _parts:
+        _parts[("object", obj_key)] = load_object(spec.object, scale=spec.scale)
+    obj = _parts[("object", obj_key)]
+    reg_key = ("regressor", spec.regressor, obj_key, spec.threads)
+    if spec.mode != "tracker" and reg_key not in _parts:
+        if spec._is_file():
+            from ..regressors.predictor import CheckpointRegressor
+
+            _parts[reg_key] = CheckpointRegressor(spec.regressor, object=obj, threads=spec.threads)
+        else:
+            _parts[reg_key] = create("regressor", spec.regressor, object=obj, threads=spec.threads)
+    if spec.mode == "tracker":
+        return obj, create("tracker", spec.tracker, object=obj)
+    if spec.mode == "cnn":
+        return obj, _parts[reg_key]
+    return obj, HybridEstimator(create("tracker", spec.tracker, object=obj), _parts[reg_key],
+                                create("fusion", spec.fusion), config=spec.config)
 
 
-def run_sequence(name: str, scene_dir: str, spec: RunSpec) -> list[dict]:
-    """One row per mode for the sequence ``name`` stored in ``scene_dir``."""
-    os.environ.setdefault("OMP_NUM_THREADS", str(spec.threads))
+def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: bool = True) -> list[dict]:
+    """One row per spec for the sequence ``name`` stored in ``scene_dir`` (frames read once).
+
+    With ``per_frame`` a row also holds per-frame lists (``rot_err_deg`` (NaN: no trusted pose),
+    ``visible``, ``distance_m``, ``status``) for the plots."""
+    threads = max(s.threads for s in specs)
+    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
     import cv2
 
-    cv2.setNumThreads(spec.threads)
-    tracker, regressor, hybrid = _backends(spec)
+    from ..metrics import rotation_error_deg
+
+    cv2.setNumThreads(threads)
     seq = load_sequence(scene_dir)
     rows = []
-    for mode in spec.modes:
-        if mode == "tracker":
-            tracker.reset()
-            records = run_tracker(seq, tracker)
-        elif mode == "cnn":
-            records = run_cnn(seq, regressor)
-        elif mode == "hybrid":
-            records = run_hybrid(seq, hybrid)
+    for spec in specs:
+        obj, runner = _backends(spec)
+        if spec.mode == "tracker":
+            records = run_tracker(seq, runner)
+        elif spec.mode == "cnn":
+            records = run_cnn(seq, runner)
         else:
-            raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
-        rows.append({"sequence": name, "mode": mode, "tracker": spec.tracker if mode != "cnn" else "",
-                     "regressor": spec.regressor if mode != "tracker" else "",
-                     "fusion": spec.fusion if mode == "hybrid" else "", **sequence_stats(seq, records),
-                     "statuses": [r.status for r in records] if mode == "hybrid" else None})
+            records = run_hybrid(seq, runner)
+        row = {"sequence": name, "mode": spec.mode, "label": spec.label, "key": spec.key,
+               "tracker": spec.tracker if spec.mode != "cnn" else "",
+               "regressor": spec.regressor if spec.mode != "tracker" else "",
+               "fusion": spec.fusion if spec.mode == "hybrid" else "", **sequence_stats(seq, records, obj)}
+        if per_frame:
+            row["per_frame"] = {
+                "rot_err_deg": [round(rotation_error_deg(r.pose, s.truth), 3) if r.trusted and r.pose is not None
+                                else None for s, r in zip(seq, records)],
+                "visible": [round(s.visible, 3) for s in seq],
+                "distance_m": [round(s.truth.distance_m, 4) for s in seq],
+                "timestamp_s": [round(s.frame.timestamp, 4) for s in seq],
+                "status": [r.status for r in records] if spec.mode == "hybrid" else None,
+            }
+        rows.append(row)
     return rows
 
 
-def run_all(scenes: dict[str, Path], spec: RunSpec, workers: int = 1,
+def _row_path(out: Path, name: str, spec: RunSpec) -> Path:
+    return out / "rows" / name / f"{spec.key}.json"
+
+
+def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: int = 1, ray_address: str | None = None,
             progress: Callable[[str], None] | None = None) -> list[dict]:
-    """:func:`run_sequence` over ``{name: scene_dir}``, in ``workers`` processes; rows in name order."""
-    rows: list[dict] = []
-    items = sorted(scenes.items())
-    if workers <= 1:
-        for name, d in items:
-            rows += run_sequence(name, str(d), spec)
-            if progress:
-                progress(name)
-        return rows
-    with ProcessPoolExecutor(workers) as pool:
-        futures = {name: pool.submit(run_sequence, name, str(d), spec) for name, d in items}
-        for name, fut in futures.items():
-            rows += fut.result()
-            if progress:
-                progress(name)
-    return rows
+    """Every spec on every sequence ``{name: scene_dir}``; rows in (name, spec) order.
+
+    Args:
+        out: where finished rows are kept (``out/rows/<sequence>/<spec key>.json``); rows already
+            there are reused, so a rerun resumes. None: nothing kept.
+        workers: local worker processes (1: this process).
+        ray_address: run the sequences as Ray tasks on this cluster (``"auto"``, ``"local"`` or an
+            address) instead of local processes; needs ``pip install "hybridpose[ray]"``.
+    """
+    out = Path(out) if out is not None else None
+    todo: dict[str, list[RunSpec]] = {}
+    for name in sorted(scenes):
+        missing = [s for s in specs if out is None or not _row_path(out, name, s).is_file()]
+        if missing:
+            todo[name] = missing
+
+    def keep(rows: list[dict], name: str) -> None:
+        if out is not None:
+            by_key = {s.key: s for s in specs}
+            for r in rows:
+                atomic_write_json(_row_path(out, name, by_key[r["key"]]), r, indent=None)
+        if progress:
+            progress(name)
+
+    done: dict[tuple[str, str], dict] = {}
+    if ray_address is not None:
+        for name, rows in _run_on_ray(todo, scenes, ray_address):
+            keep(rows, name)
+            done.update({(name, r["key"]): r for r in rows})
+    elif workers <= 1:
+        for name, sp in todo.items():
+            rows = run_sequence(name, str(scenes[name]), sp)
+            keep(rows, name)
+            done.update({(name, r["key"]): r for r in rows})
+    else:
+        with ProcessPoolExecutor(workers) as pool:
+            futures = {pool.submit(run_sequence, name, str(scenes[name]), sp): name for name, sp in todo.items()}
+            for fut in as_completed(futures):
+                name = futures[fut]
+                rows = fut.result()
+                keep(rows, name)
+                done.update({(name, r["key"]): r for r in rows})
+    result = []
+    for name in sorted(scenes):
+        for s in specs:
+            result.append(done[(name, s.key)] if (name, s.key) in done else read_json(_row_path(out, name, s)))
+    return result
 
 
-def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["mode"]) -> dict[str, dict]:
-    """Spread over sequences per group (default: per mode): median / p90 / worst of each sequence's
-    mean and median rotation error, pooled means, totals of silent failures and covered frames
-    tracked > 10° off, worst recovery, cost."""
+def _run_on_ray(todo: dict[str, list[RunSpec]], scenes: dict[str, Path], address: str):
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("ray: not installed; pip install \"hybridpose[ray]\" (or run with --workers N)") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(run_sequence)
+        refs = {task.remote(name, str(scenes[name]), sp): name for name, sp in todo.items()}
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield refs[ready[0]], ray.get(ready[0])
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["label"]) -> dict[str, dict]:
+    """Spread over sequences per group (default: per spec label): the median / p90 / worst of each
+    sequence's mean rotation error, pooled means, totals of silent failures and of covered frames
+    tracked > 10° off, losses recovered and the worst recovery, cost."""
     out = {}
     for key in sorted({group(r) for r in rows}):
         rs = [r for r in rows if group(r) == key]
         mean_rot = np.array([r["rot_mean_deg"] for r in rs])
-        med_rot = np.array([r["rot_median_deg"] for r in rs])
         rec = [n for r in rs for n in r["recover_frames"]]
         finite = mean_rot[np.isfinite(mean_rot)]
+        nan_if_empty = (lambda xs: float(np.nanmean(xs)) if np.any(np.isfinite(xs)) else float("nan"))
         out[key] = {
             "sequences": len(rs),
             "rot_mean_deg": float(np.mean(finite)) if finite.size else float("nan"),
-            "seq_rot_mean_median_deg": float(np.nanmedian(mean_rot)),
-            "seq_rot_mean_p90_deg": float(np.nanpercentile(mean_rot, 90)),
-            "seq_rot_mean_worst_deg": float(np.nanmax(mean_rot)),
-            "seq_rot_median_median_deg": float(np.nanmedian(med_rot)),
-            "trans_mean_pct": float(np.nanmean([r["trans_mean_pct"] for r in rs])),
-            "trans_mean_m": float(np.nanmean([r["trans_mean_m"] for r in rs])),
+            "seq_rot_mean_median_deg": float(np.nanmedian(mean_rot)) if finite.size else float("nan"),
+            "seq_rot_mean_p90_deg": float(np.nanpercentile(mean_rot, 90)) if finite.size else float("nan"),
+            "seq_rot_mean_worst_deg": float(np.nanmax(mean_rot)) if finite.size else float("nan"),
+            "seq_rot_median_median_deg": float(np.nanmedian([r["rot_median_deg"] for r in rs])) if finite.size
+            else float("nan"),
+            "trans_mean_m": nan_if_empty(np.array([r["trans_mean_m"] for r in rs])),
+            "trans_mean_pct": nan_if_empty(np.array([r["trans_mean_pct"] for r in rs])),
+            "speed_mean": nan_if_empty(np.array([r["speed_mean"] for r in rs])),
+            "add_recall": nan_if_empty(np.array([r.get("add_recall", np.nan) for r in rs])),
+            "add_auc": nan_if_empty(np.array([r.get("add_auc", np.nan) for r in rs])),
             "coverage": float(np.mean([r["coverage"] for r in rs])),
             "silent_failures": int(sum(r["silent_failures"] for r in rs)),
             "frames": int(sum(r["frames"] for r in rs)),
+            "frames_lost": int(sum(r["frames_lost"] for r in rs)),
             "covered_tracking_10deg": int(sum(r["covered_tracking_10deg"] for r in rs)),
             "recoveries": len(rec),
             "recover_never": sum(n is None for n in rec),
@@ -126,9 +248,3 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["mode
             "cnn_calls_per_100": float(np.mean([r["cnn_calls_per_100"] for r in rs])),
         }
     return out
-
-
-def spec_dict(spec: RunSpec) -> dict:
-    d = asdict(spec)
-    d["modes"] = list(spec.modes)
-    return d

@@ -1,9 +1,17 @@
 """Seeded sequence suites, rendered on first use and cached in BOP format.
 
-A suite is a list of :class:`SuiteEntry` (a name and a :class:`~hybridpose.render.sequences.SequenceSpec`).
-Each entry's seeds belong either to the *tuning* split (used while choosing the estimator's
-parameters) or to the *report* split (the figures we publish); the two never overlap, so a figure
-on the report split was never seen while tuning.
+A suite is a list of :class:`SuiteEntry` (a unique name and a
+:class:`~hybridpose.render.sequences.SequenceSpec`). Seeds come in two disjoint splits: **tuning**
+(used while choosing the estimator's parameters) and **report** (the published figures); a figure on
+the report split was never seen while tuning.
+
+Suites:
+
+- ``occlusion``: tumble, fly-around and approach, each seed with a partial, full or long arm
+  occlusion (seed mod 3);
+- ``standard``: ``occlusion`` plus a distance sweep, an eclipse (the sun fades to 10 % and back), a
+  fast tumble (60°/s) and tumbles that start within 15° of edge-on — 7 kinds × 20 seeds;
+- ``smoke``: one short sequence of three kinds (seconds; what CI runs).
 """
 from __future__ import annotations
 
@@ -16,10 +24,16 @@ from ..render.sequences import SequenceSpec
 
 OCCLUSION_TRAJECTORIES = ("tumble", "fly-around", "approach")
 OCCLUSION_KINDS = ("arm-partial", "arm-full", "arm-long")
-# seeds that tuned the hybrid's thresholds (10 per trajectory) and seeds only ever used for reporting
+# seeds that tuned the hybrid's thresholds (10 per kind) and seeds only ever used for reporting
 TUNING_SEEDS = tuple(range(900, 910))
 REPORT_SEEDS = tuple(range(500, 520))
 SMOKE_SEEDS = (950,)
+# the edge-on kind draws its seeds from these pools, keeping those whose first view is near edge-on
+EDGE_ON_POOLS = {"report": range(2000, 3000), "tuning": range(5000, 6000), "smoke": range(7000, 7100)}
+EDGE_ON_BELOW_DEG = 15.0
+FAST_RATE_DEG_S = 60.0
+SUITES = ("standard", "occlusion", "smoke")
+SPLITS = ("report", "tuning")
 
 
 @dataclass(frozen=True)
@@ -31,26 +45,89 @@ class SuiteEntry:
     split: str  # "tuning" | "report" | "smoke"
 
 
+def _seeds(split: str) -> tuple[int, ...]:
+    seeds = {"report": REPORT_SEEDS, "tuning": TUNING_SEEDS, "smoke": SMOKE_SEEDS}
+    if split not in seeds:
+        raise ValueError(f"split: expected one of {sorted(seeds)}, got {split!r}")
+    return seeds[split]
+
+
 def occlusion_suite(split: str = "report", frames: int = 60, fps: float = 30.0) -> list[SuiteEntry]:
     """Arm-occlusion sequences: tumble, fly-around and approach, each seed with one of a partial, a full
     and a long occlusion (seed mod 3), ``frames`` frames at ``fps``.
 
     Args:
         split: ``"report"`` (20 seeds per trajectory), ``"tuning"`` (10 seeds per trajectory, disjoint
-            from the report seeds) or ``"smoke"`` (one short sequence per trajectory).
+            from the report seeds) or ``"smoke"`` (one seed).
     """
-    seeds = {"report": REPORT_SEEDS, "tuning": TUNING_SEEDS, "smoke": SMOKE_SEEDS}
-    if split not in seeds:
-        raise ValueError(f"split: expected one of {sorted(seeds)}, got {split!r}")
     if frames < 10:
         raise ValueError(f"frames: expected at least 10 (an occlusion needs room to start and end), got {frames}")
     entries = []
     for traj in OCCLUSION_TRAJECTORIES:
-        for seed in seeds[split]:
+        for seed in _seeds(split):
             occ = OCCLUSION_KINDS[seed % len(OCCLUSION_KINDS)]
             spec = SequenceSpec(trajectory=traj, frames=frames, fps=fps, occlusion=occ, seed=seed)
             entries.append(SuiteEntry(f"{traj}_{occ}_s{seed}", spec, split))
     return entries
+
+
+def edge_on_seeds(split: str, count: int, frames: int = 60, fps: float = 30.0) -> list[int]:
+    """The first ``count`` seeds of the split's pool whose tumble starts within ``EDGE_ON_BELOW_DEG``
+    of edge-on (the views where the truss shows least and both the tracker and the CNN struggle)."""
+    from ..objects import load_object, view_elevation_deg
+    from ..registry import create
+
+    obj = load_object("truss")
+    out = []
+    for seed in EDGE_ON_POOLS[split]:
+        first = create("trajectory", "tumble", duration_s=frames / fps, rng=seed).pose_at(0.0)
+        if view_elevation_deg(first, obj) < EDGE_ON_BELOW_DEG:
+            out.append(seed)
+            if len(out) == count:
+                return out
+    raise RuntimeError(f"only {len(out)} edge-on starts in the {split} pool; widen EDGE_ON_POOLS")
+
+
+def standard_suite(split: str = "report", frames: int = 60, fps: float = 30.0) -> list[SuiteEntry]:
+    """:func:`occlusion_suite` plus distance sweep, eclipse, fast tumble and edge-on starts (no arm)."""
+    seeds = _seeds(split)
+    entries = occlusion_suite(split, frames, fps)
+    for seed in seeds:
+        entries.append(SuiteEntry(f"distance-sweep_none_s{seed}",
+                                  SequenceSpec("distance-sweep", frames=frames, fps=fps, seed=seed), split))
+        entries.append(SuiteEntry(f"tumble-eclipse_none_s{seed}",
+                                  SequenceSpec("tumble", frames=frames, fps=fps, lighting="eclipse", seed=seed), split))
+        entries.append(SuiteEntry(f"tumble-fast_none_s{seed}",
+                                  SequenceSpec("tumble", frames=frames, fps=fps, seed=seed,
+                                               trajectory_kwargs={"rate_deg_s": FAST_RATE_DEG_S}), split))
+    for seed in edge_on_seeds(split if split in EDGE_ON_POOLS else "report", len(seeds), frames, fps):
+        entries.append(SuiteEntry(f"tumble-edgeon_none_s{seed}", SequenceSpec("tumble", frames=frames, fps=fps, seed=seed),
+                                  split))
+    return entries
+
+
+def smoke_suite(frames: int = 12) -> list[SuiteEntry]:
+    """Three short sequences (a partial arm pass, an eclipse, a fast tumble): the machinery, in seconds."""
+    seed = SMOKE_SEEDS[0]
+    return [
+        SuiteEntry(f"tumble_arm-partial_s{seed}", SequenceSpec("tumble", frames=frames, fps=15.0, occlusion="arm-partial",
+                                                               seed=seed), "smoke"),
+        SuiteEntry(f"tumble-eclipse_none_s{seed}", SequenceSpec("tumble", frames=frames, fps=15.0, lighting="eclipse",
+                                                                seed=seed), "smoke"),
+        SuiteEntry(f"tumble-fast_none_s{seed}", SequenceSpec("tumble", frames=frames, fps=15.0, seed=seed,
+                                                             trajectory_kwargs={"rate_deg_s": FAST_RATE_DEG_S}), "smoke"),
+    ]
+
+
+def suite(name: str, split: str = "report") -> list[SuiteEntry]:
+    """The named suite (:data:`SUITES`) on ``split`` (:data:`SPLITS`; ignored by ``smoke``)."""
+    if name not in SUITES:
+        raise ValueError(f"suite: expected one of {', '.join(SUITES)}, got {name!r}")
+    if split not in SPLITS:
+        raise ValueError(f"split: expected one of {', '.join(SPLITS)}, got {split!r}")
+    if name == "smoke":
+        return smoke_suite()
+    return standard_suite(split) if name == "standard" else occlusion_suite(split)
 
 
 def render_suite(entries: list[SuiteEntry], root, camera: Camera | None = None, object_name: str = "truss",

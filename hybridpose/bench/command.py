@@ -1,0 +1,193 @@
+"""``hybridpose bench``: the suite (or the user's BOP sequences), the runs, the outputs.
+
+Every input is checked before any long work starts; the rows of an interrupted run are reused.
+"""
+from __future__ import annotations
+
+import platform
+import subprocess
+import time
+from dataclasses import dataclass, replace
+from importlib import metadata
+from pathlib import Path
+from typing import Callable
+
+from ..estimator import HybridConfig
+from ..io import atomic_write_json, atomic_write_text
+from .report import report_markdown, write_plots
+from .runner import MODES, RunSpec, run_all
+from .suite import REPORT_SEEDS, TUNING_SEEDS, render_suite, suite
+
+RESULTS_BEGIN, RESULTS_END = "<!-- bench:begin -->", "<!-- bench:end -->"
+PAPER_TABLE = """The paper's single-image table (rendered truss, 224×224, after 100 epochs; random whole-object views, not
+sequences): VGG-16 13.56° mean / 12.33° median rotation, 0.18 m; VGG-19 12.21° / 11.34°, 0.15 m; Branched
+VGG-19 8.34° / 7.34°, 0.06 m; Parallel VGG-19 4.61° / 4.41°, 0.03 m. Our CNN on such views: the CNN
+sections below."""
+
+
+@dataclass(frozen=True)
+class BenchRequest:
+    """What ``hybridpose bench`` was asked (the CLI's options, checked by :func:`plan`)."""
+
+    out: str
+    suite: str | None = "standard"
+    split: str = "report"
+    data: str | None = None
+    object: str = "truss"
+    scale: float = 1.0
+    modes: tuple[str, ...] = MODES
+    trackers: tuple[str, ...] = ("edges",)
+    fusions: tuple[str, ...] = ("ukf",)
+    regressor: str = "default"
+    check_periods: tuple[int, ...] = ()
+    workers: int = 1
+    ray: str | None = None
+    video: str | None = None
+    limit: int | None = None
+    cache: str = "runs/bench_cache"
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version(), "machine": platform.machine()}
+    for pkg in ("hybridpose", "numpy", "opencv-contrib-python-headless", "onnxruntime", "torch", "filterpy", "gtsam",
+                "mujoco"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list]:
+    """The run specs, and the user's scenes (``--data``) or the suite entries; ValueError naming the
+    option for anything unknown, before any rendering or CNN loading."""
+    from ..registry import available
+
+    for mode in req.modes:
+        if mode not in MODES:
+            raise ValueError(f"--modes: unknown mode {mode!r}; expected some of {', '.join(MODES)}")
+    for role, names, option in (("tracker", req.trackers, "--trackers"), ("fusion", req.fusions, "--fusions")):
+        known = available(role)
+        for n in names:
+            if n not in known:
+                raise ValueError(f"{option}: unknown {role} {n!r}; available: {', '.join(known)}")
+    if req.regressor not in available("regressor") and not Path(req.regressor).is_file():
+        raise ValueError(f"--regressor: {req.regressor!r} is neither a registered regressor "
+                         f"({', '.join(available('regressor'))}) nor a checkpoint file")
+    if req.workers < 1:
+        raise ValueError(f"--workers: expected ≥ 1, got {req.workers}")
+    if any(p < 0 for p in req.check_periods):
+        raise ValueError(f"--check-periods: expected frame counts ≥ 0, got {req.check_periods}")
+    specs = []
+    if "tracker" in req.modes:
+        specs += [RunSpec("tracker", tracker=t, object=req.object, scale=req.scale) for t in req.trackers]
+    if "cnn" in req.modes:
+        specs.append(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
+    if "hybrid" in req.modes:
+        configs = [HybridConfig()] + [replace(HybridConfig(), check_period=p) for p in req.check_periods
+                                      if p != HybridConfig().check_period]
+        specs += [RunSpec("hybrid", tracker=t, regressor=req.regressor, fusion=f, object=req.object, scale=req.scale,
+                          config=c) for t in req.trackers for f in req.fusions for c in configs]
+    if req.data is not None:
+        return specs, user_scenes(req.data), []
+    if req.suite is None:
+        raise ValueError("--suite or --data: say which sequences to run")
+    entries = suite(req.suite, req.split)[: req.limit]
+    return specs, None, entries
+
+
+def user_scenes(root) -> dict[str, Path]:
+    """``{name: scene_dir}`` of every BOP scene under ``root`` (names: the path below it, '/' → '-')."""
+    from ..datasets.bop import BopScene, find_scenes
+
+    root = Path(root)
+    if not root.is_dir():
+        raise ValueError(f"--data: {root} is not a folder")
+    try:
+        scenes = find_scenes(root)
+    except (FileNotFoundError, ValueError) as exc:
+        raise ValueError(f"--data: {exc}") from exc
+    if not scenes:
+        raise ValueError(f"--data: no BOP scene (a folder with scene_gt.json, scene_camera.json and rgb/) under {root}")
+    out = {}
+    for d in scenes:
+        try:
+            BopScene(d)
+        except (FileNotFoundError, ValueError) as exc:
+            raise ValueError(f"--data: {exc}") from exc
+        name = str(d.relative_to(root)).replace("/", "-") if d != root else d.name
+        out[name] = d
+    return out
+
+
+def _check_regressor(req: BenchRequest) -> None:
+    """Load the regressor once here: one trained for another object is refused now, not in a worker."""
+    if "cnn" not in req.modes and "hybrid" not in req.modes:
+        return
+    from .runner import _backends
+
+    _backends(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
+
+
+def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Callable[[str], None] | None = None) -> dict:
+    """Run the request; write ``OUT/results.json``, ``OUT/report.md``, plots (and ``OUT/video/`` with
+    ``--video``). Returns the result dict (``config``, ``versions``, ``commit``, ``seconds``, ``rows``)."""
+    specs, scenes, entries = plan(req)
+    _check_regressor(req)
+    out = Path(req.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if scenes is None:
+        log(f"bench: {len(entries)} sequences of suite {req.suite!r} ({req.split}) — rendering what is not cached "
+            f"in {req.cache}")
+        scenes = render_suite(entries, req.cache)
+    if req.video is not None and req.video not in scenes:
+        raise ValueError(f"--video: no sequence {req.video!r} in this run; e.g. {', '.join(sorted(scenes)[:3])}")
+    log(f"bench: {len(specs)} runs × {len(scenes)} sequences, {req.workers} worker(s)"
+        + (f" on Ray ({req.ray})" if req.ray else ""))
+    t0 = time.time()
+    rows = run_all(scenes, specs, out=out, workers=req.workers, ray_address=req.ray, progress=progress)
+    seeds = None if req.data else list(TUNING_SEEDS if req.split == "tuning" else REPORT_SEEDS)
+    result = {"config": {"suite": req.suite if req.data is None else None, "data": req.data, "split": req.split,
+                         "seeds": seeds, "sequences": sorted(scenes), "workers": req.workers, "ray": req.ray,
+                         "runs": [s.label for s in specs], "object": req.object, "scale": req.scale,
+                         "hybrid_config": HybridConfig().__dict__},
+              "versions": _versions(), "commit": _commit(), "seconds": time.time() - t0, "rows": rows}
+    atomic_write_json(out / "results.json", result)
+    plots = write_plots(out, result)
+    atomic_write_text(out / "report.md", report_markdown(result, plots))
+    result["plots"] = plots
+    if req.video is not None:
+        write_video(out / "video", scenes[req.video], next(s for s in specs if s.mode == "hybrid"))
+    return result
+
+
+def write_video(out: Path, scene_dir: Path, spec: RunSpec) -> Path:
+    """The hybrid's overlay of one sequence (``tracking.run_hybrid_on_frames``)."""
+    from ..tracking import run_hybrid_on_frames
+    from .modes import load_sequence
+    from .runner import _backends
+
+    _, estimator = _backends(spec)
+    res = run_hybrid_on_frames((s.frame for s in load_sequence(scene_dir)), estimator, out)
+    return res.video
+
+
+def write_results_page(path, result: dict, plots: list[str] = ()) -> None:
+    """Replace the block between ``<!-- bench:begin -->`` and ``<!-- bench:end -->`` of the results
+    page with this run's report (and the paper's table)."""
+    path = Path(path)
+    page = path.read_text()
+    if RESULTS_BEGIN not in page or RESULTS_END not in page:
+        raise ValueError(f"{path}: no {RESULTS_BEGIN} … {RESULTS_END} block to replace")
+    head, rest = page.split(RESULTS_BEGIN, 1)
+    _, tail = rest.split(RESULTS_END, 1)
+    block = report_markdown(result, plots) + "\n" + PAPER_TABLE + "\n"
+    atomic_write_text(path, head + RESULTS_BEGIN + "\n" + block + RESULTS_END + tail)

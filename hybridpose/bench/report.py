@@ -1,0 +1,219 @@
+"""What a benchmark run reports: markdown tables, the hybrid's ratios and targets, plots."""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from .runner import summarise
+
+# what the hybrid must reach on the standard suite (seeds no tuning used)
+TARGETS = {
+    "rot_vs_cnn": 1 / 3,       # hybrid mean rotation error / CNN-only's, same frames
+    "cost_vs_cnn": 1 / 3,      # hybrid ms per frame / CNN-only's
+    "silent_failures": 0,      # frames > 5° off not flagged lost
+    "recover_frames": 5,       # frames after the arm leaves until ≤ 2°
+    "rot_mean_deg": 1.0,
+    "trans_mean_pct": 1.0,
+    "add_recall": 0.95,
+    "fps": 60.0,               # amortised, one thread, 640×480
+}
+
+COLUMNS = ("| run | seq. | rot. mean ° | per-seq. mean °: median / p90 / worst | trans. % dist. | ADD-0.1d | ADD AUC "
+           "| silent failures | covered, > 10° | lost | recovery (worst, never) | ms/frame | CNN / 100 fr. |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def _f(x, fmt="{:.2f}") -> str:
+    return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else fmt.format(x)
+
+
+def table(summary: dict[str, dict]) -> str:
+    lines = list(COLUMNS)
+    for name, s in summary.items():
+        rec = "—" if not s["recoveries"] else (_f(s["recover_frames_max"], "{}") + (f", {s['recover_never']}"
+                                                                                     if s["recover_never"] else ", 0"))
+        lines.append(f"| {name} | {s['sequences']} | {_f(s['rot_mean_deg'])} | {_f(s['seq_rot_mean_median_deg'])} / "
+                     f"{_f(s['seq_rot_mean_p90_deg'])} / {_f(s['seq_rot_mean_worst_deg'])} | {_f(s['trans_mean_pct'])} "
+                     f"| {_f(s['add_recall'], '{:.3f}')} | {_f(s['add_auc'], '{:.3f}')} "
+                     f"| {s['silent_failures']} of {s['frames']} | {s['covered_tracking_10deg']} | {s['frames_lost']} "
+                     f"| {rec} | {_f(s['ms_per_frame'], '{:.1f}')} | {_f(s['cnn_calls_per_100'], '{:.0f}')} |")
+    return "\n".join(lines)
+
+
+def _first(summary: dict[str, dict], mode: str) -> tuple[str, dict] | None:
+    for name, s in summary.items():
+        if name.startswith(mode + " "):
+            return name, s
+    return None
+
+
+def headline_runs(runs: list[str]) -> list[str]:
+    """The first run of each mode, in the order given (the defaults: first tracker, first fusion)."""
+    out = []
+    for mode in ("tracker", "cnn", "hybrid"):
+        out += [r for r in runs if r.startswith(mode + " ")][:1]
+    return out
+
+
+def targets(summary: dict[str, dict]) -> str:
+    """One line per target for the (first) hybrid run of ``summary``: met, or missed by how much."""
+    hyb, cnn, trk = _first(summary, "hybrid"), _first(summary, "cnn"), _first(summary, "tracker")
+    if hyb is None:
+        return ""
+    name, h = hyb
+    checks = []
+    if cnn is not None:
+        c = cnn[1]
+        checks.append(("mean rotation ≤ 1/3 of CNN-only's", h["rot_mean_deg"] / c["rot_mean_deg"], TARGETS["rot_vs_cnn"],
+                       "×{:.2f}"))
+        checks.append(("cost ≤ 1/3 of CNN-only's", h["ms_per_frame"] / c["ms_per_frame"], TARGETS["cost_vs_cnn"], "×{:.2f}"))
+    silent = f"{h['silent_failures']} frames" + (f" (tracker-only: {trk[1]['silent_failures']})" if trk else "")
+    checks.append(("silent failures = 0", h["silent_failures"], TARGETS["silent_failures"], silent))
+    if h["recoveries"]:
+        checks.append(("every loss recovered within 5 frames", (h["recover_frames_max"] or 0) + 1000 * h["recover_never"],
+                       TARGETS["recover_frames"], f"{h['recoveries']} full occlusions: worst {h['recover_frames_max']} "
+                       f"frames, {h['recover_never']} never"))
+    checks += [
+               ("mean rotation ≤ 1°", h["rot_mean_deg"], TARGETS["rot_mean_deg"], "{:.2f}°"),
+               ("translation ≤ 1 % of distance", h["trans_mean_pct"], TARGETS["trans_mean_pct"], "{:.2f} %"),
+               ("ADD-0.1d ≥ 0.95", -h["add_recall"], -TARGETS["add_recall"], f"{h['add_recall']:.3f}"),
+               ("≥ 60 frames/s amortised", h["ms_per_frame"], 1000 / TARGETS["fps"],
+                f"{1000 / h['ms_per_frame']:.0f} frames/s")]
+    lines = [f"Targets for `{name}`:"]
+    for what, value, limit, shown in checks:
+        text = shown.format(value) if "{" in shown else shown
+        lines.append(f"- {'met' if value <= limit else 'MISSED'}: {what} — {text}")
+    return "\n".join(lines)
+
+
+def kind_of(sequence: str) -> str:
+    """``tumble_arm-partial_s503`` → ``tumble_arm-partial``."""
+    return sequence.rsplit("_s", 1)[0]
+
+
+def report_markdown(result: dict, plots: list[str] = ()) -> str:
+    """The run as a page: what ran, the table per run, the hybrid's ratios and targets, per kind of
+    sequence, and the plots."""
+    rows, cfg = result["rows"], result["config"]
+    summary = summarise(rows)
+    head = headline_runs(cfg["runs"])
+    headline = {k: summary[k] for k in head if k in summary}
+    by_kind = summarise([r for r in rows if r["label"] in head],
+                        group=lambda r: f"{r['label'].split(' ')[0]} · {kind_of(r['sequence'])}")
+    seeds = cfg.get("seeds")
+    lines = [
+        f"Suite `{cfg['suite']}`, split `{cfg['split']}` ({len(cfg['sequences'])} sequences"
+        + (f", seeds {seeds[0]}–{seeds[-1]}" if seeds else "") + f"), commit `{result['commit']}`, "
+        f"{cfg['workers']} worker(s), {result['seconds']:.0f} s. Tracker-only starts from the true first pose and is "
+        "never re-initialised; CNN-only runs on every frame with no prior; the hybrid gets no ground truth. "
+        "Errors over the frames where the object is ≥ 50 % visible and the run gave a trusted pose; silent "
+        "failures: frames with a trusted pose > 5° off; covered, > 10°: frames < 5 % visible with a trusted pose "
+        "> 10° off; recovery: frames after a full occlusion until ≤ 2°.",
+        "",
+        table(headline),
+        "",
+        targets(headline),
+        "",
+        "<details><summary>Per kind of sequence</summary>",
+        "",
+        table(by_kind),
+        "",
+        "</details>",
+    ]
+    if len(summary) > len(headline):
+        lines += ["", "Ablations (every run, same frames):", "", table(summary)]
+    if plots:
+        lines += ["", "Plots: " + ", ".join(f"`{p}`" for p in plots)]
+    return "\n".join(lines) + "\n"
+
+
+def _figure(path, draw) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..io import atomic_write_bytes
+
+    fig, ax = plt.subplots(figsize=(8, 3.8), dpi=110)
+    draw(ax)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def plot_error_vs_distance(path, rows: list[dict], bins_m=np.arange(0.3, 1.3, 0.1)) -> None:
+    """Rotation error (median and p90 per distance bin, °) against the true distance, one line per run."""
+    def draw(ax):
+        for label in sorted({r["label"] for r in rows}):
+            err, dist = [], []
+            for r in rows:
+                if r["label"] == label and r.get("per_frame"):
+                    pf = r["per_frame"]
+                    err += [np.nan if e is None else e for e in pf["rot_err_deg"]]
+                    dist += pf["distance_m"]
+            err, dist = np.array(err, dtype=np.float64), np.array(dist)
+            centres, med, p90 = [], [], []
+            for lo, hi in zip(bins_m[:-1], bins_m[1:]):
+                e = err[(dist >= lo) & (dist < hi) & np.isfinite(err)]
+                if e.size >= 5:
+                    centres.append(0.5 * (lo + hi))
+                    med.append(np.median(e))
+                    p90.append(np.percentile(e, 90))
+            if centres:
+                line, = ax.plot(centres, med, "o-", label=f"{label} median")
+                ax.plot(centres, p90, "--", color=line.get_color(), alpha=0.6, label=f"{label} p90")
+        ax.set_yscale("log")
+        ax.set_xlabel("distance to the object (m)")
+        ax.set_ylabel("rotation error (°)")
+        ax.legend(fontsize=7)
+    _figure(path, draw)
+
+
+def plot_speed_accuracy(path, summary: dict[str, dict]) -> None:
+    """Mean rotation error against cost per frame, one point per run (the ablations' trade-off)."""
+    def draw(ax):
+        for name, s in summary.items():
+            if np.isfinite(s["rot_mean_deg"]):
+                ax.plot(s["ms_per_frame"], s["rot_mean_deg"], "o")
+                ax.annotate(name, (s["ms_per_frame"], s["rot_mean_deg"]), fontsize=7, xytext=(4, 2),
+                            textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("ms per frame (one worker)")
+        ax.set_ylabel("mean rotation error (°)")
+    _figure(path, draw)
+
+
+def plot_sequence(path, rows: list[dict], sequence: str) -> None:
+    """Error over time of every run on one sequence, with its occlusion bands (viz.plot_error_over_time)."""
+    from ..viz import plot_error_over_time
+
+    rs = [r for r in rows if r["sequence"] == sequence and r.get("per_frame")]
+    if not rs:
+        raise ValueError(f"sequence: no per-frame results for {sequence!r}")
+    pf = rs[0]["per_frame"]
+    errors = {r["label"]: [np.nan if e is None else e for e in r["per_frame"]["rot_err_deg"]] for r in rs}
+    statuses = next((r["per_frame"]["status"] for r in rs if r["per_frame"]["status"]), None)
+    plot_error_over_time(path, pf["timestamp_s"], errors, pf["visible"], title=sequence, statuses=statuses)
+
+
+def write_plots(out: Path, result: dict) -> list[str]:
+    """error_vs_distance.png, speed_accuracy.png and error_over_time_<sequence>.png for the hybrid's
+    worst and median sequences; returns the file names."""
+    rows = result["rows"]
+    out = Path(out)
+    names = ["error_vs_distance.png", "speed_accuracy.png"]
+    plot_error_vs_distance(out / names[0], rows)
+    plot_speed_accuracy(out / names[1], summarise(rows))
+    hybrid = sorted((r for r in rows if r["mode"] == "hybrid" and np.isfinite(r["rot_mean_deg"])),
+                    key=lambda r: r["rot_mean_deg"])
+    if hybrid:
+        for r in {hybrid[-1]["sequence"]: None, hybrid[len(hybrid) // 2]["sequence"]: None}:
+            names.append(f"error_over_time_{r}.png")
+            plot_sequence(out / names[-1], rows, r)
+    return names

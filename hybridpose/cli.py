@@ -231,8 +231,14 @@ def _names(text: str) -> tuple[str, ...]:
 
 
 def cmd_bench(args) -> int:
-    from .bench.command import BenchRequest, bench, write_results_page
+    from .bench.command import BenchRequest, bench, rewrite_report, write_results_page
 
+    if args.report_only:
+        result = rewrite_report(args.out)
+        print((Path(args.out) / "report.md").read_text())
+        if args.results_md:
+            write_results_page(args.results_md, result, result["plots"])
+        return 0
     try:
         periods = tuple(int(p) for p in _names(args.check_periods))
     except ValueError:
@@ -240,6 +246,7 @@ def cmd_bench(args) -> int:
     req = BenchRequest(out=args.out, suite=None if args.data else args.suite, split=args.split, data=args.data,
                        object=args.object, scale=args.scale, modes=_names(args.modes), trackers=_names(args.trackers),
                        fusions=_names(args.fusions), regressor=args.regressor, check_periods=periods,
+                       configs=tuple(args.config),
                        workers=args.workers, ray=args.ray, video=args.video, limit=args.limit, cache=args.cache)
     bar: list = []  # made at the first finished sequence, after every input was checked
 
@@ -581,6 +588,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--fusions", default="ukf", help="comma list: a hybrid run per tracker × fusion")
     b.add_argument("--regressor", default="default", help="registered name or checkpoint file")
     b.add_argument("--check-periods", default="", help="comma list of CNN check periods to ablate (frames)")
+    b.add_argument("--config", action="append", default=[],
+                   help="one more hybrid run with these HybridConfig fields, e.g. probation_frames=2,check_period=5 "
+                        "(repeatable)")
     b.add_argument("--workers", type=int, default=1, help="parallel processes (one sequence each)")
     b.add_argument("--ray", default=None, help="run on Ray: an address, 'auto' or 'local' (pip install 'hybridpose[ray]')")
     b.add_argument("--video", default=None, help="also write the hybrid's overlay video of this sequence")
@@ -588,6 +598,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--cache", default="runs/bench_cache", help="rendered suite sequences (reused)")
     b.add_argument("--out", required=True)
     b.add_argument("--results-md", default=None, help="rewrite the bench block of this results page (RESULTS.md)")
+    b.add_argument("--report-only", action="store_true",
+                   help="rewrite report.md and the plots (and --results-md) from OUT/results.json; run nothing")
     b.set_defaults(func=cmd_bench)
 
     d = sub.add_parser("demo", help="render an arm-occlusion sequence, run tracker-only, CNN-only and the hybrid "

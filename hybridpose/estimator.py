@@ -63,6 +63,9 @@ class HybridConfig:
             hybrid's saving over CNN-only, at up to that many frames' delay in recovering.
         check_roi_margin: the CNN check's crop is the box of the object's projection at the
             predicted pose, grown by this fraction on each side.
+        probation_frames: after every (re)initialisation the CNN checks each of the next this-many
+            frames: a fresh start is the least certain moment (an end-for-end twin that the edges fit
+            as well as the truth, a start as the object comes out from behind the arm).
         check_below_quality: a tracker measurement of lower quality calls a CNN check at once,
             whatever ``check_period`` says (0: never). A tracker that slid onto a wrong pose still
             reports 0.6–0.75 where a right one reports 0.8 and more: the check it calls lets the
@@ -82,10 +85,13 @@ class HybridConfig:
     check_roi_margin: float = 0.15
     switch_quality_margin: float = 0.1
     check_below_quality: float = 0.65
+    probation_frames: int = 1
 
     def __post_init__(self) -> None:
         if int(self.check_period) != self.check_period or self.check_period < 0:
             raise ValueError(f"check_period: expected a whole number of frames ≥ 0, got {self.check_period}")
+        if int(self.probation_frames) != self.probation_frames or self.probation_frames < 0:
+            raise ValueError(f"probation_frames: expected a whole number of frames ≥ 0, got {self.probation_frames}")
         for name in ("confirm_checks", "lost_after_rejections", "lost_check_period"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
@@ -102,6 +108,7 @@ class HybridConfig:
 @dataclass
 class _Counters:
     since_check: int = 0
+    since_start: int = 0
     disagreements: int = 0
     rejections: int = 0
     last_cnn: Measurement | None = None
@@ -224,8 +231,10 @@ class HybridEstimator:
                 return self._declare_lost(frame, timings)
         status = "tracking"
         self._n.since_check += 1
-        due = (self.config.check_period > 0 and (self._n.since_check >= self.config.check_period
-                                                 or self._n.disagreements > 0)) or m.quality < self.config.check_below_quality
+        self._n.since_start += 1
+        due = ((self.config.check_period > 0 and (self._n.since_check >= self.config.check_period
+                                                  or self._n.disagreements > 0))
+               or m.quality < self.config.check_below_quality or self._n.since_start <= self.config.probation_frames)
         if due:
             self._n.since_check = 0
             fused = self.fusion.estimate

@@ -74,7 +74,8 @@ def run(est, n):
 
 def test_cnn_initialises_then_the_tracker_tracks_with_periodic_checks(truss):
     reg = OracleRegressor()
-    est = HybridEstimator(ScriptedTracker(object=truss), reg, registry.create("fusion", "ukf"), HybridConfig(check_period=10))
+    est = HybridEstimator(ScriptedTracker(object=truss), reg, registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=10, probation_frames=0))
     out = run(est, 40)
     assert out[0].status == "init" and out[0].pose is not None
     assert all(e.status == "tracking" for e in out[1:])
@@ -109,7 +110,7 @@ def test_a_slow_silent_drift_is_caught_by_the_periodic_checks():
             return Measurement(tilt(truth(k), off), cov, 0.85, "tracker:scripted", frame.timestamp)
 
     est = HybridEstimator(Creeping(), OracleRegressor(), registry.create("fusion", "ukf"),
-                          HybridConfig(check_period=10, confirm_checks=2))
+                          HybridConfig(check_period=10, confirm_checks=2, probation_frames=0))
     out = run(est, 40)
     # at the check of frame 20 the drift (4.5°) is inside the 99.9 % gate of a 1° CNN; at frame 30
     # (9.5°) it is not, and frame 31 confirms it
@@ -224,6 +225,14 @@ def test_a_mediocre_tracker_quality_calls_a_check_at_once():
 
     reg = OracleRegressor()
     est = HybridEstimator(Mediocre(), reg, registry.create("fusion", "ukf"),
-                          HybridConfig(check_period=10, check_below_quality=0.65))
+                          HybridConfig(check_period=10, check_below_quality=0.65, probation_frames=0))
     run(est, 16)
     assert [k for k, _ in reg.calls] == [0, 5, 15]  # the early check restarts the period
+
+
+def test_probation_checks_follow_every_start():
+    reg = OracleRegressor()
+    est = HybridEstimator(ScriptedTracker(), reg, registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=10, probation_frames=2))
+    run(est, 14)
+    assert [k for k, _ in reg.calls] == [0, 1, 2, 12]

@@ -40,6 +40,7 @@ class BenchRequest:
     fusions: tuple[str, ...] = ("ukf",)
     regressor: str = "default"
     check_periods: tuple[int, ...] = ()
+    configs: tuple[str, ...] = ()  # "name=value,name=value": one more hybrid run per entry
     workers: int = 1
     ray: str | None = None
     video: str | None = None
@@ -86,6 +87,7 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
         raise ValueError(f"--workers: expected ≥ 1, got {req.workers}")
     if any(p < 0 for p in req.check_periods):
         raise ValueError(f"--check-periods: expected frame counts ≥ 0, got {req.check_periods}")
+    variants = [parse_config(text) for text in req.configs]
     specs = []
     if "tracker" in req.modes:
         specs += [RunSpec("tracker", tracker=t, object=req.object, scale=req.scale) for t in req.trackers]
@@ -93,7 +95,7 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
         specs.append(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
     if "hybrid" in req.modes:
         configs = [HybridConfig()] + [replace(HybridConfig(), check_period=p) for p in req.check_periods
-                                      if p != HybridConfig().check_period]
+                                      if p != HybridConfig().check_period] + variants
         specs += [RunSpec("hybrid", tracker=t, regressor=req.regressor, fusion=f, object=req.object, scale=req.scale,
                           config=c) for t in req.trackers for f in req.fusions for c in configs]
     if req.data is not None:
@@ -102,6 +104,23 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
         raise ValueError("--suite or --data: say which sequences to run")
     entries = suite(req.suite, req.split)[: req.limit]
     return specs, None, entries
+
+
+def parse_config(text: str) -> HybridConfig:
+    """``"probation_frames=2,check_below_quality=0.7"`` → the default :class:`HybridConfig` with those
+    fields; ValueError naming ``--config`` and the known fields otherwise."""
+    fields = HybridConfig().__dict__
+    changes = {}
+    for item in (t.strip() for t in text.split(",") if t.strip()):
+        key, _, value = item.partition("=")
+        key = key.strip()
+        if key not in fields or not value:
+            raise ValueError(f"--config: expected name=value with a name among {', '.join(fields)}, got {item!r}")
+        try:
+            changes[key] = type(fields[key])(float(value)) if isinstance(fields[key], int) else float(value)
+        except ValueError:
+            raise ValueError(f"--config: {key}: expected a number, got {value!r}") from None
+    return replace(HybridConfig(), **changes)
 
 
 def user_scenes(root) -> dict[str, Path]:
@@ -166,6 +185,18 @@ def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Calla
     result["plots"] = plots
     if req.video is not None:
         write_video(out / "video", scenes[req.video], next(s for s in specs if s.mode == "hybrid"))
+    return result
+
+
+def rewrite_report(out) -> dict:
+    """Plots and ``report.md`` again from ``OUT/results.json`` (nothing re-run)."""
+    from ..io import read_json
+
+    out = Path(out)
+    result = read_json(out / "results.json")
+    plots = write_plots(out, result)
+    atomic_write_text(out / "report.md", report_markdown(result, plots))
+    result["plots"] = plots
     return result
 
 

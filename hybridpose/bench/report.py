@@ -125,7 +125,7 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
     if len(summary) > len(headline):
         lines += ["", "Ablations (every run, same frames):", "", table(summary)]
     if plots:
-        lines += ["", "Plots: " + ", ".join(f"`{p}`" for p in plots)]
+        lines += ["", "Plots in the run's output folder: " + ", ".join(f"`{p}`" for p in plots)]
     return "\n".join(lines) + "\n"
 
 
@@ -154,7 +154,7 @@ def plot_error_vs_distance(path, rows: list[dict], bins_m=np.arange(0.3, 1.3, 0.
             for r in rows:
                 if r["label"] == label and r.get("per_frame"):
                     pf = r["per_frame"]
-                    err += [np.nan if e is None else e for e in pf["rot_err_deg"]]
+                    err += [np.nan if e is None or v < 0.5 else e for e, v in zip(pf["rot_err_deg"], pf["visible"])]
                     dist += pf["distance_m"]
             err, dist = np.array(err, dtype=np.float64), np.array(dist)
             centres, med, p90 = [], [], []
@@ -170,7 +170,8 @@ def plot_error_vs_distance(path, rows: list[dict], bins_m=np.arange(0.3, 1.3, 0.
         ax.set_yscale("log")
         ax.set_xlabel("distance to the object (m)")
         ax.set_ylabel("rotation error (°)")
-        ax.legend(fontsize=7)
+        ax.set_title("rotation error by distance (frames ≥ 50 % visible with a trusted pose)", fontsize=9)
+        ax.legend(fontsize=7, loc="upper right")
     _figure(path, draw)
 
 
@@ -203,17 +204,20 @@ def plot_sequence(path, rows: list[dict], sequence: str) -> None:
 
 
 def write_plots(out: Path, result: dict) -> list[str]:
-    """error_vs_distance.png, speed_accuracy.png and error_over_time_<sequence>.png for the hybrid's
-    worst and median sequences; returns the file names."""
+    """error_vs_distance.png (the headline runs), speed_accuracy.png (every run) and
+    error_over_time_<sequence>.png (the headline runs) for the headline hybrid's worst and median
+    sequences; returns the file names."""
     rows = result["rows"]
+    head = headline_runs(result["config"]["runs"])
+    shown = [r for r in rows if r["label"] in head]
     out = Path(out)
     names = ["error_vs_distance.png", "speed_accuracy.png"]
-    plot_error_vs_distance(out / names[0], rows)
+    plot_error_vs_distance(out / names[0], shown)
     plot_speed_accuracy(out / names[1], summarise(rows))
-    hybrid = sorted((r for r in rows if r["mode"] == "hybrid" and np.isfinite(r["rot_mean_deg"])),
+    hybrid = sorted((r for r in shown if r["mode"] == "hybrid" and np.isfinite(r["rot_mean_deg"])),
                     key=lambda r: r["rot_mean_deg"])
     if hybrid:
-        for r in {hybrid[-1]["sequence"]: None, hybrid[len(hybrid) // 2]["sequence"]: None}:
-            names.append(f"error_over_time_{r}.png")
-            plot_sequence(out / names[-1], rows, r)
+        for seq in dict.fromkeys([hybrid[-1]["sequence"], hybrid[len(hybrid) // 2]["sequence"]]):
+            names.append(f"error_over_time_{seq}.png")
+            plot_sequence(out / names[-1], shown, seq)
     return names

@@ -237,7 +237,7 @@ def cmd_bench(args) -> int:
         result = rewrite_report(args.out)
         print((Path(args.out) / "report.md").read_text())
         if args.results_md:
-            write_results_page(args.results_md, result, result["plots"])
+            write_results_page(args.results_md, result, result["plots"], block=args.results_block)
         return 0
     try:
         periods = tuple(int(p) for p in _names(args.check_periods))
@@ -262,8 +262,8 @@ def cmd_bench(args) -> int:
     print(f"bench: {len(result['rows'])} rows → {out / 'results.json'}, {out / 'report.md'}, plots in {out}")
     print((out / "report.md").read_text())
     if args.results_md:
-        write_results_page(args.results_md, result, result["plots"])
-        print(f"bench: results page block rewritten → {args.results_md}")
+        write_results_page(args.results_md, result, result["plots"], block=args.results_block)
+        print(f"bench: results page block {args.results_block!r} rewritten → {args.results_md}")
     return 0
 
 
@@ -598,6 +598,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--cache", default="runs/bench_cache", help="rendered suite sequences (reused)")
     b.add_argument("--out", required=True)
     b.add_argument("--results-md", default=None, help="rewrite the bench block of this results page (RESULTS.md)")
+    b.add_argument("--results-block", default="bench",
+                   help="which <!-- NAME:begin --> … <!-- NAME:end --> block of --results-md to rewrite")
     b.add_argument("--report-only", action="store_true",
                    help="rewrite report.md and the plots (and --results-md) from OUT/results.json; run nothing")
     b.set_defaults(func=cmd_bench)

@@ -22,7 +22,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
   consecutive answers agree (``reacquire_chi2``) and the tracker, started from the latest, confirms it
   (not lost: under the arm the CNN can repeat the same wrong answer, but the edges do not match);
-  then everything restarts from the tracker's fit (**reinit**).
+  then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
+  from the prediction each frame and takes up again by itself when its fit is good and inside the
+  gate (``tracker_resumes``).
 
 Every threshold is a field of :class:`HybridConfig`, its default chosen on the tuning seeds of the
 suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).
@@ -56,6 +58,11 @@ class HybridConfig:
             every check; 2 or more: a single CNN outlier is ignored).
         lost_after_rejections: consecutive tracker measurements refused by the fusion's gate that
             declare the object lost.
+        tracker_resumes: while lost, the tracker also tries every frame from the fusion's
+            prediction and takes up again by itself when its fit is not lost and passes the gate
+            (the honest quality keeps it from taking up on the arm); False: only the CNN restarts it.
+        lost_after_tracker_losses: consecutive frames the tracker reports lost that declare the
+            object lost (before that the estimate coasts on the fusion's prediction).
         reacquire_chi2: squared Mahalanobis distance below which two consecutive CNN answers agree
             while lost (both covariances, plus the motion possible in between).
         lost_check_period: frames between CNN answers while lost (1: every frame). Under a long
@@ -80,6 +87,8 @@ class HybridConfig:
     disagreement_chi2: float = _CHI2_6_999
     confirm_checks: int = 2
     lost_after_rejections: int = 3
+    lost_after_tracker_losses: int = 1
+    tracker_resumes: bool = True
     reacquire_chi2: float = _CHI2_6_999
     lost_check_period: int = 1
     check_roi_margin: float = 0.15
@@ -92,7 +101,7 @@ class HybridConfig:
             raise ValueError(f"check_period: expected a whole number of frames ≥ 0, got {self.check_period}")
         if int(self.probation_frames) != self.probation_frames or self.probation_frames < 0:
             raise ValueError(f"probation_frames: expected a whole number of frames ≥ 0, got {self.probation_frames}")
-        for name in ("confirm_checks", "lost_after_rejections", "lost_check_period"):
+        for name in ("confirm_checks", "lost_after_rejections", "lost_check_period", "lost_after_tracker_losses"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ValueError(f"{name}: expected a whole number ≥ 1, got {v}")
@@ -111,6 +120,7 @@ class _Counters:
     since_start: int = 0
     disagreements: int = 0
     rejections: int = 0
+    tracker_losses: int = 0
     last_cnn: Measurement | None = None
 
 
@@ -221,10 +231,12 @@ class HybridEstimator:
         self.last_tracker = m
         sources = []
         if m.lost:
-            return self._declare_lost(frame, timings)
-        if self._timed(timings, "fusion", self.fusion.update, m):
+            self._n.tracker_losses += 1
+            if self._n.tracker_losses >= self.config.lost_after_tracker_losses:
+                return self._declare_lost(frame, timings)
+        elif self._timed(timings, "fusion", self.fusion.update, m):
             sources.append(m.source)
-            self._n.rejections = 0
+            self._n.rejections = self._n.tracker_losses = 0
         else:
             self._n.rejections += 1
             if self._n.rejections >= self.config.lost_after_rejections:
@@ -263,7 +275,14 @@ class HybridEstimator:
         return self._estimate(status, tuple(sources))
 
     def _reacquire(self, frame: Frame, timings: dict) -> Estimate:
-        self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
+        prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
+        if self.config.tracker_resumes:
+            m = self._timed(timings, "tracker", self.tracker.track, frame, prior.pose)
+            self.last_tracker = m
+            if not m.lost and self._timed(timings, "fusion", self.fusion.update, m):
+                self.status = "tracking"
+                self._n = _Counters()
+                return self._estimate("tracking", (m.source,))
         self._n.since_check += 1
         if self._n.since_check < self.config.lost_check_period:
             return self._estimate("lost", ())

@@ -129,7 +129,7 @@ def test_a_single_cnn_outlier_is_ignored():
 def test_loss_then_reacquisition_by_two_agreeing_cnn_answers():
     trk = ScriptedTracker(lost_frames=range(15, 25))
     reg = OracleRegressor(blind=range(15, 24))
-    est = HybridEstimator(trk, reg, registry.create("fusion", "ukf"), HybridConfig(check_period=0))
+    est = HybridEstimator(trk, reg, registry.create("fusion", "ukf"), HybridConfig(check_period=0, tracker_resumes=False))
     out = run(est, 35)
     assert out[15].status == "lost" and all(e.status == "lost" for e in out[15:25])
     assert all(e.pose is not None and np.all(np.isfinite(e.covariance)) for e in out[15:25])  # predicted on
@@ -236,3 +236,12 @@ def test_probation_checks_follow_every_start():
                           HybridConfig(check_period=10, probation_frames=2))
     run(est, 14)
     assert [k for k, _ in reg.calls] == [0, 1, 2, 12]
+
+
+def test_the_tracker_takes_up_again_by_itself_after_a_short_dropout():
+    trk = ScriptedTracker(lost_frames=range(15, 18))
+    reg = OracleRegressor(blind=range(15, 30))  # the CNN sees nothing: only the tracker can resume
+    est = HybridEstimator(trk, reg, registry.create("fusion", "ukf"), HybridConfig(check_period=0))
+    out = run(est, 25)
+    assert [e.status for e in out[15:19]] == ["lost", "lost", "lost", "tracking"]
+    assert out[18].sources == ("tracker:scripted",) and rotation_error_deg(out[-1].pose, truth(24)) < 0.3

@@ -18,7 +18,7 @@ from .report import report_markdown, write_plots
 from .runner import MODES, RunSpec, run_all
 from .suite import REPORT_SEEDS, TUNING_SEEDS, render_suite, suite
 
-RESULTS_BEGIN, RESULTS_END = "<!-- bench:begin -->", "<!-- bench:end -->"
+RESULTS_BLOCK = "bench"  # <!-- bench:begin --> … <!-- bench:end --> in the results page
 PAPER_TABLE = """The paper's single-image table (rendered truss, 224×224, after 100 epochs; random whole-object views, not
 sequences): VGG-16 13.56° mean / 12.33° median rotation, 0.18 m; VGG-19 12.21° / 11.34°, 0.15 m; Branched
 VGG-19 8.34° / 7.34°, 0.06 m; Parallel VGG-19 4.61° / 4.41°, 0.03 m. Our CNN on such views: the CNN
@@ -211,14 +211,15 @@ def write_video(out: Path, scene_dir: Path, spec: RunSpec) -> Path:
     return res.video
 
 
-def write_results_page(path, result: dict, plots: list[str] = ()) -> None:
-    """Replace the block between ``<!-- bench:begin -->`` and ``<!-- bench:end -->`` of the results
-    page with this run's report (and the paper's table)."""
+def write_results_page(path, result: dict, plots: list[str] = (), block: str = RESULTS_BLOCK) -> None:
+    """Replace the block between ``<!-- {block}:begin -->`` and ``<!-- {block}:end -->`` of the
+    results page with this run's report (the main block also with the paper's table)."""
     path = Path(path)
+    begin, end = f"<!-- {block}:begin -->", f"<!-- {block}:end -->"
     page = path.read_text()
-    if RESULTS_BEGIN not in page or RESULTS_END not in page:
-        raise ValueError(f"{path}: no {RESULTS_BEGIN} … {RESULTS_END} block to replace")
-    head, rest = page.split(RESULTS_BEGIN, 1)
-    _, tail = rest.split(RESULTS_END, 1)
-    block = report_markdown(result, plots) + "\n" + PAPER_TABLE + "\n"
-    atomic_write_text(path, head + RESULTS_BEGIN + "\n" + block + RESULTS_END + tail)
+    if begin not in page or end not in page:
+        raise ValueError(f"{path}: no {begin} … {end} block to replace")
+    head, rest = page.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    text = report_markdown(result, plots) + ("\n" + PAPER_TABLE + "\n" if block == RESULTS_BLOCK else "")
+    atomic_write_text(path, head + begin + "\n" + text + end + tail)

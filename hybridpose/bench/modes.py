@@ -24,6 +24,9 @@ HALF_VISIBLE = 0.5  # errors are reported on frames where at least this share of
 COVERED = 0.05  # below this visible share the object counts as covered
 SILENT_DEG = 5.0  # a frame with a larger error that is not flagged lost is a silent failure
 RECOVERED_DEG = 2.0  # recovery: rotation error back below this (and a trusted pose)
+CLEAR = 0.9  # a frame this visible is clear: flagging it lost at a good pose is a false alarm
+GOOD_DEG = 2.0
+NEES_90 = 10.645  # 90 % point of χ²₆: a calibrated covariance holds 90 % of the errors inside it
 
 
 @dataclass(frozen=True)
@@ -38,13 +41,17 @@ class SequenceFrame:
 @dataclass(frozen=True)
 class FrameRecord:
     """What a mode said about one frame: ``pose`` (None when it said nothing), ``trusted`` (False when
-    it flagged the object lost), milliseconds, CNN calls made for this frame, the hybrid's status."""
+    it flagged the object lost), milliseconds, CNN calls made for this frame, the hybrid's status,
+    the (6, 6) covariance of ``pose``, and ``raw_pose``: the pose it would have given had it not
+    flagged the frame (the tracker's solver pose, the hybrid's prediction), to tell false alarms."""
 
     pose: Pose | None
     trusted: bool
     ms: float
     cnn_calls: int = 0
     status: str = ""
+    covariance: np.ndarray | None = None
+    raw_pose: Pose | None = None
 
 
 def load_sequence(scene_dir) -> list[SequenceFrame]:
@@ -69,11 +76,12 @@ def run_tracker(seq: list[SequenceFrame], tracker) -> list[FrameRecord]:
     first = seq[0]
     t0 = time.perf_counter()
     tracker.init(first.frame, first.truth)
-    records = [FrameRecord(first.truth, True, 1000 * (time.perf_counter() - t0))]
+    records = [FrameRecord(first.truth, True, 1000 * (time.perf_counter() - t0), raw_pose=first.truth)]
     for s in seq[1:]:
         t0 = time.perf_counter()
         m = tracker.track(s.frame)
-        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0)))
+        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0), covariance=m.covariance,
+                                   raw_pose=getattr(tracker, "pose", None) if m.lost else m.pose))
     return records
 
 
@@ -83,7 +91,8 @@ def run_cnn(seq: list[SequenceFrame], regressor) -> list[FrameRecord]:
     for s in seq:
         t0 = time.perf_counter()
         m = regressor.predict(s.frame)
-        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0), cnn_calls=1))
+        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0), cnn_calls=1,
+                                   covariance=m.covariance))
     return records
 
 
@@ -95,7 +104,8 @@ def run_hybrid(seq: list[SequenceFrame], estimator) -> list[FrameRecord]:
         before = estimator.regressor_calls
         e = estimator.step(s.frame)
         records.append(FrameRecord(e.pose, e.status != "lost" and e.pose is not None, e.timings_ms["total"],
-                                   cnn_calls=estimator.regressor_calls - before, status=e.status))
+                                   cnn_calls=estimator.regressor_calls - before, status=e.status,
+                                   covariance=e.covariance, raw_pose=e.pose))
     return records
 
 
@@ -113,10 +123,14 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     counted as infinite errors.
     ``silent_failures``: frames (any visibility) with a trusted pose more than ``SILENT_DEG`` off.
     ``covered_tracking_10deg``: frames with the object < ``COVERED`` visible and a trusted pose more
-    than 10° off. ``recover_frames``: after each full occlusion, the frames from the first frame the
+    than 10° off. ``false_alarms``: frames at least ``CLEAR`` visible flagged lost although the pose
+    the mode had (``raw_pose``) was within ``GOOD_DEG`` (out of ``clear_good_frames``).
+    ``nees_coverage90``: share of the trusted half-visible frames whose error lies inside the 90 %
+    ellipsoid of the reported covariance (0.9 when calibrated). ``recover_frames``: after each full occlusion, the frames from the first frame the
     object is half visible again until a trusted pose within ``RECOVERED_DEG`` (None: never).
     """
     rot, trans, pct, speed, add_err, silent, covered_bad, lost = [], [], [], [], [], 0, 0, 0
+    clear_good, false_alarms, nees_in, nees_n = 0, 0, 0, 0
     considered = 0
     points = obj.sample_surface(500, rng=0) if obj is not None else None
     add_fn = adds if obj is not None and obj.symmetric else add
@@ -124,6 +138,9 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         err = rotation_error_deg(r.pose, s.truth) if r.pose is not None else None
         if not r.trusted:
             lost += 1
+        if s.visible >= CLEAR and r.raw_pose is not None and rotation_error_deg(r.raw_pose, s.truth) < GOOD_DEG:
+            clear_good += 1
+            false_alarms += int(not r.trusted)
         if r.trusted and err is not None:
             silent += int(err > SILENT_DEG)
             covered_bad += int(s.visible < COVERED and err > 10.0)
@@ -135,6 +152,13 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
                 trans.append(te)
                 pct.append(100 * te / s.truth.distance_m)
                 speed.append(speed_score(r.pose, s.truth))
+                if r.covariance is not None:
+                    xi = r.pose.local(s.truth)
+                    try:
+                        nees_in += int(float(xi @ np.linalg.solve(r.covariance, xi)) <= NEES_90)
+                        nees_n += 1
+                    except np.linalg.LinAlgError:
+                        pass
                 if points is not None:
                     add_err.append(add_fn(r.pose, s.truth, points))
             elif points is not None:
@@ -158,6 +182,9 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         "speed_mean": float(np.mean(speed)) if speed else float("nan"),
         **add_stats,
         "silent_failures": silent,
+        "false_alarms": false_alarms,
+        "clear_good_frames": clear_good,
+        "nees_coverage90": nees_in / nees_n if nees_n else float("nan"),
         "covered_tracking_10deg": covered_bad,
         "frames_lost": lost,
         "recover_frames": recover,

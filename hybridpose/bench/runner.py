@@ -238,6 +238,9 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "add_auc": nan_if_empty(np.array([r.get("add_auc", np.nan) for r in rs])),
             "coverage": float(np.mean([r["coverage"] for r in rs])),
             "silent_failures": int(sum(r["silent_failures"] for r in rs)),
+            "false_alarm_pct": 100.0 * sum(r.get("false_alarms", 0) for r in rs)
+            / max(sum(r.get("clear_good_frames", 0) for r in rs), 1),
+            "nees_coverage90": nan_if_empty(np.array([r.get("nees_coverage90", np.nan) for r in rs])),
             "frames": int(sum(r["frames"] for r in rs)),
             "frames_lost": int(sum(r["frames_lost"] for r in rs)),
             "covered_tracking_10deg": int(sum(r["covered_tracking_10deg"] for r in rs)),

@@ -30,7 +30,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .edges import fit_from_proposals
+from .edges import explained_edge_share, fit_from_proposals, honest_quality
 from ..geometry import projection_jacobian
 from .model_view import ModelView
 
@@ -172,11 +172,12 @@ class KltPnpTracker(Tracker):
         if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0
-        if best.quality >= self.lost_quality:
+        quality = honest_quality(best, explained_edge_share(self.view, frame, best.pose, gray.astype(np.float32)))
+        if quality >= self.lost_quality:
             self._refresh(gray, best.pose, frame, klt)
         else:
             self.gray = gray
-        return best.pose, best.covariance, best.quality
+        return best.pose, best.covariance, quality
 
     def _refresh(self, gray, pose: Pose, frame: Frame, klt) -> None:
         """Drift-free corners for the next frame: the surviving tracks re-lifted onto the model at

@@ -57,6 +57,7 @@ class ModelView:
         mesh = object.mesh
         if step_m <= 0:
             raise ValueError(f"step_m: expected a positive sample spacing in metres, got {step_m}")
+        self.step_m = float(step_m)
         sharp = mesh.face_adjacency_angles > np.radians(SHARP_EDGE_ANGLE_DEG)
         if not np.any(sharp):
             raise ValueError(
@@ -136,6 +137,11 @@ class ModelView:
         return d, lam, ok & (lam > 0)
 
     # --- visible samples ----------------------------------------------------------------------------
+    def step_px(self, pose: Pose, camera: Camera) -> float:
+        """The samples' spacing in pixels at the depth of the object's nearest point (≥ 1)."""
+        depth = max(float(pose.t[2]) - 0.5 * self.object.diameter, 1e-3)
+        return max(1.0, self.step_m * max(camera.fx, camera.fy) / depth)
+
     def visible_samples(self, pose: Pose, camera: Camera, margin_px: float = 0.0,
                         max_samples: int | None = None) -> EdgeSamples:
         """Edge samples visible at ``pose``: a front-facing adjacent face, not hidden by another

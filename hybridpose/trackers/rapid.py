@@ -13,7 +13,7 @@ point-to-point matches. Consequences we handle here:
   (≈ 6–10° median on our tumble, ``refine=False`` in the benchmark). By default (``refine=True``)
   the silhouette pose is therefore a *proposal*: the moving-edge fit on all visible model edges
   (:func:`~hybridpose.trackers.edges.fit_edges`) runs from the caller's start and, when that fit
-  is poor (quality < 0.7), from the silhouette pose too; the fit more edge samples agree with wins; its inlier fraction × support is the quality (the cv2
+  is poor (quality < 0.7), from the silhouette pose too; the fit more edge samples agree with wins; its inlier fraction × support, capped by the share of image edges the model explains (edges.honest_quality), is the quality (the cv2
   ratios are not comparable between variants: GOS always reports 1). The silhouette step helps
   when the start is far off (fast motion, re-acquisition), where its 20 px search reaches further;
 * OLS/GOS histograms only count pixels with saturation > 25 and value > 50: a grey spacecraft on
@@ -33,7 +33,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .edges import fit_from_proposals
+from .edges import explained_edge_share, fit_from_proposals, honest_quality, to_gray
 from .model_view import ModelView
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
@@ -104,10 +104,11 @@ class RapidTracker(Tracker):
             return pose, np.diag([0.05**2] * 3 + [0.01**2] * 3), float(ratio)
         # the silhouette pose is a proposal: the edge fit from the caller's start is kept when good,
         # else the fit from the silhouette pose competes (more agreeing model edges win)
-        best = fit_from_proposals(self.view, frame, (start,) if pose is start else (start, pose))
+        gray = to_gray(frame.image)
+        best = fit_from_proposals(self.view, frame, (start,) if pose is start else (start, pose), gray=gray)
         if best is None:
             return None, None, 0.0
-        return best.pose, best.covariance, best.quality
+        return best.pose, best.covariance, honest_quality(best, explained_edge_share(self.view, frame, best.pose, gray))
 
 
 def _factory(variant: str):

@@ -27,8 +27,9 @@ from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.geometry.raster import fill_triangles, front_faces_far_first
 from hybridpose.machine import cpu_label
 from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint
-from hybridpose.trackers import _edge_kernels, edges
-from hybridpose.trackers.model_view import ID_SCALE, ModelView
+from hybridpose.edges import _kernels as _edge_kernels
+from hybridpose.edges import fit as edges
+from hybridpose.edges.model_view import ID_SCALE, ModelView
 
 DEPTH_TOL_M = 0.005
 PATCH_PX = 2

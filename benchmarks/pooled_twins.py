@@ -35,7 +35,7 @@ from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, paired_comparison
 from hybridpose.regressors.predictor import (POOLED_PNP_WEIGHT, REFINE_MIN_QUALITY, REFINE_SEARCH_PX,
                                              VERIFIER_EDGE_WEIGHT, VERIFIER_SURE, CheckpointRegressor, _pnp_quality,
                                              WEIGHTS_DIR, shipped_checkpoint, twin_scores)
-from hybridpose.trackers.edges import fit_edges, to_gray
+from hybridpose.edges import fit_edges, to_gray
 
 N_TWINS = 4
 

@@ -4,7 +4,7 @@ Usage:
     python benchmarks/twin_choice.py --data data/truss_test [--checkpoint PATH] [--tune 400] [--verifier PATH]
 
 For every held-out view: the twin head's probabilities, the rotation error of each twin of the PnP
-pose, and the edge fit (:func:`hybridpose.trackers.edges.fit_edges`) from each twin. Then the
+pose, and the edge fit (:func:`hybridpose.edges.fit_edges`) from each twin. Then the
 choice rules are replayed on those numbers: the head alone, the edges alone, and the gated rule of
 ``CheckpointRegressor._refine`` (head alone when p ≥ ``tau``; else the twin with the best
 ``log p + a · log quality``) on a grid of (tau, a). The grid is scored on the first ``--tune`` views
@@ -29,7 +29,7 @@ from hybridpose.metrics import rotation_error_deg
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG
 from hybridpose.regressors.predictor import (CROP_MARGIN, REFINE_MIN_QUALITY, REFINE_SEARCH_PX, TWIN_EDGE_WEIGHT,
                                              TWIN_SURE, CheckpointRegressor, detect_bright_object, twin_scores)
-from hybridpose.trackers.edges import fit_edges, to_gray
+from hybridpose.edges import fit_edges, to_gray
 
 TAUS = (0.5, 0.7, 0.8, 0.9, 0.95)
 WEIGHTS = (2.0, 4.0, 8.0, 16.0)

@@ -202,7 +202,7 @@ def cmd_track(args) -> int:
     from .geometry import load_camera
     from .objects import load_object
     from .registry import create
-    from .trackers.run import load_pose, read_frames, track_sequence
+    from .tracking import load_pose, read_frames, track_sequence
 
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
@@ -222,7 +222,7 @@ def cmd_track(args) -> int:
     tracker = create("tracker", args.tracker, object=obj)
     res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=_counter("track"))
     print(f"track: {res.frames} frames with {args.tracker} ({res.ms_per_frame:.1f} ms/frame, {res.lost} flagged lost) → "
-          f"{res.out / 'overlay.mp4'}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
+          f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
     return 0
 
 

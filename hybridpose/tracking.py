@@ -1,9 +1,12 @@
-"""Run the hybrid estimator over a video or image folder and write what it saw.
+"""``hybridpose track``: follow a user's object through a video file or an image folder — with the
+hybrid estimator (no initial pose) or with a tracker alone from a given pose — and write what it saw.
 
-Outputs in ``out``: ``overlay.webm`` (or ``overlay.mp4`` where OpenCV has H.264): the model's edges
-at the estimated pose, coloured by status (green tracking, yellow init/reinit, red lost: the
-predicted pose), one label per frame; ``poses.csv`` (metres, quaternion w, x, y, z, status) and BOP
-``scene_gt.json`` (mm, frames with a trusted pose). All written atomically.
+Inputs are converted at this edge: video/image frames (BGR on disk) → RGB ``Frame``; an initial pose
+file in metres (``quat_wxyz`` + ``t_m``, or ``R`` + ``t_m``) or BOP (``cam_R_m2c`` + ``cam_t_m2c`` in
+mm) → ``Pose``. Outputs in ``out``, all written atomically: an overlay video of the model's edges at
+the estimated pose (``overlay.webm``, or ``.mp4`` where OpenCV has H.264), ``poses.csv`` (metres,
+quaternion w, x, y, z; empty pose cells where there was none) and BOP ``scene_gt.json`` (mm, the
+frames with a trusted pose).
 """
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ import io
 import logging
 import os
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
@@ -19,16 +23,110 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
-from .core import Estimate, Frame
-from .io import atomic_write_json, atomic_write_text
+from .core import Estimate, Frame, Measurement
+from .geometry import Camera, Pose
+from .io import atomic_write_json, atomic_write_text, read_json
 from .viz import draw_wireframe, put_label
 
 log = logging.getLogger(__name__)
 
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+POSE_FIELDS = ["frame", "timestamp_s", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m"]
+HYBRID_FIELDS = POSE_FIELDS + ["status", "sources", "ms"]
+TRACKER_FIELDS = POSE_FIELDS + ["quality", "lost"]
 STATUS_COLOURS = {"tracking": (60, 255, 60), "init": (255, 220, 0), "reinit": (255, 220, 0), "lost": (255, 60, 60)}
-CSV_FIELDS = ["frame", "timestamp_s", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m", "status", "sources", "ms"]
 # browsers play H.264 .mp4 and VP9/VP8 .webm; MPEG-4 Part 2 ('mp4v') only as a last resort
 VIDEO_CODECS = (("avc1", ".mp4"), ("VP90", ".webm"), ("VP80", ".webm"), ("mp4v", ".mp4"))
+
+
+# --- inputs ----------------------------------------------------------------------------------------
+def load_pose(path) -> Pose:
+    """Initial ``T_cam_obj`` from JSON: ``{"quat_wxyz": [4], "t_m": [3]}``, ``{"R": [[3]×3], "t_m": [3]}``
+    or BOP ``{"cam_R_m2c": [9], "cam_t_m2c": [3] (mm)}``; errors name the file."""
+    from .datasets.bop import pose_from_bop
+
+    data = read_json(path)
+    if isinstance(data, list) and data:
+        data = data[0]  # a BOP scene_gt entry list
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object with quat_wxyz + t_m, R + t_m, or cam_R_m2c + cam_t_m2c (mm)")
+    try:
+        if "cam_R_m2c" in data:
+            return pose_from_bop(data, where=str(path))
+        if "t_m" not in data:
+            raise KeyError("t_m")
+        if "quat_wxyz" in data:
+            return Pose.from_quat_t(data["quat_wxyz"], data["t_m"])
+        if "R" in data:
+            return Pose(np.asarray(data["R"], dtype=np.float64), np.asarray(data["t_m"], dtype=np.float64))
+        raise KeyError("quat_wxyz or R")
+    except KeyError as exc:
+        raise ValueError(f"{path}: missing {exc.args[0]} (expected quat_wxyz + t_m in metres, R + t_m, "
+                         "or BOP cam_R_m2c + cam_t_m2c in mm)") from None
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+
+
+def read_frames(source, camera: Camera, fps: float | None = None) -> Iterator[Frame]:
+    """Frames of a video file or an image folder (sorted by name), as RGB, checked against ``camera``.
+
+    Timestamps: frame index / fps (the video's own rate, else ``fps``, else 30).
+    """
+    source = Path(source)
+    if source.is_dir():
+        files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not files:
+            raise ValueError(f"{source}: no images ({', '.join(IMAGE_SUFFIXES)}) in this folder")
+        rate = fps or 30.0
+        for i, f in enumerate(files):
+            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise ValueError(f"{f}: unreadable image")
+            yield _frame(bgr, camera, i, rate, f)
+        return
+    if not source.is_file():
+        raise FileNotFoundError(f"{source}: no such video file or image folder")
+    if source.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"{source}: expected a video ({', '.join(VIDEO_SUFFIXES)}) or a folder of images")
+    cap = cv2.VideoCapture(str(source))
+    if not cap.isOpened():
+        raise ValueError(f"{source}: OpenCV cannot open this video")
+    rate = fps or cap.get(cv2.CAP_PROP_FPS) or 30.0
+    try:
+        i = 0
+        while True:
+            ok, bgr = cap.read()
+            if not ok:
+                break
+            yield _frame(bgr, camera, i, rate, source)
+            i += 1
+    finally:
+        cap.release()
+
+
+def _frame(bgr: np.ndarray, camera: Camera, index: int, rate: float, where) -> Frame:
+    h, w = bgr.shape[:2]
+    if (w, h) != (camera.width, camera.height):
+        raise ValueError(f"{where}: frame {index} is {w}×{h} but the camera file says {camera.width}×{camera.height}")
+    return Frame(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), camera, index / rate, index)
+
+
+# --- outputs ---------------------------------------------------------------------------------------
+def _quiet_video_writer(path: str, fourcc: str, fps: float, size) -> cv2.VideoWriter:
+    """``cv2.VideoWriter``, with FFmpeg's complaints about codecs it lacks (printed straight to the
+    process's stderr while probing) kept off the user's terminal."""
+    try:
+        saved = os.dup(2)
+    except OSError:
+        return cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), fps, size)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            return cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), fps, size)
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 class VideoFile:
@@ -65,33 +163,15 @@ class VideoFile:
         return self.path
 
 
-def draw_estimate(frame: Frame, obj, e: Estimate, label: str | None) -> np.ndarray:
-    """The frame with the model's edges at ``e.pose`` in the status colour and, unless ``label`` is
-    None (a caller that labels after resizing), one label line."""
-    img = frame.image
-    if e.pose is not None:
-        img = draw_wireframe(img, obj, e.pose, frame.camera, STATUS_COLOURS[e.status])
-    return img if label is None else put_label(img, f"{label}  {e.status.upper()}")
-
-
-def _quiet_video_writer(path: str, fourcc: str, fps: float, size) -> cv2.VideoWriter:
-    """``cv2.VideoWriter``, with FFmpeg's complaints about codecs it lacks (printed straight to the
-    process's stderr while probing) kept off the user's terminal."""
-    try:
-        saved = os.dup(2)
-    except OSError:
-        return cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), fps, size)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            return cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), fps, size)
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
+def _pose_cells(frame: Frame, pose: Pose | None) -> list:
+    cells = ([f"{v:.9f}" for v in pose.quat_wxyz] + [f"{v:.6f}" for v in pose.t]) if pose is not None else [""] * 7
+    return [frame.index, f"{frame.timestamp:.6f}", *cells]
 
 
 @dataclass
-class HybridRunResult:
+class RunResult:
+    """What a run wrote: frames, frames lost, re-initialisations (hybrid), ms per frame, the video, the folder."""
+
     frames: int
     lost: int
     reinits: int
@@ -100,37 +180,31 @@ class HybridRunResult:
     out: Path
 
 
-def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: int | None = None,
-                         progress: Callable[[int], None] | None = None,
-                         on_frame: Callable[[Frame, Estimate, np.ndarray], None] | None = None) -> HybridRunResult:
-    """``estimator.step`` over ``frames`` (no initial pose); writes the overlay video, ``poses.csv`` and
-    ``scene_gt.json`` to ``out``. ``on_frame(frame, estimate, overlay_rgb)`` is called for every frame."""
+def _run(frames: Iterator[Frame], step: Callable[[Frame], tuple], out, fields: list[str], max_frames: int | None,
+         progress: Callable[[int], None] | None, on_frame: Callable | None) -> RunResult:
+    """The loop both runs share: ``step(frame)`` → (result for ``on_frame``, pose written or None, trusted,
+    lost, reinit, ms, extra csv cells, overlay); video, poses.csv and scene_gt.json written at the end."""
     from .datasets.bop import pose_to_bop
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows, scene_gt, video, ms, lost, reinits = [], {}, None, [], 0, 0
-    obj = estimator.object
     try:
         for k, frame in enumerate(frames):
             if max_frames is not None and k >= max_frames:
                 break
             if video is None:
                 video = VideoFile(out / "overlay", 30.0, (frame.camera.width, frame.camera.height))
-            e = estimator.step(frame)
-            ms.append(e.timings_ms["total"])
-            lost += int(e.status == "lost")
-            reinits += int(e.status == "reinit")
-            p = e.pose
-            cells = ([f"{v:.9f}" for v in p.quat_wxyz] + [f"{v:.6f}" for v in p.t]) if p is not None else [""] * 7
-            rows.append([frame.index, f"{frame.timestamp:.6f}", *cells, e.status, "+".join(e.sources),
-                         f"{e.timings_ms['total']:.2f}"])
-            if p is not None and e.status != "lost":
-                scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(p)}]
-            overlay = draw_estimate(frame, obj, e, f"#{frame.index}")
+            result, pose, trusted, was_lost, reinit, elapsed, cells, overlay = step(frame)
+            ms.append(elapsed)
+            lost += int(was_lost)
+            reinits += int(reinit)
+            rows.append(_pose_cells(frame, pose) + cells)
+            if pose is not None and trusted:
+                scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(pose)}]
             video.write(overlay)
             if on_frame:
-                on_frame(frame, e, overlay)
+                on_frame(frame, result, overlay)
             if progress:
                 progress(k + 1)
         if not rows:
@@ -142,9 +216,64 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
             video.close(keep=False)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(CSV_FIELDS)
+    w.writerow(fields)
     w.writerows(rows)
     atomic_write_text(out / "poses.csv", buf.getvalue())
     atomic_write_json(out / "scene_gt.json", scene_gt)
-    return HybridRunResult(frames=len(rows), lost=lost, reinits=reinits, ms_per_frame=float(np.mean(ms)), video=path,
-                           out=out)
+    return RunResult(frames=len(rows), lost=lost, reinits=reinits, ms_per_frame=float(np.mean(ms)), video=path, out=out)
+
+
+# --- the two runs ----------------------------------------------------------------------------------
+def draw_estimate(frame: Frame, obj, e: Estimate, label: str | None) -> np.ndarray:
+    """The frame with the model's edges at ``e.pose`` in the status colour and, unless ``label`` is
+    None (a caller that labels after resizing), one label line."""
+    img = frame.image
+    if e.pose is not None:
+        img = draw_wireframe(img, obj, e.pose, frame.camera, STATUS_COLOURS[e.status])
+    return img if label is None else put_label(img, f"{label}  {e.status.upper()}")
+
+
+def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: int | None = None,
+                         progress: Callable[[int], None] | None = None,
+                         on_frame: Callable[[Frame, Estimate, np.ndarray], None] | None = None) -> RunResult:
+    """``estimator.step`` over ``frames`` (no initial pose). The video's edges: green tracking, yellow
+    (re)initialised, red lost (the predicted pose); ``poses.csv`` adds status, sources and ms."""
+    obj = estimator.object
+
+    def step(frame: Frame):
+        e = estimator.step(frame)
+        cells = [e.status, "+".join(e.sources), f"{e.timings_ms['total']:.2f}"]
+        return (e, e.pose, e.status != "lost", e.status == "lost", e.status == "reinit", e.timings_ms["total"], cells,
+                draw_estimate(frame, obj, e, f"#{frame.index}"))
+
+    return _run(frames, step, out, HYBRID_FIELDS, max_frames, progress, on_frame)
+
+
+def draw_tracking(frame: Frame, obj, m: Measurement, label: str, pose: Pose | None = None) -> np.ndarray:
+    """The frame with the model's edges at the measured pose (green), or at ``pose`` in red where the
+    tracker lost the object, and a label with the quality."""
+    shown, color = (m.pose, (60, 255, 60)) if not m.lost else (pose, (255, 60, 60))
+    img = draw_wireframe(frame.image, obj, shown, frame.camera, color) if shown is not None else frame.image
+    return put_label(img, f"{label}  q={m.quality:.2f}{'  LOST' if m.lost else ''}")
+
+
+def track_sequence(frames: Iterator[Frame], tracker, init_pose: Pose, out, max_frames: int | None = None,
+                   progress: Callable[[int], None] | None = None,
+                   on_frame: Callable[[Frame, Measurement, np.ndarray], None] | None = None) -> RunResult:
+    """A tracker alone from ``init_pose`` at the first frame (no CNN, no fusion); ``poses.csv`` adds
+    quality and lost (a lost frame has empty pose cells; the video shows the tracker's last pose in red)."""
+    first = [True]
+
+    def step(frame: Frame):
+        t0 = time.perf_counter()
+        if first[0]:
+            first[0] = False
+            tracker.init(frame, init_pose)
+            m = Measurement(init_pose, np.eye(6) * 1e-6, 1.0, f"tracker:{tracker.name}", frame.timestamp)
+        else:
+            m = tracker.track(frame)
+        elapsed = 1000 * (time.perf_counter() - t0)
+        overlay = draw_tracking(frame, tracker.object, m, f"{tracker.name} #{frame.index}", getattr(tracker, "pose", None))
+        return m, m.pose, not m.lost, m.lost, False, elapsed, [f"{m.quality:.4f}", int(m.lost)], overlay
+
+    return _run(frames, step, out, TRACKER_FIELDS, max_frames, progress, on_frame)

@@ -1,4 +1,4 @@
-"""The moving-edge fit's compiled kernels (hybridpose/trackers/_edge_kernels.py) against independent
+"""The moving-edge fit's compiled kernels (hybridpose/edges/_kernels.py) against independent
 oracles: cv2.projectPoints, NumPy's linear algebra, geometry.se3_exp / line_jacobian, MuJoCo's depth buffer."""
 import sys
 from pathlib import Path
@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from hybridpose.geometry import Camera, Pose, line_jacobian, se3_exp
 from hybridpose.geometry.se3 import se3_exp_one
-from hybridpose.trackers import _edge_kernels as ek
-from hybridpose.trackers.model_view import ModelView
+from hybridpose.edges import _kernels as ek
+from hybridpose.edges import ModelView
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))  # its depth oracle
 

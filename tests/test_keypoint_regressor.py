@@ -927,7 +927,7 @@ def test_verifier_choice_before_fitting_fits_only_the_chosen_twin(tiny_checkpoin
     """VERIFIER_EDGE_WEIGHT = 0: the edge fits would not change the choice, so head × verifier choose
     first and only that twin is edge-fitted (one fit, not four)."""
     import hybridpose.regressors.predictor as predictor
-    import hybridpose.trackers.edges as edges
+    import hybridpose.edges.fit as edges
     from hybridpose.render import Renderer
 
     reg = CheckpointRegressor(tiny_checkpoint, verifier=_verifier_checkpoint(tmp_path / "tv.pt", truss))
@@ -960,7 +960,7 @@ def test_verifier_choice_before_fitting_fits_only_the_chosen_twin(tiny_checkpoin
 def test_pruned_twin_fits_choose_as_fitting_them_all(cands, edge_weight, with_verifier):
     """_best_fitted_twin = fit every start and take the first best twin_scores, with no more fits (a fit's
     quality ≤ 1 bounds each start's score); failed fits (None) score as quality 0."""
-    import hybridpose.trackers.edges as edges
+    import hybridpose.edges.fit as edges
     from types import SimpleNamespace
 
     head = [c[0] + 1e-3 for c in cands]
@@ -1071,7 +1071,7 @@ def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpo
 
     from hybridpose.objects import view_elevation_deg
     from hybridpose.regressors.predictor import MIRROR_SWITCH_P, REFINE_MIN_QUALITY, REFINE_SEARCH_PX
-    from hybridpose.trackers.edges import fit_edges
+    from hybridpose.edges import fit_edges
     from hybridpose.regressors.verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror
     from hybridpose.render import Renderer
 
@@ -1293,7 +1293,7 @@ def test_pooled_rule_returns_the_best_scored_twin_of_both_estimates_with_fewer_f
 
     from scipy.spatial.transform import Rotation
 
-    import hybridpose.trackers.edges as edges
+    import hybridpose.edges.fit as edges
     from hybridpose.regressors.predictor import (REFINE_MIN_QUALITY, REFINE_SEARCH_PX, VERIFIER_EDGE_WEIGHT,
                                                  _pnp_quality)
 

@@ -78,7 +78,7 @@ def test_zbuffer_orders_long_triangles_the_painter_misorders():
 def test_zbuffer_agrees_with_mujoco_depth(truss, truss_depth_views):
     """Where the z-buffer shows a facet of the truss, MuJoCo's depth buffer sees the object at that
     facet's depth (the ray meets its plane there), and it shows nothing where MuJoCo sees nothing."""
-    from hybridpose.trackers.model_view import ModelView
+    from hybridpose.edges import ModelView
 
     cam = Camera.default()
     view = ModelView(truss)

@@ -12,7 +12,7 @@ from hybridpose.geometry import Camera, Pose
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.render import Renderer
 from hybridpose.render.sequences import SequenceSpec, make_sequence
-from hybridpose.trackers.run import load_pose
+from hybridpose.tracking import load_pose
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +53,8 @@ def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
     assert np.median([rotation_error_deg(p, t) for p, t in zip(poses, truth)]) < 1.0
     gt = json.loads((out / "scene_gt.json").read_text())
     assert np.allclose(gt["5"][0]["cam_t_m2c"], poses[5].t * 1000, atol=1e-3)  # BOP is in mm
-    cap = cv2.VideoCapture(str(out / "overlay.mp4"))
+    (video,) = out.glob("overlay.*")  # WebM, or H.264 .mp4 where OpenCV has it
+    cap = cv2.VideoCapture(str(video))
     assert cap.isOpened() and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(truth)
     assert "12 frames with edges" in capsys.readouterr().out
 
@@ -99,3 +100,19 @@ def test_track_errors_name_the_problem(clip, tmp_path, capsys):
     assert main(["track", str(root / "png"), "--camera", str(root / "camera.json"), "--object", "truss",
                  "--init-pose", str(behind), "--out", str(tmp_path / "y")]) == 2
     assert "behind the camera" in capsys.readouterr().err
+
+
+def test_track_without_an_initial_pose_runs_the_hybrid(clip, tmp_path, capsys):
+    root, truth = clip
+    rc = main(["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+               "--out", str(tmp_path / "hyb")])
+    assert rc == 0
+    out = tmp_path / "hyb"
+    with open(out / "poses.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(truth) and rows[0]["status"] == "init" and "regressor:default" in rows[0]["sources"]
+    trusted = [(r, t) for r, t in zip(rows, truth) if r["status"] != "lost" and r["qw"]]
+    errs = [rotation_error_deg(Pose.from_quat_t([float(r[k]) for k in ("qw", "qx", "qy", "qz")],
+                                                [float(r[k]) for k in ("tx_m", "ty_m", "tz_m")]), t) for r, t in trusted]
+    assert len(errs) >= 10 and np.median(errs) < 1.0
+    assert len(list(out.glob("overlay.*"))) == 1 and "with the hybrid" in capsys.readouterr().out

@@ -398,7 +398,7 @@ class CheckpointRegressor(PoseRegressor):
             image edges and keep the best supported (:mod:`hybridpose.regressors.verify`); needs
             the object's mesh: ``object``, or the built-in object the checkpoint names.
         refine_edges: keypoint models — finish with the moving-edge fit of the trackers
-            (:func:`~hybridpose.trackers.edges.fit_edges`) from the CNN pose: CNN + model-based
+            (:func:`~hybridpose.edges.fit_edges`) from the CNN pose: CNN + model-based
             refinement, as pose refiners do. With a twin head the other box twins are fitted too
             when the head is unsure (p < ``TWIN_SURE``), and the head's belief is weighed against
             each fit's edge support; without one, the best-supported fit of all twins wins. A fit
@@ -896,7 +896,7 @@ class CheckpointRegressor(PoseRegressor):
         score with a perfect fit (an upper bound) until no unfitted one can win: the result is that of
         fitting all of them (≈ 2.3 fits instead of 8 near edge-on views). Quality and covariance are
         those :meth:`_measure` gives the chosen estimate and twin."""
-        from ..trackers.edges import fit_edges, to_gray
+        from ..edges.fit import fit_edges, to_gray
 
         undistorted = Frame(image, cam, frame.timestamp, frame.index)
         view = self.twin_check.view
@@ -990,7 +990,7 @@ class CheckpointRegressor(PoseRegressor):
         below ``REFINE_MIN_QUALITY`` is not used (the unrefined pose of its twin with a head, the CNN
         pose without).
         """
-        from ..trackers.edges import fit_edges, to_gray
+        from ..edges.fit import fit_edges, to_gray
 
         view = self.twin_check.view
         gray = to_gray(frame.image)
@@ -1028,7 +1028,7 @@ class CheckpointRegressor(PoseRegressor):
         ``twin_scores`` at quality 1 bounds what a start can reach, and the starts are fitted in the order
         of that bound until the best score so far beats every bound left (where the head is unsure
         ≈ 2 fits instead of 4; the pooled choice prunes its candidates alike)."""
-        from ..trackers.edges import fit_edges
+        from ..edges.fit import fit_edges
 
         # a weight that rewards poor fits has no such bound: then they are all fitted
         bound = (twin_scores(head_prob, np.ones(len(starts)), edge_weight=edge_weight, verifier_prob=ver)
@@ -1066,7 +1066,7 @@ class CheckpointRegressor(PoseRegressor):
         k = int(np.argmax(p))
         if k == 0 or p[k] < switch_p:
             return pose, float(p[0]), 0
-        from ..trackers.edges import fit_edges
+        from ..edges.fit import fit_edges
 
         fit = fit_edges(self.twin_check.view, frame, cands[k], search_px=REFINE_SEARCH_PX)
         return (fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else cands[k]), float(p[k]), k

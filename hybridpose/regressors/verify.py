@@ -69,14 +69,14 @@ class TwinCheck:
     """Edge support of a pose and of its box twins (see module doc)."""
 
     def __init__(self, obj: ObjectModel) -> None:
-        from ..trackers.model_view import ModelView
+        from ..edges import ModelView
 
         self.view = ModelView(obj)
         self.twins = box_half_turns(obj)
 
     def support(self, gray: np.ndarray, frame: Frame, pose: Pose) -> float:
         """Share of the visible edge samples with an image edge within ``MATCH_PX`` of the projection."""
-        from ..trackers.edges import search_edges
+        from ..edges import search_edges
 
         samples = self.view.visible_samples(pose, frame.camera, margin_px=2, max_samples=300)
         if len(samples.index) < 10:
@@ -86,7 +86,7 @@ class TwinCheck:
 
     def best(self, frame: Frame, pose: Pose) -> tuple[Pose, float, bool]:
         """(chosen pose, its support, whether a twin replaced ``pose``)."""
-        from ..trackers.edges import to_gray
+        from ..edges import to_gray
 
         gray = to_gray(frame.image)
         base = self.support(gray, frame, pose)

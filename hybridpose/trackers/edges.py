@@ -1,203 +1,17 @@
-"""Moving-edge tracking on the model's visible sharp edges (RAPID / ViSP-style), and the refinement
-the cv2.rapid backends run after their silhouette step.
+"""``edges``: the moving-edge tracker (RAPID / ViSP-style) on the model's visible sharp edges.
 
-Each visible edge sample is searched for along its image normal (``±search_px``) for the strongest
-intensity step; the pose then minimises the point-to-*line* distances (only the normal component
-is measured: the aperture problem) by Gauss–Newton with Tukey weights, re-searching from the new
-pose a few times. ``cv2.rapid`` cannot do this part itself: its line search assumes an ordered
-silhouette contour and its pose step uses point-to-point distances.
-
-Quality = inliers (within ``inlier_px`` after the last iteration) / (matched samples + samples
-whose search line is lit but shows no edge) × min(1, inliers / 40), capped by how much of the
-image's edges around the object the model explains (:func:`honest_quality`: a fit that found an
-edge for every model sample on the wrong beams still leaves the real ones unexplained). Samples on dark search lines
-with no edge are left out: edges between a face in shadow and black space have almost no
-contrast, and counting them made the quality swing 0.2–0.6 with the lighting on a clean tumble.
-When the arm covers the truss, its tool plate is a lit surface without the model's edges, and
-its rim a single line: the quality collapses. Below ``lost_quality`` (default 0.5) → ``lost``.
+Each frame is one edge fit (:func:`hybridpose.edges.fit_edges`) from the caller's prior; the quality
+is the fit's, capped by how much of the image's edges the model explains
+(:func:`hybridpose.edges.honest_quality`). Below ``lost_quality`` (default 0.5) → ``lost``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import cv2
-import numpy as np
-
 from ..core import Frame
-from ..geometry import Pose, line_jacobian
+from ..edges import ModelView, explained_edge_share, fit_edges, honest_quality, to_gray
+from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
-from . import _edge_kernels
 from .base import Tracker
-from .model_view import EdgeSamples, ModelView
-
-MIN_SUPPORT = 40  # inlier samples for full quality
-LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
-
-
-@dataclass(frozen=True)
-class EdgeFit:
-    """Result of :func:`fit_edges`: pose, covariance (6, 6) over ``[ω, v]``, inlier fraction, RMS px."""
-
-    pose: Pose
-    covariance: np.ndarray
-    quality: float
-    rms_px: float
-    samples: int
-
-
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 RGB → (H, W) float32 intensity."""
-    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
-
-
-def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_contrast: float = 4.0):
-    """Strongest intensity step along each sample's normal within ``±search_px``.
-
-    Returns (offset (S,) px along the normal, sub-pixel; valid (S,) bool: step ≥ ``min_contrast``
-    grey levels per pixel; mean intensity (S,) along the search line). A mild Gaussian preference for nearer steps breaks ties as RAPID's
-    nearest-maximum rule would. (Keeping each sample's contrast sign from frame to frame, as ViSP
-    does, was tried and dropped: under a fixed sun, crease edges of a tumbling truss flip sign.)
-    """
-    return _search(gray, samples.uv, samples.normals, search_px, min_contrast)
-
-
-def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: int, min_contrast: float = 4.0):
-    map_u, map_v = _edge_kernels.search_maps(uv, normals, int(search_px))
-    profiles = cv2.remap(gray, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return _edge_kernels.strongest_steps(profiles, int(search_px), float(min_contrast))
-
-
-def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | None = None, search_px: int = 12,
-              outer: int = 3, inner: int = 3, inlier_px: float = 2.0, max_samples: int = 400,
-              covariance_scale: float = 1.0, max_step_m: float | None = None) -> EdgeFit | None:
-    """Align the visible model edges with the image edges, starting from ``start``.
-
-    ``search_px`` halves at each outer iteration (coarse to fine, never below 4); each outer
-    iteration searches the edges from the current pose and runs ``inner`` Gauss–Newton steps on
-    them (compiled: :mod:`hybridpose.trackers._edge_kernels`). Quality =
-    inliers / (matched samples + samples whose lit search line shows no edge) × min(1, inliers /
-    MIN_SUPPORT). None when fewer than 6 samples are visible or matched, or
-    when the pose moves more than ``max_step_m`` (default: the object's diameter) from ``start``.
-    """
-    cam = frame.camera
-    K = cam.K
-    gray = to_gray(frame.image) if gray is None else gray
-    max_step_m = view.object.diameter if max_step_m is None else max_step_m
-    # visibility once per fit (at the start pose: the pose moves by a fraction of a degree); the
-    # samples are re-projected as the pose moves and those that leave the image dropped
-    visible = view.visible_index(start, cam, margin_px=2, max_samples=max_samples)
-    points, directions = view.points[visible], view.directions[visible]
-    R, t = start.R, start.t
-    rng_px = search_px
-    for _ in range(outer):
-        keep, uv, normals = _edge_kernels.project_samples(points, directions, R, t, K, cam.width, cam.height,
-                                                          2.0, True)
-        if not keep.all():
-            points, directions, uv, normals = points[keep], directions[keep], uv[keep], normals[keep]
-        if len(points) < 6:
-            return None
-        offset, valid, brightness = _search(gray, uv, normals, rng_px)
-        if valid.sum() < 6:
-            return None
-        target = uv + offset[:, None] * normals   # matched edge points
-        n, X, m = normals[valid], points[valid], target[valid]
-        # MAD scale capped by the search range: when an occluder's edges outnumber the model's the
-        # MAD would grow and let them in
-        R, t, ok = _edge_kernels.gauss_newton_lines(R, t, X, n, m, K, max(1.0, rng_px / 4), inner)
-        if not ok:
-            return None
-        if np.linalg.norm(t - start.t) > max_step_m:
-            return None
-        rng_px = max(4, rng_px // 2)
-    pose = Pose(R, t)
-    uv, Jn = line_jacobian(pose, X, K, n)
-    r = np.einsum("si,si->s", n, uv - m)
-    inl = np.abs(r) < inlier_px
-    if inl.sum() < 6:
-        return None
-    # a sample with no edge on a *lit* search line contradicts the model (a uniform occluder in
-    # front, e.g. the arm's tool plate); on a dark line it says nothing (a face in shadow on black)
-    contradicted = int((~valid & (brightness > LIT_GREY)).sum())
-    ratio = float(inl.sum()) / (len(inl) + contradicted)
-    dof = max(int(inl.sum()) - 6, 1)
-    sigma2 = float((r[inl] ** 2).sum() / dof)
-    # neighbouring samples on one edge are not independent: covariance_scale (≥ 1) accounts for it
-    cov = covariance_scale * max(sigma2, 0.05) * np.linalg.pinv(Jn[inl].T @ Jn[inl])
-    support = min(1.0, float(inl.sum()) / MIN_SUPPORT)
-    return EdgeFit(pose=pose, covariance=0.5 * (cov + cov.T), quality=support * ratio,
-                   rms_px=float(np.sqrt(np.mean(r[inl] ** 2))), samples=int(inl.sum()))
-
-
-GOOD_FIT = 0.7  # a fit this good from the first proposal is kept without trying the next
-# image edges (Canny, grey-level thresholds) near the projected model that its visible edges must
-# explain, and how near (px): see explained_edge_share
-CANNY_LOW, CANNY_HIGH = 20, 60
-EXPLAIN_TOLERANCE_PX = 2
-EXPLAIN_MARGIN_PX = 10
-
-
-def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> float:
-    """Share (0..1) of the image's edge pixels around the projected model that lie within
-    ``EXPLAIN_TOLERANCE_PX`` of a visible model edge at ``pose``; NaN where that region shows no edge.
-
-    The fit's own quality looks from the model to the image (does each model edge find an image
-    edge?), and on the truss's parallel beams a wrong pose finds one for most samples. This looks
-    the other way: at a wrong pose the object's real edges, inside the same region, go unexplained.
-    Measured on the standard suite's tuning seeds (`edges` from the true first pose): 0.99 median
-    (p10 0.90) on frames within 2° of the truth, 0.69 median on frames > 5° off that the fit's
-    quality did not flag.
-    """
-    cam = frame.camera
-    idx = view.visible_index(pose, cam, margin_px=2)
-    if len(idx) < 6:
-        return float("nan")
-    s = view.samples_at(pose, cam, idx)
-    along = np.stack([s.normals[:, 1], -s.normals[:, 0]], 1)
-    half = 0.6 * view.step_px(pose, cam)  # samples' segments overlap a little: a continuous edge
-    a, b = s.uv - half * along, s.uv + half * along
-    lo = np.floor(np.minimum(a, b).min(0)).astype(int) - EXPLAIN_MARGIN_PX
-    hi = np.ceil(np.maximum(a, b).max(0)).astype(int) + EXPLAIN_MARGIN_PX
-    x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
-    x1, y1 = min(int(hi[0]), cam.width), min(int(hi[1]), cam.height)
-    if x1 - x0 < 4 or y1 - y0 < 4:
-        return float("nan")
-    g = (to_gray(frame.image) if gray is None else gray)[y0:y1, x0:x1]
-    edges = cv2.Canny(np.clip(g, 0, 255).astype(np.uint8), CANNY_LOW, CANNY_HIGH) > 0
-    n = int(edges.sum())
-    if n == 0:
-        return float("nan")
-    model = np.zeros(edges.shape, np.uint8)
-    segments = np.round(np.stack([a, b], 1) - [x0, y0]).astype(np.int32)
-    cv2.polylines(model, list(segments), False, 255, 1)
-    k = 2 * EXPLAIN_TOLERANCE_PX + 1
-    near = cv2.dilate(model, np.ones((k, k), np.uint8)) > 0
-    return float((edges & near).sum()) / n
-
-
-def honest_quality(fit: EdgeFit, explained: float) -> float:
-    """The tracker's quality from a fit and :func:`explained_edge_share`: ``min(fit quality,
-    2·explained − 1)`` — where a quarter of the image's edges go unexplained the quality is 0.5 (the
-    edge trackers' ``lost_quality``), and it never rises above the fit's own; no image edge at all
-    (NaN) leaves the fit's quality."""
-    if not np.isfinite(explained):
-        return fit.quality
-    return float(min(fit.quality, max(0.0, 2.0 * explained - 1.0)))
-
-
-def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray | None = None,
-                       good_fit: float = GOOD_FIT, **kwargs) -> EdgeFit | None:
-    """Edge fits from ``starts`` in order, stopping at the first with quality ≥ ``good_fit``; the
-    fit most samples agree with (inliers × quality) among those run, or None."""
-    gray = to_gray(frame.image) if gray is None else gray
-    fits = []
-    for start in starts:
-        fit = fit_edges(view, frame, start, gray=gray, **kwargs)
-        if fit is not None:
-            fits.append(fit)
-            if fit.quality >= good_fit:
-                break
-    return max(fits, key=lambda f: f.samples * f.quality) if fits else None
 
 
 @register("tracker", "edges")
@@ -234,7 +48,7 @@ class EdgeTracker(Tracker):
                 "— is the object in view and the pose right?"
             )
 
-    def _fit(self, frame: Frame, start: Pose, outer: int = 3) -> EdgeFit | None:
+    def _fit(self, frame: Frame, start: Pose, outer: int = 3):
         return fit_edges(self.view, frame, start, search_px=self.search_px, max_samples=self.max_samples,
                          covariance_scale=self.covariance_scale, outer=outer)
 

@@ -30,9 +30,8 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .edges import explained_edge_share, fit_from_proposals, honest_quality
+from ..edges import ModelView, explained_edge_share, fit_from_proposals, honest_quality
 from ..geometry import projection_jacobian
-from .model_view import ModelView
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ point-to-point matches. Consequences we handle here:
 * only the silhouette constrains the pose — on a thin open truss that leaves rotation weak
   (≈ 6–10° median on our tumble, ``refine=False`` in the benchmark). By default (``refine=True``)
   the silhouette pose is therefore a *proposal*: the moving-edge fit on all visible model edges
-  (:func:`~hybridpose.trackers.edges.fit_edges`) runs from the caller's start and, when that fit
+  (:func:`~hybridpose.edges.fit_edges`) runs from the caller's start and, when that fit
   is poor (quality < 0.7), from the silhouette pose too; the fit more edge samples agree with wins; its inlier fraction × support, capped by the share of image edges the model explains (edges.honest_quality), is the quality (the cv2
   ratios are not comparable between variants: GOS always reports 1). The silhouette step helps
   when the start is far off (fast motion, re-acquisition), where its 20 px search reaches further;
@@ -33,8 +33,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .edges import explained_edge_share, fit_from_proposals, honest_quality, to_gray
-from .model_view import ModelView
+from ..edges import ModelView, explained_edge_share, fit_from_proposals, honest_quality, to_gray
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
 VARIANTS = {"rapid": "Rapid_create", "rapid-ols": "OLSTracker_create", "rapid-gos": "GOSTracker_create"}

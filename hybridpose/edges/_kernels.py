@@ -1,10 +1,10 @@
-"""Compiled inner loops of the moving-edge fit (:func:`hybridpose.trackers.edges.fit_edges`).
+"""Compiled inner loops of the moving-edge fit (:func:`hybridpose.edges.fit_edges`).
 
 Why our own kernels: the fit works on a few hundred samples at a time, where NumPy spends more time
 dispatching its ~60 small array operations per iteration than computing (a line profile of the
 shipped regressor's path: Gauss–Newton small-matrix work ≈ 30 % of a fit, projections and the
 edge search's bookkeeping another 25 %). No library has the point-to-line moving-edge step
-(``cv2.rapid`` solves point-to-point, see :mod:`hybridpose.trackers.edges`), so the same math is
+(``cv2.rapid`` solves point-to-point, see :mod:`hybridpose.edges.fit`), so the same math is
 compiled here with numba, one loop over the samples per step (the point-to-line rows and the SE(3)
 exponential are the geometry module's compiled ones). The image sampling stays in ``cv2.remap``; the
 facet raster that decides visibility is :func:`hybridpose.geometry.raster.zbuffer_front_faces`.

@@ -19,7 +19,7 @@ from ..geometry import Camera, Pose
 from ..geometry.raster import zbuffer_front_faces
 from ..objects import ObjectModel
 from ..objects.base import SHARP_EDGE_ANGLE_DEG
-from . import _edge_kernels
+from . import _kernels
 
 DEFAULT_STEP_M = 0.005
 ID_SCALE = 0.5  # facet-id image resolution relative to the frame
@@ -151,12 +151,12 @@ class ModelView:
     def visible_index(self, pose: Pose, camera: Camera, margin_px: float = 0.0,
                       max_samples: int | None = None) -> np.ndarray:
         """Indices (S,) into :attr:`points` of the samples :meth:`visible_samples` returns."""
-        idx, uv, facing = _edge_kernels.facing_samples(
+        idx, uv, facing = _kernels.facing_samples(
             self.points, self._normal_dot_point, self.face_normals, self.faces, pose.R, pose.t, camera.K,
             camera.width, camera.height, float(margin_px))
         if len(idx):
             own = self.facet_of[self.faces[idx]] * facing                 # (S, 2): 0 where back-facing
-            idx = idx[_edge_kernels.shows_own_facet(self.facet_ids(pose, camera), uv, own, ID_SCALE)]
+            idx = idx[_kernels.shows_own_facet(self.facet_ids(pose, camera), uv, own, ID_SCALE)]
         if max_samples is not None and len(idx) > max_samples:
             idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
         return idx
@@ -166,7 +166,7 @@ class ModelView:
         visibility once per frame and re-project as the pose moves); with ``margin_px`` those that
         left the image are dropped. The image normal is perpendicular to the projected edge."""
         index = np.asarray(index, dtype=np.int64)
-        keep, uv, normals = _edge_kernels.project_samples(
+        keep, uv, normals = _kernels.project_samples(
             self.points[index], self.directions[index], pose.R, pose.t, camera.K, camera.width, camera.height,
             0.0 if margin_px is None else float(margin_px), margin_px is not None)
         if margin_px is not None and not keep.all():

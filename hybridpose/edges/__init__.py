@@ -1,0 +1,19 @@
+"""Model edges against image edges, below both the trackers and the regressors (roles never import
+each other): which model edges are visible at a pose (:class:`ModelView`), the search for image edges
+along their normals, the moving-edge fit (:func:`fit_edges`) and how much of the image it explains
+(:func:`explained_edge_share`). The edge trackers follow the object with it; the CNN regressor
+refines its pose and chooses between end-for-end twins with it.
+"""
+from .fit import (
+    EdgeFit,
+    explained_edge_share,
+    fit_edges,
+    fit_from_proposals,
+    honest_quality,
+    search_edges,
+    to_gray,
+)
+from .model_view import EdgeSamples, ModelView
+
+__all__ = ["EdgeFit", "EdgeSamples", "ModelView", "explained_edge_share", "fit_edges", "fit_from_proposals",
+           "honest_quality", "search_edges", "to_gray"]

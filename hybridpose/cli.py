@@ -150,6 +150,9 @@ def cmd_demo(args) -> int:
     from .tracking import draw_estimate, run_hybrid_on_frames
     from .viz import contact_sheet, plot_error_over_time
 
+    from .registry import get
+
+    get("tracker", args.tracker), get("fusion", args.fusion)  # unknown names refused before rendering
     out = Path(args.out)
     obj = load_object("truss")
     camera = Camera.default().scaled(args.size)
@@ -204,6 +207,9 @@ def cmd_track(args) -> int:
     from .registry import create
     from .tracking import load_pose, read_frames, track_sequence
 
+    from .registry import get
+
+    get("tracker", args.tracker), get("fusion", args.fusion)
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
     frames = read_frames(args.source, camera, args.fps)
@@ -568,8 +574,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tracker alone from this pose, no CNN, no fusion. JSON: quat_wxyz + t_m (metres), R + t_m, "
                         "or BOP cam_R_m2c + cam_t_m2c (mm)")
     k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
-    k.add_argument("--fusion", default="ukf", choices=registry.available("fusion"))
-    k.add_argument("--tracker", default="edges", choices=registry.available("tracker"))
+    k.add_argument("--fusion", default="ukf", help="fusion backend of the hybrid (ukf, isam2, none)")
+    k.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")
     k.add_argument("--fps", type=float, default=None, help="frame rate for image folders (default 30)")
     k.add_argument("--max-frames", type=int, default=None)
     k.add_argument("--out", required=True, help="folder for the overlay video, poses.csv, scene_gt.json")
@@ -609,8 +615,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="hybridpose_demo")
     d.add_argument("--frames", type=int, default=60)
     d.add_argument("--size", default="640x480")
-    d.add_argument("--tracker", default="edges", choices=registry.available("tracker"))
-    d.add_argument("--fusion", default="ukf", choices=registry.available("fusion"))
+    d.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")
+    d.add_argument("--fusion", default="ukf", help="fusion backend of the hybrid (ukf, isam2, none)")
     d.add_argument("--seed", type=int, default=1)
     d.set_defaults(func=cmd_demo)
     return p

@@ -36,14 +36,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2
 
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
+from .fusion.base import DEFAULT_GATE_CHI2
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
 from .objects import ObjectModel
 
-_CHI2_6_999 = float(chi2.ppf(0.999, 6))
+_CHI2_6_999 = DEFAULT_GATE_CHI2  # the 99.9 % point of χ²₆
 
 
 @dataclass(frozen=True)

@@ -16,13 +16,13 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 
 import numpy as np
-from scipy.stats import chi2
 
 from ..core import Estimate, Measurement, as_covariance6
 from ..geometry import Pose
 
 # 99.9 % of a correct 6-dof Gaussian innovation lies inside this squared Mahalanobis distance
-DEFAULT_GATE_CHI2 = float(chi2.ppf(0.999, 6))
+# (scipy.stats.chi2.ppf(0.999, 6); a constant, so that `import hybridpose` does not load scipy.stats)
+DEFAULT_GATE_CHI2 = 22.457744484825323
 
 
 def process_noise(dt: float, angular_accel_rad_s2: float, linear_accel_m_s2: float) -> np.ndarray:

@@ -326,7 +326,7 @@ def cmd_calibrate(args) -> int:
     if bands:
         print("  then by quality band: " + ", ".join(f"≥ {e:.1f}: ×{f:.2f} ({n} poses)" for e, f, n in
                                                      zip(bands["edges"], bands["factors"], bands["poses"])))
-    from .regressors.quantize import stale_int8
+    from .regressors.int8_file import stale_int8
 
     beside = stale_int8(args.out)  # e.g. --out the checkpoint itself: its 8-bit model was made from the file before
     if beside is not None:

@@ -149,13 +149,13 @@ def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_siz
     from this very file lies beside it (rule 23), else ONNX Runtime in float32 (a stale or unreadable
     8-bit file is skipped with a warning), else torch where ONNX Runtime is missing or the export fails
     (the reason logged); on a GPU torch. ``"onnxruntime-int8"``: the 8-bit model made from ``checkpoint``
-    by ``hybridpose quantize`` (beside it, :func:`~hybridpose.regressors.quantize.int8_path`)."""
+    by ``hybridpose quantize`` (beside it, :func:`~hybridpose.regressors.int8_file.int8_path`)."""
     if engine not in ENGINES:
         raise ValueError(f"engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
     if engine.startswith("onnxruntime") and device.type != "cpu":
         raise ValueError(f"engine={engine!r} runs on the CPU; the network is on {device} (use engine='torch')")
     if engine == "onnxruntime-int8":
-        from .quantize import load_int8
+        from .int8_file import load_int8
 
         if checkpoint is None:
             raise ValueError("engine='onnxruntime-int8': needs the checkpoint the 8-bit model was made from")
@@ -165,7 +165,7 @@ def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_siz
                              f"{record.get('image_size')} px crops, the network {image_size}")
         return OnnxRuntimeEngine(net, image_size, model=model, name=engine)
     if engine == "auto" and device.type == "cpu" and checkpoint is not None:
-        from .quantize import int8_path
+        from .int8_file import int8_path
 
         if int8_path(checkpoint).is_file():
             try:

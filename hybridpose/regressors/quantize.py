@@ -18,7 +18,6 @@ made from another one: the int8 weights would silently belong to an older networ
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import tempfile
 from pathlib import Path
@@ -26,27 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from ..io import atomic_write_bytes
+from .int8_file import META_KEY, file_sha256, int8_path, load_int8, read_record, stale_int8  # noqa: F401 (the format's names, used here and re-exported)
 
 # left in float: the heatmap logits (a soft-argmax of 8-bit logits moves keypoints by up to a cell), the
 # twin logits (one small matrix product, ≈ 0 of the time) and the first convolution (the image itself; on
 # 600 crops of test seed 100 it moved the twin head's agreement with the float net 98.7 → 99.0 %)
 FLOAT_NODES = ("/net/stem/stem.0/Conv", "/net/head/Conv", "/net/twin_head/Gemm")
 QUANTIZED_OPS = ("Conv", "Add", "Relu")
-META_KEY = "hybridpose"
-
-
-def int8_path(checkpoint) -> Path:
-    """Where the 8-bit model of ``checkpoint`` lives by default: beside it, ``NAME.int8.onnx``."""
-    checkpoint = Path(checkpoint)
-    return checkpoint.with_name(checkpoint.stem + ".int8.onnx")
-
-
-def file_sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def record_crops(reg, frames, limit: int, progress=None) -> np.ndarray:
@@ -140,46 +125,3 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
     entry.key, entry.value = META_KEY, json.dumps(record)
     atomic_write_bytes(out, model.SerializeToString())  # what onnx.save writes for a model under 2 GB
     return {"path": str(out), **record}
-
-
-def read_record(path) -> dict:
-    """The record :func:`quantize_checkpoint` stored in an 8-bit model file (ValueError naming the file
-    when it is not one)."""
-    import onnx
-
-    try:
-        model = onnx.load(str(path), load_external_data=False)
-    except Exception as exc:  # noqa: BLE001 — whatever onnx raises on a corrupt file
-        raise ValueError(f"{path}: not an ONNX model ({exc})") from exc
-    meta = {p.key: p.value for p in model.metadata_props}
-    if META_KEY not in meta:
-        raise ValueError(f"{path}: not made by hybridpose quantize (no {META_KEY!r} record)")
-    return json.loads(meta[META_KEY])
-
-
-def stale_int8(checkpoint) -> Path | None:
-    """The 8-bit model file beside ``checkpoint`` (:func:`int8_path`) when it was not made from this very
-    file (retrained or re-calibrated since, or unreadable), else None (none there, or up to date)."""
-    path = int8_path(checkpoint)
-    if not path.is_file():
-        return None
-    try:  # load_int8's own checks (readable, made from this checkpoint), so the two cannot disagree
-        load_int8(checkpoint, path)
-    except ValueError:
-        return path
-    return None
-
-
-def load_int8(checkpoint, path=None) -> tuple[bytes, dict]:
-    """The 8-bit model of ``checkpoint`` (bytes) and its record; ValueError naming the file when it is
-    missing or was made from another checkpoint."""
-    path = int8_path(checkpoint) if path is None else Path(path)
-    if not path.is_file():
-        raise ValueError(f"engine='onnxruntime-int8': no 8-bit model {path} for {checkpoint} (make it with "
-                         f"hybridpose quantize --checkpoint {checkpoint} --data DIR)")
-    record = read_record(path)
-    if record.get("checkpoint_sha256") != file_sha256(checkpoint):
-        raise ValueError(f"engine='onnxruntime-int8': {path} was quantized from another {record.get('checkpoint')} "
-                         f"than {checkpoint}; run hybridpose quantize again")
-    return path.read_bytes(), record
-

@@ -58,6 +58,9 @@ class HybridConfig:
             every check; 2 or more: a single CNN outlier is ignored).
         lost_after_rejections: consecutive tracker measurements refused by the fusion's gate that
             declare the object lost.
+        unstable_window, settle_frames: a restart within ``unstable_window`` frames of the previous
+            one marks the next ``settle_frames`` frames ``lost`` (pose given, not to be trusted): the CNN
+            and the edges keep agreeing on poses that do not hold, a view both get wrong (0: off).
         tracker_resumes: while lost, the tracker also tries every frame from the fusion's
             prediction and takes up again by itself when its fit is not lost and passes the gate
             (the honest quality keeps it from taking up on the arm); False: only the CNN restarts it.
@@ -89,6 +92,8 @@ class HybridConfig:
     lost_after_rejections: int = 3
     lost_after_tracker_losses: int = 1
     tracker_resumes: bool = True
+    unstable_window: int = 20
+    settle_frames: int = 0
     reacquire_chi2: float = _CHI2_6_999
     lost_check_period: int = 1
     check_roi_margin: float = 0.15
@@ -101,6 +106,10 @@ class HybridConfig:
             raise ValueError(f"check_period: expected a whole number of frames ≥ 0, got {self.check_period}")
         if int(self.probation_frames) != self.probation_frames or self.probation_frames < 0:
             raise ValueError(f"probation_frames: expected a whole number of frames ≥ 0, got {self.probation_frames}")
+        for name in ("unstable_window", "settle_frames"):
+            v = getattr(self, name)
+            if int(v) != v or v < 0:
+                raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")
         for name in ("confirm_checks", "lost_after_rejections", "lost_check_period", "lost_after_tracker_losses"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
@@ -189,6 +198,8 @@ class HybridEstimator:
     def reset(self) -> None:
         """Forget everything: the next frame starts from the CNN again."""
         self.status = "init"
+        self._frames = 0  # frames stepped since reset (the one being stepped: not yet counted)
+        self._restarts: list[int] = []  # frame counts at which fusion and tracker restarted
         self.camera: Camera | None = None
         self.last_timestamp: float | None = None
         self._n = _Counters()
@@ -205,6 +216,10 @@ class HybridEstimator:
             estimate = self._reacquire(frame, timings)
         else:
             estimate = self._track(frame, timings)
+        self._frames += 1
+        if estimate.status in ("tracking", "reinit") and self._unsettled():
+            estimate = Estimate(pose=estimate.pose, covariance=estimate.covariance, timestamp=estimate.timestamp,
+                                status="lost", velocity=estimate.velocity, sources=estimate.sources)
         self.last_timestamp = frame.timestamp
         timings["total"] = 1000 * (time.perf_counter() - t_start)
         estimate.timings_ms.update(timings)
@@ -330,6 +345,14 @@ class HybridEstimator:
         except ValueError:  # a tracker may refuse a start; its last track (which gave m) left it there
             pass
         self._n = _Counters()
+        self._restarts.append(self._frames)
+
+    def _unsettled(self) -> bool:
+        """Restarted twice within ``unstable_window`` frames and not yet ``settle_frames`` frames since:
+        the CNN and the edges keep agreeing on poses that do not hold (a view both get wrong)."""
+        r = self._restarts
+        return (self.config.settle_frames > 0 and len(r) >= 2 and r[-1] - r[-2] <= self.config.unstable_window
+                and self._frames - r[-1] <= self.config.settle_frames)
 
     def _cnn(self, frame: Frame, roi, timings: dict) -> Measurement:
         self.regressor_calls += 1

@@ -245,3 +245,19 @@ def test_the_tracker_takes_up_again_by_itself_after_a_short_dropout():
     out = run(est, 25)
     assert [e.status for e in out[15:19]] == ["lost", "lost", "lost", "tracking"]
     assert out[18].sources == ("tracker:scripted",) and rotation_error_deg(out[-1].pose, truth(24)) < 0.3
+
+
+def test_restarts_close_together_are_not_trusted_until_tracking_settles():
+    """A tracker that loses the object every few frames: each loss ends in a CNN restart; with
+    settle_frames the frames right after a restart that follows another closely are reported lost."""
+    lost = {6, 9, 12}
+    trk = ScriptedTracker(lost_frames=lost)
+    est = HybridEstimator(trk, OracleRegressor(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, probation_frames=0, tracker_resumes=False,
+                                       unstable_window=10, settle_frames=3))
+    statuses = [e.status for e in run(est, 25)]
+    plain = HybridEstimator(ScriptedTracker(lost_frames=lost), OracleRegressor(), registry.create("fusion", "ukf"),
+                            HybridConfig(check_period=0, probation_frames=0, tracker_resumes=False))
+    reference = [e.status for e in run(plain, 25)]
+    assert statuses.count("lost") > reference.count("lost")
+    assert statuses[-1] == "tracking" and statuses[20:] == reference[20:]  # settled once the restarts stop

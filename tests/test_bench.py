@@ -102,3 +102,12 @@ def test_user_data_must_be_bop_and_the_regressor_must_fit_the_object(tmp_path, c
     assert main(["bench", "--suite", "smoke", "--object", str(box), "--out", str(tmp_path / "o"),
                  "--cache", str(tmp_path / "c")]) == 2
     assert "object" in capsys.readouterr().err and not (tmp_path / "c").exists()
+
+
+def test_your_own_bop_sequences(smoke, tmp_path):
+    scene = smoke / "cache" / "tumble-fast_none_s950"
+    out = tmp_path / "mine"
+    assert main(["bench", "--data", str(scene), "--object", "truss", "--modes", "tracker,hybrid", "--out", str(out)]) == 0
+    result = json.loads((out / "results.json").read_text())
+    assert result["config"]["data"] == str(scene) and len(result["rows"]) == 2
+    assert (out / "report.md").read_text().startswith(f"Sequences from `{scene}` (1), object `truss`")

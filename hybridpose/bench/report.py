@@ -105,9 +105,11 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
     by_kind = summarise([r for r in rows if r["label"] in head],
                         group=lambda r: f"{r['label'].split(' ')[0]} · {kind_of(r['sequence'])}")
     seeds = cfg.get("seeds")
+    what = (f"Sequences from `{cfg['data']}` ({len(cfg['sequences'])}), object `{cfg.get('object')}`" if cfg.get("data")
+            else f"Suite `{cfg['suite']}`, split `{cfg['split']}` ({len(cfg['sequences'])} sequences"
+            + (f", seeds {seeds[0]}–{seeds[-1]}" if seeds else "") + ")")
     lines = [
-        f"Suite `{cfg['suite']}`, split `{cfg['split']}` ({len(cfg['sequences'])} sequences"
-        + (f", seeds {seeds[0]}–{seeds[-1]}" if seeds else "") + f"), commit `{result['commit']}`, "
+        what + f", commit `{result['commit']}`, "
         f"{cfg['workers']} worker(s), {result['seconds']:.0f} s. Tracker-only starts from the true first pose and is "
         "never re-initialised; CNN-only runs on every frame with no prior; the hybrid gets no ground truth. "
         "Errors over the frames where the object is ≥ 50 % visible and the run gave a trusted pose; silent "

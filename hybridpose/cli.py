@@ -354,9 +354,14 @@ def cmd_export(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from .regressors.train import run
+    from .regressors.train import add_train_arguments, run
 
-    return run(args)
+    p = argparse.ArgumentParser(prog="hybridpose train", description="train a CNN pose regressor on a rendered "
+                                "dataset (checkpoints, --resume)")
+    add_train_arguments(p)
+    train_args = p.parse_args(args.train_args)
+    train_args.verbose, train_args.command = args.verbose, args.command
+    return run(train_args)
 
 
 def cmd_train_verifier(args) -> int:
@@ -434,11 +439,12 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--object", default=None, help="object name or mesh in metres (default: the dataset's models/obj_000001.ply)")
     v.set_defaults(func=cmd_verify)
 
-    from .regressors.train import add_train_arguments
 
-    t = sub.add_parser("train", help="train a CNN pose regressor on a rendered dataset (checkpoints, --resume)")
-    add_train_arguments(t)
-    t.set_defaults(func=cmd_train)
+    # the training options live with the trainer, which imports torch: they are parsed in cmd_train so
+    # that `hybridpose --help` and every other command start without it
+    t = sub.add_parser("train", help="train a CNN pose regressor on a rendered dataset (checkpoints, --resume); "
+                                     "hybridpose train --help for its options", add_help=False)
+    t.set_defaults(func=cmd_train, train_args=[])
 
     tv = sub.add_parser("train-verifier", help="train the twin verifier (image vs a drawing of each box twin) "
                                                 "that checks the keypoint regressor's end-for-end choice")
@@ -623,7 +629,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if args.command == "train":  # its options are parsed by cmd_train (see build_parser)
+        args.train_args = list(args.train_args or []) + extra
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args) or 0)

@@ -83,3 +83,18 @@ def test_train_verifier_runs_as_typed(tmp_path, capsys):
     assert json.loads((out / "pairs" / "meta.json").read_text())["label_max_deg"] == LABEL_MAX_DEG
     assert main(args[:5] + ["--epochs", "0"]) == 2
     assert "--epochs: expected at least 1" in capsys.readouterr().err
+
+
+def test_train_options_are_parsed_by_the_train_command(capsys):
+    """`hybridpose train` keeps its options with the trainer (so the other commands start without
+    torch); its --help and its errors still come from them, and other commands keep refusing
+    unknown options."""
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    assert "--model" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["train", "--model", "nope", "--data", "x", "--out", "y"])
+    assert "invalid choice: 'nope'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["verify", "x", "--out", "y", "--bogus"])
+    assert "unrecognized arguments: --bogus" in capsys.readouterr().err

@@ -139,7 +139,7 @@ def _mode_line(name: str, st: dict) -> str:
 
 
 def cmd_demo(args) -> int:
-    from .bench.modes import FrameRecord, load_sequence, run_cnn, run_tracker, sequence_stats
+    from .bench.modes import hybrid_record, load_sequence, run_cnn, run_tracker, sequence_stats, trusted_errors_deg
     from .datasets import render_sequence_dataset
     from .estimator import HybridEstimator
     from .io import write_image
@@ -169,23 +169,22 @@ def cmd_demo(args) -> int:
     estimator = HybridEstimator(create("tracker", args.tracker, object=obj), regressor,
                                 create("fusion", args.fusion))
     keep = set(np.linspace(0, len(seq) - 1, 8).round().astype(int).tolist())
-    tiles, labels, hybrid = [], [], []
+    tiles, labels, hybrid, calls = [], [], [], [0]
 
     def collect(frame, e, overlay):
         if frame.index in keep:  # labelled after resizing, so the sheet's labels stay legible
             tiles.append(draw_estimate(frame, obj, e, None))
             err = f"{rotation_error_deg(e.pose, seq[len(hybrid)].truth):.1f} deg" if e.pose is not None else "no pose"
             labels.append(f"#{frame.index} {e.status.upper()} {err}")
-        hybrid.append(FrameRecord(e.pose, e.status != "lost" and e.pose is not None, e.timings_ms["total"],
-                                  status=e.status))
+        hybrid.append(hybrid_record(e, estimator.regressor_calls - calls[0]))
+        calls[0] = estimator.regressor_calls
 
     # the hybrid has no ground truth at all: the CNN initialises it
     res = run_hybrid_on_frames((s.frame for s in seq), estimator, out / "track", on_frame=collect)
     records = {"tracker": run_tracker(seq, create("tracker", args.tracker, object=obj)),
                "cnn": run_cnn(seq, regressor), "hybrid": hybrid}
     write_image(out / "tracking.png", contact_sheet(tiles, columns=4, labels=labels))
-    errors = {mode: [rotation_error_deg(r.pose, s.truth) if r.trusted and r.pose is not None else np.nan
-                     for s, r in zip(seq, recs)] for mode, recs in records.items()}
+    errors = {mode: [np.nan if e is None else e for e in trusted_errors_deg(seq, recs)] for mode, recs in records.items()}
     plot_error_over_time(out / "error_over_time.png", [s.frame.timestamp for s in seq], errors,
                          [s.visible for s in seq], title=f"tumble + arm, seed {args.seed}",
                          statuses=[r.status for r in hybrid])

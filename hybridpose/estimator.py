@@ -32,7 +32,7 @@ suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,8 +42,6 @@ from .fusion.base import DEFAULT_GATE_CHI2
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
 from .objects import ObjectModel
-
-_CHI2_6_999 = DEFAULT_GATE_CHI2  # the 99.9 % point of χ²₆
 
 
 @dataclass(frozen=True)
@@ -87,14 +85,14 @@ class HybridConfig:
     """
 
     check_period: int = 10
-    disagreement_chi2: float = _CHI2_6_999
+    disagreement_chi2: float = DEFAULT_GATE_CHI2  # the 99.9 % point of χ²₆
     confirm_checks: int = 2
     lost_after_rejections: int = 3
     lost_after_tracker_losses: int = 1
     tracker_resumes: bool = True
     unstable_window: int = 20
     settle_frames: int = 0
-    reacquire_chi2: float = _CHI2_6_999
+    reacquire_chi2: float = DEFAULT_GATE_CHI2
     lost_check_period: int = 1
     check_roi_margin: float = 0.15
     switch_quality_margin: float = 0.1
@@ -102,11 +100,7 @@ class HybridConfig:
     probation_frames: int = 1
 
     def __post_init__(self) -> None:
-        if int(self.check_period) != self.check_period or self.check_period < 0:
-            raise ValueError(f"check_period: expected a whole number of frames ≥ 0, got {self.check_period}")
-        if int(self.probation_frames) != self.probation_frames or self.probation_frames < 0:
-            raise ValueError(f"probation_frames: expected a whole number of frames ≥ 0, got {self.probation_frames}")
-        for name in ("unstable_window", "settle_frames"):
+        for name in ("check_period", "probation_frames", "unstable_window", "settle_frames"):
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")
@@ -218,8 +212,7 @@ class HybridEstimator:
             estimate = self._track(frame, timings)
         self._frames += 1
         if estimate.status in ("tracking", "reinit") and self._unsettled():
-            estimate = Estimate(pose=estimate.pose, covariance=estimate.covariance, timestamp=estimate.timestamp,
-                                status="lost", velocity=estimate.velocity, sources=estimate.sources)
+            estimate = replace(estimate, status="lost")
         self.last_timestamp = frame.timestamp
         timings["total"] = 1000 * (time.perf_counter() - t_start)
         estimate.timings_ms.update(timings)
@@ -256,7 +249,6 @@ class HybridEstimator:
             self._n.rejections += 1
             if self._n.rejections >= self.config.lost_after_rejections:
                 return self._declare_lost(frame, timings)
-        status = "tracking"
         self._n.since_check += 1
         self._n.since_start += 1
         due = ((self.config.check_period > 0 and (self._n.since_check >= self.config.check_period
@@ -287,7 +279,7 @@ class HybridEstimator:
                         sources.append(c.source)
                 # (the trial fit leaves the tracker's own last pose there; harmless: every track call
                 # here passes the fused prediction as its prior)
-        return self._estimate(status, tuple(sources))
+        return self._estimate("tracking", tuple(sources))
 
     def _reacquire(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
@@ -359,9 +351,7 @@ class HybridEstimator:
         return self._timed(timings, "regressor", self.regressor.predict, frame, roi)
 
     def _estimate(self, status: str, sources: tuple[str, ...]) -> Estimate:
-        e = self.fusion.estimate
-        return Estimate(pose=e.pose, covariance=e.covariance, timestamp=e.timestamp, status=status,
-                        velocity=e.velocity, sources=sources)
+        return replace(self.fusion.estimate, status=status, sources=sources)
 
     def _roi(self, pose: Pose, camera: Camera) -> tuple[int, int, int, int] | None:
         """Box (x, y, w, h) px of the object's projection at ``pose``, grown by ``check_roi_margin``;

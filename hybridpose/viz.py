@@ -1,8 +1,6 @@
 """Pictures of what the tracker sees: wireframe and axes overlays, contact sheets."""
 from __future__ import annotations
 
-import io
-
 import cv2
 import numpy as np
 
@@ -108,6 +106,24 @@ def silhouette(obj: ObjectModel, T_cam_obj: Pose, camera: Camera, supersample: i
     return coverage >= 0.5
 
 
+def save_figure(path, draw, figsize=(8, 3.8), dpi: int = 110) -> None:
+    """A one-axes matplotlib figure drawn by ``draw(ax)``, written atomically to ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io import atomic_write_with
+
+    fig, ax = plt.subplots(figsize=figsize, dpi=dpi)
+    try:
+        draw(ax)
+        fig.tight_layout()
+        atomic_write_with(path, lambda f: fig.savefig(f, format="png"))
+    finally:
+        plt.close(fig)
+
+
 def plot_error_over_time(path, timestamps, errors_deg: dict, visible, title: str = "",
                          statuses: list[str] | None = None) -> None:
     """PNG of rotation error (°, log scale) over time per mode, frames where the object is less than
@@ -118,34 +134,25 @@ def plot_error_over_time(path, timestamps, errors_deg: dict, visible, title: str
         pose}. visible: (N,) visible share 0..1. statuses: the hybrid's status per frame (reinit
         frames are marked).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .io import atomic_write_bytes
-
     t = np.asarray(timestamps, dtype=np.float64)
     vis = np.asarray(visible, dtype=np.float64)
-    fig, ax = plt.subplots(figsize=(9, 3.6), dpi=110)
     dt = np.median(np.diff(t)) if len(t) > 1 else 1.0
-    for k in range(len(t)):
-        if vis[k] < 0.5:
-            ax.axvspan(t[k] - dt / 2, t[k] + dt / 2, color="0.55" if vis[k] < 0.05 else "0.85", lw=0)
-    for mode, err in errors_deg.items():
-        ax.plot(t, np.maximum(np.asarray(err, dtype=np.float64), 1e-3), ".-", ms=3, lw=1, label=mode)
-    if statuses is not None:
-        re = [t[k] for k, s in enumerate(statuses) if s == "reinit"]
-        if re:
-            ax.plot(re, [0.0015] * len(re), "v", color="k", ms=5, label="hybrid re-init")
-    ax.set_yscale("log")
-    ax.set_ylim(1e-3, 200)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("rotation error (°)")
-    ax.set_title(title + "   grey: object < 50 % visible (dark: covered); gaps: flagged lost", fontsize=9)
-    ax.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+
+    def draw(ax):
+        for k in range(len(t)):
+            if vis[k] < 0.5:
+                ax.axvspan(t[k] - dt / 2, t[k] + dt / 2, color="0.55" if vis[k] < 0.05 else "0.85", lw=0)
+        for mode, err in errors_deg.items():
+            ax.plot(t, np.maximum(np.asarray(err, dtype=np.float64), 1e-3), ".-", ms=3, lw=1, label=mode)
+        if statuses is not None:
+            re = [t[k] for k, s in enumerate(statuses) if s == "reinit"]
+            if re:
+                ax.plot(re, [0.0015] * len(re), "v", color="k", ms=5, label="hybrid re-init")
+        ax.set_yscale("log")
+        ax.set_ylim(1e-3, 200)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("rotation error (°)")
+        ax.set_title(title + "   grey: object < 50 % visible (dark: covered); gaps: flagged lost", fontsize=9)
+        ax.legend(fontsize=8, loc="upper left")
+
+    save_figure(path, draw, figsize=(9, 3.6))

@@ -103,10 +103,21 @@ def run_hybrid(seq: list[SequenceFrame], estimator) -> list[FrameRecord]:
     for s in seq:
         before = estimator.regressor_calls
         e = estimator.step(s.frame)
-        records.append(FrameRecord(e.pose, e.status != "lost" and e.pose is not None, e.timings_ms["total"],
-                                   cnn_calls=estimator.regressor_calls - before, status=e.status,
-                                   covariance=e.covariance, raw_pose=e.pose))
+        records.append(hybrid_record(e, estimator.regressor_calls - before))
     return records
+
+
+def hybrid_record(e, cnn_calls: int) -> FrameRecord:
+    """The record of one hybrid :class:`~hybridpose.core.Estimate` (``cnn_calls`` made for its frame):
+    trusted unless lost or without a pose; its pose is also the raw pose (the prediction when lost)."""
+    return FrameRecord(e.pose, e.status != "lost" and e.pose is not None, e.timings_ms["total"], cnn_calls=cnn_calls,
+                       status=e.status, covariance=e.covariance, raw_pose=e.pose)
+
+
+def trusted_errors_deg(seq: list[SequenceFrame], records: list[FrameRecord]) -> list[float | None]:
+    """Rotation error (°) per frame where the mode gave a trusted pose, None elsewhere."""
+    return [rotation_error_deg(r.pose, s.truth) if r.trusted and r.pose is not None else None
+            for s, r in zip(seq, records)]
 
 
 ADD_AUC_MAX_M = 0.1  # the ADD(-S) AUC's largest threshold (PoseCNN / YCB-Video)

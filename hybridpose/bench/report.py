@@ -1,11 +1,11 @@
 """What a benchmark run reports: markdown tables, the hybrid's ratios and targets, plots."""
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
 
+from ..viz import save_figure
 from .runner import summarise
 
 # what the hybrid must reach on the standard suite (seeds no tuning used)
@@ -135,23 +135,6 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _figure(path, draw) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..io import atomic_write_bytes
-
-    fig, ax = plt.subplots(figsize=(8, 3.8), dpi=110)
-    draw(ax)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
-
-
 def plot_error_vs_distance(path, rows: list[dict], bins_m=np.arange(0.3, 1.3, 0.1)) -> None:
     """Rotation error (median and p90 per distance bin, °) against the true distance, one line per run."""
     def draw(ax):
@@ -178,7 +161,7 @@ def plot_error_vs_distance(path, rows: list[dict], bins_m=np.arange(0.3, 1.3, 0.
         ax.set_ylabel("rotation error (°)")
         ax.set_title("rotation error by distance (frames ≥ 50 % visible with a trusted pose)", fontsize=9)
         ax.legend(fontsize=7, loc="upper right")
-    _figure(path, draw)
+    save_figure(path, draw)
 
 
 def plot_speed_accuracy(path, summary: dict[str, dict]) -> None:
@@ -193,7 +176,7 @@ def plot_speed_accuracy(path, summary: dict[str, dict]) -> None:
         ax.set_yscale("log")
         ax.set_xlabel("ms per frame (one worker)")
         ax.set_ylabel("mean rotation error (°)")
-    _figure(path, draw)
+    save_figure(path, draw)
 
 
 def plot_sequence(path, rows: list[dict], sequence: str) -> None:

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..estimator import HybridConfig
 from ..io import atomic_write_json, read_json
-from .modes import load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats
+from .modes import load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg
 
 MODES = ("tracker", "cnn", "hybrid")
 
@@ -107,8 +107,6 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
     os.environ.setdefault("OMP_NUM_THREADS", str(threads))
     import cv2
 
-    from ..metrics import rotation_error_deg
-
     cv2.setNumThreads(threads)
     seq = load_sequence(scene_dir)
     rows = []
@@ -126,8 +124,7 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
                "fusion": spec.fusion if spec.mode == "hybrid" else "", **sequence_stats(seq, records, obj)}
         if per_frame:
             row["per_frame"] = {
-                "rot_err_deg": [round(rotation_error_deg(r.pose, s.truth), 3) if r.trusted and r.pose is not None
-                                else None for s, r in zip(seq, records)],
+                "rot_err_deg": [None if e is None else round(e, 3) for e in trusted_errors_deg(seq, records)],
                 "visible": [round(s.visible, 3) for s in seq],
                 "distance_m": [round(s.truth.distance_m, 4) for s in seq],
                 "timestamp_s": [round(s.frame.timestamp, 4) for s in seq],

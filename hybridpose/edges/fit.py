@@ -172,11 +172,12 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     return float((edges & near).sum()) / n
 
 
-def honest_quality(fit: EdgeFit, explained: float) -> float:
-    """The tracker's quality from a fit and :func:`explained_edge_share`: ``min(fit quality,
-    2·explained − 1)`` — where a quarter of the image's edges go unexplained the quality is 0.5 (the
-    edge trackers' ``lost_quality``), and it never rises above the fit's own; no image edge at all
-    (NaN) leaves the fit's quality."""
+def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None) -> float:
+    """A tracker's quality from its final ``fit`` in ``frame``: ``min(fit quality, 2·explained − 1)``
+    with ``explained`` = :func:`explained_edge_share` at the fitted pose — where a quarter of the
+    image's edges go unexplained the quality is 0.5 (the edge trackers' ``lost_quality``), and it never
+    rises above the fit's own; no image edge at all (NaN) leaves the fit's quality."""
+    explained = explained_edge_share(view, frame, fit.pose, gray)
     if not np.isfinite(explained):
         return fit.quality
     return float(min(fit.quality, max(0.0, 2.0 * explained - 1.0)))

@@ -18,7 +18,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from ..core import Estimate, Measurement, as_covariance6
-from ..geometry import Pose
+from ..geometry import Pose, skew
 
 # 99.9 % of a correct 6-dof Gaussian innovation lies inside this squared Mahalanobis distance
 # (scipy.stats.chi2.ppf(0.999, 6); a constant, so that `import hybridpose` does not load scipy.stats)
@@ -123,11 +123,7 @@ class Fusion(ABC):
         self.last_mahalanobis2 = float("nan")
         if measurement.pose is None:
             return False
-        innovation, S = self._innovation(measurement.pose, measurement.covariance)
-        try:
-            d2 = float(innovation @ np.linalg.solve(S, innovation))
-        except np.linalg.LinAlgError:
-            d2 = float("inf")
+        d2 = mahalanobis2(*self._innovation(measurement.pose, measurement.covariance))
         self.last_mahalanobis2 = d2
         if not d2 <= self.gate_chi2:
             return False
@@ -172,12 +168,18 @@ class Fusion(ABC):
 
 def adjoint(pose: Pose) -> np.ndarray:
     """(6, 6) adjoint of ``pose`` in the ``[ω, v]`` order: ``Exp(Ad·ξ) = T·Exp(ξ)·T⁻¹``."""
-    R, t = pose.R, pose.t
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
     A = np.zeros((6, 6))
-    A[:3, :3] = A[3:, 3:] = R
-    A[3:, :3] = tx @ R
+    A[:3, :3] = A[3:, 3:] = pose.R
+    A[3:, :3] = skew(pose.t) @ pose.R
     return A
+
+
+def mahalanobis2(xi: np.ndarray, S: np.ndarray) -> float:
+    """``ξᵀ S⁻¹ ξ`` for a (6,) tangent and its (6, 6) covariance; inf where ``S`` is singular."""
+    try:
+        return float(xi @ np.linalg.solve(S, xi))
+    except np.linalg.LinAlgError:
+        return float("inf")
 
 
 def pose_mahalanobis2(a: Pose, cov_a: np.ndarray, b: Pose, cov_b: np.ndarray) -> float:
@@ -186,8 +188,4 @@ def pose_mahalanobis2(a: Pose, cov_a: np.ndarray, b: Pose, cov_b: np.ndarray) ->
     rel = a.inverse() @ b
     xi = rel.log()
     A = adjoint(rel)
-    S = np.asarray(cov_a) + A @ np.asarray(cov_b) @ A.T
-    try:
-        return float(xi @ np.linalg.solve(S, xi))
-    except np.linalg.LinAlgError:
-        return float("inf")
+    return mahalanobis2(xi, np.asarray(cov_a) + A @ np.asarray(cov_b) @ A.T)

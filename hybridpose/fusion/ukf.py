@@ -57,27 +57,30 @@ def _boxminus_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rows(a: np.ndarray, n: int) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float64)
-    return np.ascontiguousarray(np.broadcast_to(a, (n, a.shape[-1])) if a.ndim == 1 else a)
+def _rowwise(kernel, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``kernel`` over rows of (D,) or (N, D) arrays, a single row broadcast against N; (D,) in, (D,) out."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    n = max(a.shape[0] if a.ndim == 2 else 1, b.shape[0] if b.ndim == 2 else 1)
+    rows = [np.ascontiguousarray(np.broadcast_to(x, (n, x.shape[-1])) if x.ndim == 1 else x) for x in (a, b)]
+    out = kernel(*rows)
+    return out[0] if a.ndim == 1 and b.ndim == 1 else out
 
 
 def boxplus(x: np.ndarray, u: np.ndarray) -> np.ndarray:
     """State ⊞ tangent, ``(T·Exp(u[:6]), ξ̇ + u[6:])``, for (D,) or (N, D) arrays, D = 12 (state) or
     6 (pose only); a single row broadcasts against N."""
-    x, u = np.asarray(x, dtype=np.float64), np.asarray(u, dtype=np.float64)
-    n = max(x.shape[0] if x.ndim == 2 else 1, u.shape[0] if u.ndim == 2 else 1)
-    out = _boxplus_rows(_rows(x, n), _rows(u, n))
-    return out[0] if x.ndim == 1 and u.ndim == 1 else out
+    return _rowwise(_boxplus_rows, x, u)
 
 
 def boxminus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a ⊟ b with ``b ⊞ (a ⊟ b) = a``: pose part ``Log(T_b⁻¹ T_a)``, the rest subtracted; shapes as
     :func:`boxplus`."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    n = max(a.shape[0] if a.ndim == 2 else 1, b.shape[0] if b.ndim == 2 else 1)
-    out = _boxminus_rows(_rows(a, n), _rows(b, n))
-    return out[0] if a.ndim == 1 and b.ndim == 1 else out
+    return _rowwise(_boxminus_rows, a, b)
+
+
+def _pose_vector(pose: Pose) -> np.ndarray:
+    """(6,) ``[φ, t]``: the pose part of the state and the measurement vector."""
+    return np.r_[matrix_to_rotvec(pose.R), pose.t]
 
 
 def manifold_mean(sigmas: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -170,7 +173,7 @@ class UKFFusion(Fusion):
                                 residual_z=boxminus, state_add=boxplus)
 
     def _reset(self, pose, covariance, timestamp, twist) -> None:
-        self.ukf.x = np.r_[matrix_to_rotvec(pose.R), pose.t, twist]
+        self.ukf.x = np.r_[_pose_vector(pose), twist]
         P = np.zeros((12, 12))
         P[:6, :6] = covariance
         P[6:, 6:] = self.initial_twist_covariance
@@ -183,11 +186,11 @@ class UKFFusion(Fusion):
 
     def _innovation(self, pose, covariance):
         x = self.ukf.x
-        xi = boxminus(np.r_[matrix_to_rotvec(pose.R), pose.t], x[:6])
+        xi = boxminus(_pose_vector(pose), x[:6])
         return xi, self.ukf.P[:6, :6] + covariance
 
     def _update(self, pose, covariance) -> None:
-        self.ukf.update(np.r_[matrix_to_rotvec(pose.R), pose.t], R=covariance)
+        self.ukf.update(_pose_vector(pose), R=covariance)
         self.ukf.P = symmetrised(self.ukf.P, PSD_FLOOR)
 
     def _state(self):

@@ -7,7 +7,7 @@ is the fit's, capped by how much of the image's edges the model explains
 from __future__ import annotations
 
 from ..core import Frame
-from ..edges import ModelView, explained_edge_share, fit_edges, honest_quality, to_gray
+from ..edges import ModelView, fit_edges, honest_quality, to_gray
 from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
@@ -48,15 +48,14 @@ class EdgeTracker(Tracker):
                 "— is the object in view and the pose right?"
             )
 
-    def _fit(self, frame: Frame, start: Pose, outer: int = 3):
-        return fit_edges(self.view, frame, start, search_px=self.search_px, max_samples=self.max_samples,
+    def _fit(self, frame: Frame, start: Pose, outer: int = 3, gray=None):
+        return fit_edges(self.view, frame, start, gray=gray, search_px=self.search_px, max_samples=self.max_samples,
                          covariance_scale=self.covariance_scale, outer=outer)
 
     def _track(self, frame: Frame, start: Pose):
-        gray = to_gray(frame.image)
-        fit = fit_edges(self.view, frame, start, gray=gray, search_px=self.search_px, max_samples=self.max_samples,
-                        covariance_scale=self.covariance_scale)
+        gray = to_gray(frame.image)  # one conversion for the fit and the quality
+        fit = self._fit(frame, start, gray=gray)
         if fit is None:
             return None, None, 0.0
-        quality = honest_quality(fit, explained_edge_share(self.view, frame, fit.pose, gray)) if self.explain else fit.quality
+        quality = honest_quality(self.view, frame, fit, gray) if self.explain else fit.quality
         return fit.pose, fit.covariance, quality

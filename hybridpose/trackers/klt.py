@@ -30,7 +30,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..edges import ModelView, explained_edge_share, fit_from_proposals, honest_quality
+from ..edges import ModelView, fit_from_proposals, honest_quality
 from ..geometry import projection_jacobian
 
 log = logging.getLogger(__name__)
@@ -171,7 +171,7 @@ class KltPnpTracker(Tracker):
         if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0
-        quality = honest_quality(best, explained_edge_share(self.view, frame, best.pose, gray.astype(np.float32)))
+        quality = honest_quality(self.view, frame, best, gray.astype(np.float32))
         if quality >= self.lost_quality:
             self._refresh(gray, best.pose, frame, klt)
         else:

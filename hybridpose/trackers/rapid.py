@@ -33,7 +33,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..edges import ModelView, explained_edge_share, fit_from_proposals, honest_quality, to_gray
+from ..edges import ModelView, fit_from_proposals, honest_quality, to_gray
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
 VARIANTS = {"rapid": "Rapid_create", "rapid-ols": "OLSTracker_create", "rapid-gos": "GOSTracker_create"}
@@ -107,7 +107,7 @@ class RapidTracker(Tracker):
         best = fit_from_proposals(self.view, frame, (start,) if pose is start else (start, pose), gray=gray)
         if best is None:
             return None, None, 0.0
-        return best.pose, best.covariance, honest_quality(best, explained_edge_share(self.view, frame, best.pose, gray))
+        return best.pose, best.covariance, honest_quality(self.view, frame, best, gray)
 
 
 def _factory(variant: str):

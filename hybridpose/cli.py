@@ -517,8 +517,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "default; RANSAC when more than half would go) or runs RANSAC as soon as one disagrees")
     e.add_argument("--turn-pnp-outliers", choices=("drop-worst", "ransac", "drop-worst-only", "same"),
                    default="drop-worst-only",
-                   help="keypoint models: the same for the passes on the turned crops (drop-worst-only, the default "
-                        "since rule 22: no RANSAC there, a turned pass most of whose keypoints disagree gives no pose; "
+                   help="keypoint models: the same for the passes on the turned crops (drop-worst-only, the default: "
+                        "no RANSAC there, a turned pass most of whose keypoints disagree gives no pose; "
                         "same: as --pnp-outliers)")
     e.add_argument("--roi", choices=("none", "truth"), default="none",
                    help="none (default): no prior, the object found by detection (the parallel VGG-19 crops around its "

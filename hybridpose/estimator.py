@@ -17,7 +17,8 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   the fit from the CNN pose lands elsewhere and matches the image better than the current track
   (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
   at once) restart everything from that fit — the drift the tracker did not flag. A CNN pose that
-  agrees is fused.
+  agrees is fused. A tracker measurement the gate refuses calls a check at once; where the CNN and the
+  edges from its pose vouch for it, the fusion (not the tracker) was wrong and starts over there.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
   consecutive answers agree (``reacquire_chi2``) and the tracker, started from the latest, confirms it
@@ -42,6 +43,10 @@ from .fusion.base import DEFAULT_GATE_CHI2
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
 from .objects import ObjectModel
+
+
+# a twist measured from two tracker poses further apart than this is not worth keeping
+MAX_TWIST_GAP_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,11 @@ class HybridConfig:
             when that fit lands elsewhere (``disagreement_chi2``) and its quality beats the current
             track's by this margin, the check disagrees even where the CNN's own covariance is too
             wide to tell (the image's edges decide between the two poses).
+        check_on_rejection: a tracker measurement refused by the gate calls a CNN check at once; when
+            the CNN pose and the edge fit started from it both agree with the refused measurement
+            (``disagreement_chi2``), the motion model was wrong, not the tracker (a sudden change
+            of motion): the fusion starts over from the tracker's pose, with the twist between its
+            last two poses, and tracking goes on.
     """
 
     check_period: int = 10
@@ -98,6 +108,7 @@ class HybridConfig:
     switch_quality_margin: float = 0.1
     check_below_quality: float = 0.65
     probation_frames: int = 1
+    check_on_rejection: bool = True
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames"):
@@ -197,6 +208,7 @@ class HybridEstimator:
         self.camera: Camera | None = None
         self.last_timestamp: float | None = None
         self._n = _Counters()
+        self.last_tracker = None
         self.tracker.reset()
 
     def step(self, frame: Frame) -> Estimate:
@@ -236,8 +248,9 @@ class HybridEstimator:
     def _track(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
         m = self._timed(timings, "tracker", self.tracker.track, frame, prior.pose)
-        self.last_tracker = m
+        previous, self.last_tracker = self.last_tracker, m
         sources = []
+        rejected = False
         if m.lost:
             self._n.tracker_losses += 1
             if self._n.tracker_losses >= self.config.lost_after_tracker_losses:
@@ -247,13 +260,15 @@ class HybridEstimator:
             self._n.rejections = self._n.tracker_losses = 0
         else:
             self._n.rejections += 1
+            rejected = True
             if self._n.rejections >= self.config.lost_after_rejections:
                 return self._declare_lost(frame, timings)
         self._n.since_check += 1
         self._n.since_start += 1
         due = ((self.config.check_period > 0 and (self._n.since_check >= self.config.check_period
                                                   or self._n.disagreements > 0))
-               or m.quality < self.config.check_below_quality or self._n.since_start <= self.config.probation_frames)
+               or m.quality < self.config.check_below_quality or self._n.since_start <= self.config.probation_frames
+               or (rejected and self.config.check_on_rejection))
         if due:
             self._n.since_check = 0
             fused = self.fusion.estimate
@@ -261,6 +276,11 @@ class HybridEstimator:
             if c.pose is not None:
                 far = _mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
                 fit = self._timed(timings, "tracker", self.tracker.track, frame, c.pose)
+                if rejected and self.config.check_on_rejection and self._vouched(m, c, fit):
+                    # the edges from the CNN pose land on the refused measurement: the motion model
+                    # was wrong, not the tracker; start the fusion over from the tracker
+                    self._restart(frame, m, timings, self._tracker_twist(previous, m))
+                    return self._estimate("tracking", (m.source, c.source))
                 better = (fit.pose is not None and fit.quality > m.quality + self.config.switch_quality_margin
                           and _mahalanobis2(fused.pose, fused.covariance, fit.pose, fit.covariance)
                           > self.config.disagreement_chi2)
@@ -327,11 +347,30 @@ class HybridEstimator:
         fit = self._timed(timings, "tracker", self.tracker.track, frame, m.pose)
         return None if fit.lost else fit
 
-    def _restart(self, frame: Frame, m: Measurement, timings: dict) -> None:
-        """Fusion and tracker start over from ``m``, the tracker's fit from a CNN pose."""
-        # the twist starts again from zero with the fusion's initial uncertainty: one estimated through
-        # a drift or a loss is not worth keeping
-        self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp)
+    @staticmethod
+    def _tracker_twist(previous: Measurement | None, m: Measurement) -> np.ndarray | None:
+        """Body twist (6,) rad/s, m/s between two tracker poses up to ``MAX_TWIST_GAP_S`` apart; None
+        (zero twist) otherwise."""
+        if previous is None or previous.pose is None or m.pose is None:
+            return None
+        dt = m.timestamp - previous.timestamp
+        if not 0 < dt <= MAX_TWIST_GAP_S:
+            return None
+        return previous.pose.local(m.pose) / dt
+
+    def _vouched(self, m: Measurement, c: Measurement, fit: Measurement) -> bool:
+        """True when the CNN pose ``c`` and the tracker's fit started from it both agree with the
+        tracker measurement ``m`` (``disagreement_chi2``, both covariances)."""
+        chi2 = self.config.disagreement_chi2
+        return (fit.pose is not None and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= chi2
+                and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
+
+    def _restart(self, frame: Frame, m: Measurement, timings: dict, twist: np.ndarray | None = None) -> None:
+        """Fusion and tracker start over from ``m``, the tracker's fit from a CNN pose, with body twist
+        ``twist`` (6,) rad/s, m/s."""
+        # by default the twist starts again from zero with the fusion's initial uncertainty: one
+        # estimated through a drift or a loss is not worth keeping
+        self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp, twist)
         try:
             self._timed(timings, "tracker", self.tracker.init, frame, m.pose)
         except ValueError:  # a tracker may refuse a start; its last track (which gave m) left it there

@@ -261,3 +261,40 @@ def test_restarts_close_together_are_not_trusted_until_tracking_settles():
     reference = [e.status for e in run(plain, 25)]
     assert statuses.count("lost") > reference.count("lost")
     assert statuses[-1] == "tracking" and statuses[20:] == reference[20:]  # settled once the restarts stop
+
+
+def swerve(k: int) -> Pose:
+    """The truth, then from frame 10 on a sudden 1.2 m/s along the line of sight (the motion model
+    expects nothing like it)."""
+    return truth(k) if k < 10 else Pose(truth(k).R, truth(k).t + [0.0, 0.0, 1.2 * (k - 9) / FPS])
+
+
+class SwerveTracker(ScriptedTracker):
+    def track(self, frame, prior=None):
+        m = super().track(frame, prior)
+        return Measurement(swerve(frame.index), m.covariance, m.quality, m.source, m.timestamp)
+
+
+class SwerveRegressor(OracleRegressor):
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return Measurement(swerve(frame.index), m.covariance, m.quality, m.source, m.timestamp)
+
+
+@pytest.mark.parametrize("check_on_rejection", [True, False])
+def test_a_refused_tracker_measurement_that_the_cnn_vouches_for_restarts_the_fusion(check_on_rejection):
+    """The gate refuses a right tracker after a sudden change of motion: with ``check_on_rejection``
+    a CNN check at once, whose edge fit lands on the tracker's pose, restarts the fusion there (with
+    the twist between the last two tracker poses) instead of declaring the object lost."""
+    reg = SwerveRegressor()
+    est = HybridEstimator(SwerveTracker(), reg, registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, probation_frames=0, check_on_rejection=check_on_rejection))
+    out = run(est, 20)
+    if check_on_rejection:
+        assert all(e.status == "tracking" for e in out[1:])
+        assert 10 in [k for k, _ in reg.calls]  # the refused frame called the check
+        assert np.linalg.norm(out[-1].pose.t - swerve(19).t) < 0.005
+        true_twist = swerve(18).local(swerve(19)) * FPS  # the twist is taken from the tracker's poses, not zero
+        assert np.linalg.norm(out[-1].velocity[3:] - true_twist[3:]) < 0.1
+    else:
+        assert "lost" in [e.status for e in out[10:]]

@@ -65,6 +65,17 @@ def test_a_rerun_resumes_from_the_kept_rows(smoke, capsys):
     assert [p for p in kept if after[p] != kept[p]] == [victim]  # only the missing row was computed again
 
 
+def test_rows_made_by_other_code_are_made_again(smoke, monkeypatch):
+    from hybridpose.bench import runner
+
+    rows_dir = smoke / "out" / "rows"
+    kept = {p: p.stat().st_mtime_ns for p in rows_dir.rglob("*.json")}
+    monkeypatch.setattr(runner, "code_fingerprint", lambda: "other-code")
+    assert main(["bench", "--suite", "smoke", "--out", str(smoke / "out"), "--cache", str(smoke / "cache")]) == 0
+    assert all(p.stat().st_mtime_ns != t for p, t in kept.items())
+    assert {json.loads(p.read_text())["code"] for p in kept} == {"other-code"}
+
+
 def test_ray_gives_the_local_results(smoke, tmp_path):
     pytest.importorskip("ray")
     out = tmp_path / "ray"
@@ -72,8 +83,8 @@ def test_ray_gives_the_local_results(smoke, tmp_path):
                  "--out", str(out), "--cache", str(smoke / "cache")]) == 0
     local = {(r["sequence"], r["label"]): r for r in json.loads((smoke / "out" / "results.json").read_text())["rows"]}
     for r in json.loads((out / "results.json").read_text())["rows"]:
-        mine = {k: v for k, v in r.items() if k != "ms_per_frame"}
-        theirs = {k: v for k, v in local[(r["sequence"], r["label"])].items() if k != "ms_per_frame"}
+        mine = {k: v for k, v in r.items() if k not in ("ms_per_frame", "code")}
+        theirs = {k: v for k, v in local[(r["sequence"], r["label"])].items() if k not in ("ms_per_frame", "code")}
         assert mine == theirs
 
 

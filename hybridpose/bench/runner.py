@@ -2,7 +2,9 @@
 
 A :class:`RunSpec` is one mode with its backends; :func:`run_all` runs every spec on every sequence,
 one task per sequence (its frames are read once for all specs), and keeps each (sequence, spec) row
-in ``OUT/rows/`` as it finishes, so an interrupted run resumes where it stopped.
+in ``OUT/rows/`` as it finishes, so an interrupted run resumes where it stopped. A kept row holds the
+fingerprint of the code that made it (:func:`code_fingerprint`); after a change of the package's
+code the rows are made again, never mixed with the old ones.
 """
 from __future__ import annotations
 
@@ -138,6 +140,25 @@ def _row_path(out: Path, name: str, spec: RunSpec) -> Path:
     return out / "rows" / name / f"{spec.key}.json"
 
 
+def code_fingerprint() -> str:
+    """sha1 (12 hex digits) of the package's Python sources: what made a row, whatever git says."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha1()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def _kept(out: Path | None, name: str, spec: RunSpec, code: str) -> dict | None:
+    """The row kept for (``name``, ``spec``) by this code, or None."""
+    path = None if out is None else _row_path(out, name, spec)
+    if path is None or not path.is_file():
+        return None
+    row = read_json(path)
+    return row if row.get("code") == code else None
+
+
 def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: int = 1, ray_address: str | None = None,
             progress: Callable[[str], None] | None = None) -> list[dict]:
     """Every spec on every sequence ``{name: scene_dir}``; rows in (name, spec) order.
@@ -150,13 +171,23 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
             address) instead of local processes; needs ``pip install "hybridpose[ray]"``.
     """
     out = Path(out) if out is not None else None
+    code = code_fingerprint()
+    done: dict[tuple[str, str], dict] = {}
     todo: dict[str, list[RunSpec]] = {}
     for name in sorted(scenes):
-        missing = [s for s in specs if out is None or not _row_path(out, name, s).is_file()]
+        missing = []
+        for s in specs:
+            row = _kept(out, name, s, code)
+            if row is None:
+                missing.append(s)
+            else:
+                done[(name, s.key)] = row
         if missing:
             todo[name] = missing
 
     def keep(rows: list[dict], name: str) -> None:
+        for r in rows:
+            r["code"] = code
         if out is not None:
             by_key = {s.key: s for s in specs}
             for r in rows:
@@ -164,7 +195,6 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
         if progress:
             progress(name)
 
-    done: dict[tuple[str, str], dict] = {}
     if ray_address is not None:
         for name, rows in _run_on_ray(todo, scenes, ray_address):
             keep(rows, name)
@@ -182,11 +212,7 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
                 rows = fut.result()
                 keep(rows, name)
                 done.update({(name, r["key"]): r for r in rows})
-    result = []
-    for name in sorted(scenes):
-        for s in specs:
-            result.append(done[(name, s.key)] if (name, s.key) in done else read_json(_row_path(out, name, s)))
-    return result
+    return [done[(name, s.key)] for name in sorted(scenes) for s in specs]
 
 
 def _run_on_ray(todo: dict[str, list[RunSpec]], scenes: dict[str, Path], address: str):

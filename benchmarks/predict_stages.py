@@ -28,13 +28,13 @@ from hybridpose.machine import cpu_label
 from hybridpose.regressors import engines, predictor, twin_verifier
 from hybridpose.regressors.evaluate import network_call_ms
 from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint
-from hybridpose.trackers import edges
+from hybridpose.edges import fit as edge_fit
 
 # (owner, attribute, stage): where predict looks each stage up when it runs (module globals are read at
 # call time, fit_edges is imported inside the methods that use it)
 ENGINE_CALLS = ((engines.TorchEngine, "__call__"), (engines.OnnxRuntimeEngine, "__call__"))
 STAGES = (*((owner, attr, "network") for owner, attr in ENGINE_CALLS), (predictor, "solve_pnp", "PnP"),
-          (edges, "fit_edges", "edge fits"), (predictor, "detect_bright_object", "detection"),
+          (edge_fit, "fit_edges", "edge fits"), (predictor, "detect_bright_object", "detection"),
           (predictor, "detect_dim_object", "detection"),
           (twin_verifier.TwinVerifier, "probabilities", "verifier"),
           (twin_verifier.TwinVerifier, "probabilities_of_sets", "verifier"))

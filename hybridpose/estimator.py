@@ -247,7 +247,7 @@ class HybridEstimator:
 
     def _track(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
-        m = self._timed(timings, "tracker", self.tracker.track, frame, prior.pose)
+        m = self._track_from(frame, prior.pose, timings)
         previous, self.last_tracker = self.last_tracker, m
         sources = []
         rejected = False
@@ -275,7 +275,7 @@ class HybridEstimator:
             c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings)
             if c.pose is not None:
                 far = _mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
-                fit = self._timed(timings, "tracker", self.tracker.track, frame, c.pose)
+                fit = self._track_from(frame, c.pose, timings)
                 if rejected and self.config.check_on_rejection and self._vouched(m, c, fit):
                     # the edges from the CNN pose land on the refused measurement: the motion model
                     # was wrong, not the tracker; start the fusion over from the tracker
@@ -304,7 +304,7 @@ class HybridEstimator:
     def _reacquire(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
         if self.config.tracker_resumes:
-            m = self._timed(timings, "tracker", self.tracker.track, frame, prior.pose)
+            m = self._track_from(frame, prior.pose, timings)
             self.last_tracker = m
             if not m.lost and self._timed(timings, "fusion", self.fusion.update, m):
                 self.status = "tracking"
@@ -344,7 +344,7 @@ class HybridEstimator:
             self._timed(timings, "tracker", self.tracker.init, frame, m.pose)
         except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
             return None
-        fit = self._timed(timings, "tracker", self.tracker.track, frame, m.pose)
+        fit = self._track_from(frame, m.pose, timings)
         return None if fit.lost else fit
 
     @staticmethod
@@ -364,6 +364,14 @@ class HybridEstimator:
         chi2 = self.config.disagreement_chi2
         return (fit.pose is not None and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= chi2
                 and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
+
+    def _track_from(self, frame: Frame, start: Pose, timings: dict) -> Measurement:
+        """The tracker's measurement searched from ``start``; lost where the tracker refuses that start
+        (a prediction coasting while lost can leave the view or pass behind the camera)."""
+        try:
+            return self._timed(timings, "tracker", self.tracker.track, frame, start)
+        except ValueError:
+            return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
 
     def _restart(self, frame: Frame, m: Measurement, timings: dict, twist: np.ndarray | None = None) -> None:
         """Fusion and tracker start over from ``m``, the tracker's fit from a CNN pose, with body twist

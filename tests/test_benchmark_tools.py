@@ -27,6 +27,7 @@ def test_stage_timers_split_the_predict_path_and_put_every_function_back(truss, 
         stages = sum(r[s] for s in predict_stages.STAGE_NAMES)
         assert 0 < stages <= r["total"]                   # outermost calls only: nothing counted twice
         assert r["network_calls"] >= 1 and r["network_images"] >= r["network_calls"] and r["detection"] > 0
+    assert sum(r["edge fits"] for r in rows) > 0  # the edge refinement is found where the regressor calls it
     g = predict_stages.summarise(rows)
     assert g["views"] == 3 and g["ms_other"] >= 0
     assert g["ms_total"] <= g["ms_max"] == pytest.approx(1e3 * max(r["total"] for r in rows)) and g["ms_p95"] <= g["ms_max"]

@@ -298,3 +298,18 @@ def test_a_refused_tracker_measurement_that_the_cnn_vouches_for_restarts_the_fus
         assert np.linalg.norm(out[-1].velocity[3:] - true_twist[3:]) < 0.1
     else:
         assert "lost" in [e.status for e in out[10:]]
+
+
+def test_a_start_the_tracker_refuses_counts_as_lost():
+    """A tracker refuses a start (ValueError: e.g. a prediction coasting behind the camera while lost):
+    the frame counts as lost, ``step`` does not raise, and the CNN restarts tracking."""
+    class Refusing(ScriptedTracker):
+        def track(self, frame, prior=None):
+            if 10 <= frame.index < 14:
+                raise ValueError("prior: the object is behind the camera")
+            return super().track(frame, prior)
+
+    est = HybridEstimator(Refusing(), OracleRegressor(), registry.create("fusion", "ukf"), HybridConfig(check_period=0))
+    out = run(est, 20)
+    assert [e.status for e in out[10:14]] == ["lost"] * 4
+    assert out[-1].status == "tracking" and rotation_error_deg(out[-1].pose, truth(19)) < 0.3

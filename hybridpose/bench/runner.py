@@ -209,7 +209,14 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
             futures = {pool.submit(run_sequence, name, str(scenes[name]), sp): name for name, sp in todo.items()}
             for fut in as_completed(futures):
                 name = futures[fut]
-                rows = fut.result()
+                try:
+                    rows = fut.result()
+                except Exception as exc:
+                    # stop at once (the rows finished so far are kept): the pool would otherwise run
+                    # every queued sequence before the error surfaced
+                    for other in futures:
+                        other.cancel()
+                    raise RuntimeError(f"bench: sequence {name}: {type(exc).__name__}: {exc}") from exc
                 keep(rows, name)
                 done.update({(name, r["key"]): r for r in rows})
     return [done[(name, s.key)] for name in sorted(scenes) for s in specs]

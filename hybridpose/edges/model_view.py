@@ -5,7 +5,7 @@ Visibility of model edges (what ViSP does with its scanline renderer): an edge s
 one of its two faces looks at the camera *and* that face's facet is what the image shows around
 the sample's pixel. The facet-id image comes from a depth-tested raster of the front faces
 (:func:`hybridpose.geometry.raster.zbuffer_front_faces`): no OpenGL context in the tracking loop,
-≈ 0.6 ms at half resolution on test views (`benchmarks/edge_visibility.py`). (A far-first painter's raster, used
+≈ 0.6 ms at half resolution on test views (`docs/decisions.md`). (A far-first painter's raster, used
 before, misordered the truss's long thin triangles: MuJoCo's depth disagreed with twice as many
 of its visibility calls.)
 """

@@ -2,18 +2,17 @@
 checkpoint's 8-bit model where it has one, else float32) or torch.
 
 ONNX Runtime's CPU kernels run the shipped 128-px keypoint network ≈ 1.6× as fast as torch's at
-batch 1 on one thread (4.4 vs 7.0 ms a call on an AVX2 EPYC; benchmarks/RESULTS.md, "Inference
-engines") with the same outputs to float rounding, and that call is a third to a half of
+batch 1 on one thread (4.4 vs 7.0 ms a call on an AVX2 EPYC; `benchmarks/inference_engines.py`) with the same outputs to float rounding, and that call is a third to a half of
 ``predict``'s time. Float rounding sends ≈ 1 % of views down another branch of the path (a keypoint
-just inside or outside a PnP threshold); rule 19 (16 000 fresh views, written before they were
-rendered) found the two engines equivalent within ±0.25° mean rotation, so ``engine="auto"`` (the
+just inside or outside a PnP threshold); a test on 16 000 fresh views, written before they were
+rendered, found the two engines equivalent within ±0.25° mean rotation, so ``engine="auto"`` (the
 regressors' default) runs keypoint networks on ONNX Runtime on the CPU, and on torch where ONNX Runtime
 is missing, the export fails (the reason logged) or on a GPU. ``engine="onnxruntime"`` asks for it (an
-error where it cannot run); ``engine="torch"`` for torch (the default until session 29).
+error where it cannot run); ``engine="torch"`` for torch.
 ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
 (:mod:`hybridpose.regressors.quantize`).
 
-Since rule 23 (session 35) ``"auto"`` runs that 8-bit model where one made from this very checkpoint
+``"auto"`` runs that 8-bit model where one made from this very checkpoint
 lies beside it (the shipped ``default`` and its edge-on expert; a stale one is skipped with a warning):
 on 48 000 fresh test-lit views, written before they were rendered, int8 − float32 = −0.00° mean
 rotation (95 % CI −0.13…+0.13°, ≤ +0.25 asked) and +0.00 points of views > 30° off (−0.08…+0.09, ≤ +0.25
@@ -111,7 +110,7 @@ class OnnxModule:
             # every session has its own intra-op pool, and a pool's threads spin after a run by default: a
             # regressor's three networks (keypoints, edge-on expert, twin verifier) on 2 threads then fought
             # each other's spinning threads for the cores, and its whole path took 2× as long as on 1 thread
-            # (40–46 vs 20–23 ms/view; 19–22 without spinning, 100 seed-100 views, 2 cores, session 36)
+            # (40–46 vs 20–23 ms/view; 19–22 without spinning, 100 seed-100 views, 2 cores)
             options.add_session_config_entry("session.intra_op.allow_spinning", "0")
             self._sessions[threads] = self._ort.InferenceSession(self.model, options,
                                                                  providers=["CPUExecutionProvider"])
@@ -146,7 +145,7 @@ def keypoint_engine(engine: str, net: nn.Module, device: torch.device, image_siz
                     memory_format=torch.contiguous_format, checkpoint=None):
     """The engine named ``engine`` (one of :data:`ENGINES`) for a keypoint ``net`` (eval mode, batch
     norm folded) on ``device``. ``"auto"`` on the CPU: the 8-bit model of ``checkpoint`` where one made
-    from this very file lies beside it (rule 23), else ONNX Runtime in float32 (a stale or unreadable
+    from this very file lies beside it, else ONNX Runtime in float32 (a stale or unreadable
     8-bit file is skipped with a warning), else torch where ONNX Runtime is missing or the export fails
     (the reason logged); on a GPU torch. ``"onnxruntime-int8"``: the 8-bit model made from ``checkpoint``
     by ``hybridpose quantize`` (beside it, :func:`~hybridpose.regressors.int8_file.int8_path`)."""

@@ -719,7 +719,7 @@ def comparison_markdown(c: dict) -> str:
              f"McNemar exact p = {c['mcnemar_p']:.3f}",
              f"- mean rotation B − A {mean['estimate']:+.2f}° (95 % paired bootstrap {mean['ci95'][0]:+.2f} … {mean['ci95'][1]:+.2f})",
              f"- median rotation B − A {med['estimate']:+.3f}° ({med['ci95'][0]:+.3f} … {med['ci95'][1]:+.3f})"]
-    if "gross_share_diff" in c:  # comparisons saved before session 35 lack it
+    if "gross_share_diff" in c:  # older saved comparisons lack it
         g = c["gross_share_diff"]
         lines.append(f"- share of views > {c['gross_deg']:g}° B − A {100 * g['estimate']:+.2f} points "
                      f"({100 * g['ci95'][0]:+.2f} … {100 * g['ci95'][1]:+.2f})")

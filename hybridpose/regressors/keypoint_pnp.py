@@ -49,7 +49,7 @@ def _drop_worst_fit(pts3, pts2, K, threshold_px, min_inliers, max_drop: int | No
     all points is one of them. On the shipped regressor's PnP calls this is twice as fast as
     RANSAC's 100 minimal solves (0.75 vs 1.35 ms for 12 keypoints; with no outlier one SQPnP solve,
     0.3 ms) and it keeps more keypoints where the two differ; on the full path it left fewer views
-    > 30° off (benchmarks/RESULTS.md, notes, "Session 14: the speed target")."""
+    > 30° off (docs/decisions.md)."""
     keep = np.ones(len(pts2), bool)
     max_drop = len(pts2) - (len(pts2) // 2 + 1) if max_drop is None else max_drop
     while keep.sum() >= max(min_inliers, 6):
@@ -86,7 +86,7 @@ def solve_pnp(points_2d: np.ndarray, points_m: np.ndarray, K: np.ndarray, thresh
         outliers: ``"drop-worst"`` (default): leave the worst point out and fit again while any
             is beyond ``threshold_px``, RANSAC only when more than half would go
             (:func:`_drop_worst_fit`); ``"ransac"``: RANSAC (100 SQPnP minimal solves) whenever the
-            fit on all points leaves one beyond ``threshold_px`` (hybridpose ≤ session 13);
+            fit on all points leaves one beyond ``threshold_px`` (the older path);
             ``"drop-worst-only"``: drop-worst with no RANSAC after it (None where more than half
             would go: a fit no majority of the points agrees with).
     """

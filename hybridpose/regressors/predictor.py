@@ -7,7 +7,7 @@ name needs ``checkpoint=PATH`` from ``hybridpose train --model NAME``.
 Keypoint models run one pass on a crop around the ``roi`` or, without one, around the sunlit
 pixels (:func:`detect_bright_object`); where its PnP drops keypoints, the same crop turned in-plane
 by ±20°/±40° too (``turns="auto"``, one batch; the pass keeping the most keypoints wins:
-benchmarks/RESULTS.md, "Test-time crop turns"); and a second pass on the crop centred on the pose
+docs/decisions.md); and a second pass on the crop centred on the pose
 where the twin head is unsure (``passes="auto"``; ``passes=2`` always makes it, at ≈ 7 ms more;
 "Second network pass"). Where the first estimate is near edge-on, a second network trained on such
 views (``edge_on_expert``, shipped for the truss) estimates too, and the better measurement is kept
@@ -56,7 +56,7 @@ SMOOTH_NOISE_GAIN = 0.26  # noise σ after the 5×5 Gaussian (σ = 1.1 px): 1 / 
 DETECT_DIM_MIN_AREA_PX = 200
 REFINE_SEARCH_PX = 16
 REFINE_MIN_QUALITY = 0.5
-# The twin choice (see _refine). Tuned on test views 0–399, confirmed on 400–999 (benchmarks/RESULTS.md):
+# The twin choice (see _refine). Tuned on test views 0–399, confirmed on 400–999 (docs/decisions.md):
 # the head is right whenever it is sure (no wrong twin above p = 0.99 in 400 views), so its twin alone is
 # fitted from p ≥ TWIN_SURE; below, every twin is fitted and the head's belief is weighed against the
 # edge support, log p + TWIN_EDGE_WEIGHT · log quality. Edge support alone picks worse than the head
@@ -65,15 +65,15 @@ TWIN_SURE = 0.8
 TWIN_EDGE_WEIGHT = 8.0
 VERIFIER_WEIGHT = 1.0
 # with a twin verifier the head counts as sure only from this probability (chosen on the seed-101 test
-# set; benchmarks/RESULTS.md, "Twin verifier")
+# set)
 VERIFIER_SURE = 0.95
 # with a twin verifier, the weight of the edge fits' quality in the twin choice: 0 chooses by head ×
 # verifier before any fit, and only the chosen twin is edge-fitted (one fit instead of four, ≈ 1.7 ms
 # a view on average). Not the default: with it (and VERIFIER_WEIGHT 0.5) 98 views of 5000 were > 30°
-# off against 95 with the edges weighed in (benchmarks/RESULTS.md, "Twin choice with the crop turns").
+# off against 95 with the edges weighed in (docs/decisions.md).
 VERIFIER_EDGE_WEIGHT = TWIN_EDGE_WEIGHT
 # passes="auto": the second, re-centred network pass only where the first pass's twin head is below
-# this (≈ 15 % of views): it buys most of what two passes always would (benchmarks/second_pass.py)
+# this (≈ 15 % of views): it buys most of what two passes always would (docs/decisions.md)
 # for ≈ 1 ms on average instead of 7.
 SECOND_PASS_BELOW = 0.9
 # PnP on near-collinear keypoints (edge-on views) can return the object several times too far away
@@ -85,18 +85,18 @@ SIZE_RATIO_MAX = 3.0
 # 1.19 m on seed 155): size_ratio cannot tell them apart. A keypoint network sees scale-normalised crops
 # and still works somewhat beyond the depths it was trained on, so only a pose deeper than this factor
 # times the far end of the training depths (recorded in the checkpoint) is refused. An option, off by
-# default: on fresh sets (rule 13) it changed nothing under the 40° cone and, under side- and back-light,
+# default: on fresh sets it changed nothing under the 40° cone and, under side- and back-light,
 # cut the mean translation error 0.22 → 0.14 m but lost 28 more views (one of them within 30°), +0.84°
-# mean rotation as a lost view counts 180° (benchmarks/depth_gate.py, RESULTS "Depth gate")
+# mean rotation as a lost view counts 180° (docs/decisions.md)
 DEPTH_BEYOND_TRAINED = 3.0
 PASSES = (1, 2, "auto")
 # turns="auto": where the first pass's PnP keeps fewer than TURNS_BELOW_INLIERS of the keypoints, the
 # network also sees its crop turned in-plane by TURNS_DEG (one batch) and the pass whose PnP keeps the
 # most keypoints (then the lowest RMS) wins. The failures are keypoints in near edge-on views that a
 # slightly turned crop gets right; larger turns (90°, 180°) move the sunlit side where the network
-# never saw it and are worse alone (benchmarks/RESULTS.md, "Crop turns"). 0.8 (≤ 9 of 12 kept: 19 %
+# never saw it and are worse alone (docs/decisions.md). 0.8 (≤ 9 of 12 kept: 19 %
 # of the views) rather than 0.9 (≤ 10: 36 %) since PnP drops the worst keypoint: 3 ms less per view,
-# and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (session 14, pre-registered rule).
+# and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (a test written before those views were rendered).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
 TURNS_BELOW_INLIERS = 0.8
 TURNS = ("auto", "always", "off")
@@ -106,33 +106,31 @@ TURNS = ("auto", "always", "off")
 # crop is turned in-plane so that the light crosses it as in training, when the light's image azimuth
 # is more than SUN_TURN_BEYOND_DEG from the training sun's (nearer, the training data had such light
 # and a turn only resamples the crop). Chosen among full / beyond 45° / beyond 60° / the excess beyond
-# 30–60° on 800 tuning views (benchmarks/RESULTS.md, "CNN regressors under other lighting").
+# 30–60° on 800 tuning views (docs/decisions.md).
 SUN_TURN_BEYOND_DEG = 60.0
 # Edge-on mirror check (mirror_verifier): the returned pose is replaced by one of its box twins or of
 # its edge-on mirror's only where the mirror verifier believes that one with at least this probability
-# (chosen on test seeds 128–131 for the verifier tried in session 23; lower ones broke more views than
-# they fixed, and even this one did not pay on fresh sets, so none is shipped: benchmarks/RESULTS.md,
-# "Edge-on mirror check")
+# (chosen on test seeds 128–131 for the mirror verifier that was tried; lower ones broke more views than
+# they fixed, and even this one did not pay on fresh sets, so none is shipped: docs/decisions.md)
 MIRROR_SWITCH_P = 0.95
 # Edge-on expert (edge_on_expert): where the first estimate is within EXPERT_BELOW_DEG of edge-on (the
-# views that hold most of the gross errors: benchmarks/RESULTS.md, "error vs view elevation"), the
+# views that hold most of the gross errors), the
 # network passes and PnP are made again by a second keypoint network trained on near edge-on views
 # only; both estimates are measured and the one of higher quality is returned (expert_rule "quality").
 # Its estimate alone ("replace") fixed as many views as it broke; gate and rule chosen on test seeds
-# 128–131 among 8–25° (benchmarks/edge_on_expert.py, RESULTS "Edge-on expert").
+# 128–131 among 8–25° (docs/decisions.md).
 EXPERT_BELOW_DEG = 8.0
 # expert_rule "pooled": the weight of log q_pnp (each estimate's PnP quality) added to the twin score
 # when the twins of both estimates are pooled (chosen on test seeds 128–141, where 0–2 measured alike:
 # 4.56° → 4.23° mean; with the first expert it did not pay on fresh seeds 146–149, 4.55° → 4.58°; with
-# today's it did, but cost ≈ 1 ms more: benchmarks/pooled_twins.py, RESULTS "Pooled twin choice"). Used by
+# today's it did, but cost ≈ 1 ms more). Used by
 # "pooled" and "pooled-unsure" (below)
 POOLED_PNP_WEIGHT = 1.0
-# expert_rule "pooled-unsure" (the default since session 26): pooled only where a twin head is unsure (below
+# expert_rule "pooled-unsure" (the default): pooled only where a twin head is unsure (below
 # VERIFIER_SURE, TWIN_SURE without a verifier), the quality rule elsewhere: where both heads are sure the pooled
-# rule's verifier batch is the cost that put it over 20 ms, and it changes little there. Shipped by rule 14
-# (commit 16da16f) on 8000 fresh views: 10.69° → 10.27° mean (CI −0.69…−0.15; 40° cone 5.46° → 4.78°), 24.1 →
-# 23.6 ms a view; seed 100 3.30° → 3.05° at 17.9 ms (benchmarks/pooled_unsure.py, RESULTS "Pooled twin
-# choice where a head is unsure")
+# rule's verifier batch is the cost that put it over 20 ms, and it changes little there. Shipped on a test written
+# before its 8000 fresh views were rendered (commit 16da16f): 10.69° → 10.27° mean (CI −0.69…−0.15; 40° cone 5.46° → 4.78°), 24.1 →
+# 23.6 ms a view; seed 100 3.30° → 3.05° at 17.9 ms (docs/decisions.md)
 EXPERT_RULES = ("pooled", "pooled-unsure", "quality", "replace")
 
 
@@ -256,7 +254,7 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     PnP then put it at 13 m). Dim pixels not connected to a bright one are ignored, so sensor noise
     does not grow the box. Not for an Earth background — pass the ``roi`` there (the hybrid passes
     the tracker's predicted box). ``grow=False``: the bright pixels' box only (≈ 0.45 ms less on
-    640 × 480, ``benchmarks/detection_speed.py``).
+    640 × 480).
     """
     # at half resolution (4× fewer pixels to label; a 1.2 m-away beam is still 3–4 px wide)
     gray = _half_gray(image)
@@ -279,7 +277,7 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     seed_labels = dim_labels[by - dy:by - dy + bh, bx - dx:bx - dx + bw][seeds]
     box, grown = _union_box(stats[keep]), _union_box(dim_stats[np.unique(seed_labels)])
     # only a box that grows a lot is a fragment's: growing every box over its dim, shadowed
-    # pixels gave crops the network had not learnt (benchmarks/RESULTS.md, session 9)
+    # pixels gave crops the network had not learnt (docs/decisions.md)
     return grown if np.hypot(*grown[2:]) > DETECT_GROW_RATIO * np.hypot(*box[2:]) else box
 
 
@@ -305,7 +303,7 @@ def detected_crop(image: np.ndarray) -> tuple[float, float, float] | None:
     """(cx, cy, side) px of the parallel model's "bounded image" around the object detected in ``image``
     (bright, else dim), cropped as it trained on the true box (× ``CROP_MARGIN``); None where nothing is
     detected. On the seed-100 views this crop lies within 3.4 % of its side of the true one in 90 % of
-    them, its side 1.14–1.20 × the true extent (`benchmarks/bounded_crop.py`, session 30)."""
+    them, its side 1.14–1.20 × the true extent ."""
     seen = detect_bright_object(image) or detect_dim_object(image)
     return None if seen is None else crop_box(seen, CROP_MARGIN)
 
@@ -313,8 +311,8 @@ def detected_crop(image: np.ndarray) -> tuple[float, float, float] | None:
 def translation_crop(t: np.ndarray, K: np.ndarray, diameter_m: float) -> tuple[float, float, float]:
     """(cx, cy, side) px of the crop around the projection of the translation ``t`` (3,) m, sized by the
     object's diameter: the parallel model's fallback where nothing is detected (an Earth background, a
-    dim object). It misses the true crop by tens of pixels and up to 2× in scale: the parallel VGG-19
-    of session 30 scored 41° mean on validation (true crops) and 90° on test views through it."""
+    dim object). It misses the true crop by tens of pixels and up to 2× in scale: a parallel VGG-19
+    scored 41° mean on validation (true crops) and 90° on test views through it."""
     z = max(float(t[2]), 0.05)
     uv = K @ (np.asarray(t, dtype=np.float64) / z)
     return float(uv[0]), float(uv[1]), CROP_MARGIN * max(K[0, 0], K[1, 1]) * diameter_m / z
@@ -386,7 +384,7 @@ class CheckpointRegressor(PoseRegressor):
     where the calibration has bands: :func:`~hybridpose.regressors.calibration.quality_scale`)
     covers the error up to the object's box twins; the quality is
     what says a pose may be turned end for end: on the held-out truss test set a gate at 0.3 keeps
-    ≈ 88 % of the views with almost none > 30° off (benchmarks/RESULTS.md, "accuracy by quality").
+    ≈ 88 % of the views with almost none > 30° off (``hybridpose eval``, "accuracy by quality").
 
     Args:
         checkpoint: ``best.pt`` of a training run.
@@ -413,9 +411,9 @@ class CheckpointRegressor(PoseRegressor):
             where the first pass's PnP keeps fewer than ``TURNS_BELOW_INLIERS`` of them or fails,
             ``"always"``, or ``"off"``.
         pnp_outliers: keypoint models — how PnP sets outlying keypoints aside (:func:`solve_pnp`'s
-            ``outliers``): ``"drop-worst"`` (default) or ``"ransac"`` (the path before session 14).
+            ``outliers``): ``"drop-worst"`` (default) or ``"ransac"`` (the older path).
         turn_pnp_outliers: keypoint models — the same for the passes on the turned crops (``turns``):
-            ``"drop-worst-only"`` (default since rule 22, session 33): no RANSAC there, a turned pass
+            ``"drop-worst-only"`` (default): no RANSAC there, a turned pass
             that no majority of its keypoints agrees with gives no pose (on 6000 fresh views −0.19° mean
             rotation, 95 % CI −0.45…+0.04, and 2.2 ms/view less than RANSAC there); None: ``pnp_outliers``.
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
@@ -440,7 +438,7 @@ class CheckpointRegressor(PoseRegressor):
             one shipped in the package (``weights/edge_on_expert.pt``, default) when there is one for
             this object; None: none. The covariance stays this checkpoint's calibrated one.
         expert_below_deg: the view elevation (°, estimated) below which the expert runs.
-        expert_rule: ``"pooled-unsure"`` (default, session 26): ``"pooled"`` where either twin head
+        expert_rule: ``"pooled-unsure"`` (default): ``"pooled"`` where either twin head
             is below ``VERIFIER_SURE`` (``TWIN_SURE`` without a verifier), ``"quality"`` elsewhere;
             ``"quality"``: both estimates go through the twin choice and the edge fit, and the
             measurement of higher quality is returned; ``"pooled"``: the best-scored of every box
@@ -453,19 +451,18 @@ class CheckpointRegressor(PoseRegressor):
             along the optical axis) is no plausible pose (like one whose size does not fit the box):
             None (default): no limit; ``"auto"``: ``DEPTH_BEYOND_TRAINED`` × the far end of the depths
             the checkpoint was trained on, where it records them (``dataset["distance_range_m"]``;
-            checkpoints trained since session 26), else no limit. The edge-on expert uses the same
+            checkpoints record them), else no limit. The edge-on expert uses the same
             limit. Trades translation outliers for lost views: see ``DEPTH_BEYOND_TRAINED``.
         engine: keypoint models — what runs the network (:mod:`hybridpose.regressors.engines`):
             ``"auto"`` (default): ONNX Runtime on the CPU — on the 8-bit model ``hybridpose quantize``
             wrote beside the checkpoint where it was made from this very file (shipped for the ``default``
-            and its expert; non-inferior to float32 by rule 23, 3.6 ms/view faster), else in float32
+            and its expert; non-inferior to float32 on 48 000 fresh views, 3.6 ms/view faster), else in float32
             (≈ 1.6× as fast as torch at batch 1 on an AVX2 CPU, same outputs to float rounding,
-            equivalent accuracy by rule 19) —, torch where it cannot run or on a GPU; ``"onnxruntime"``
+            equivalent accuracy on 16 000 fresh views) —, torch where it cannot run or on a GPU; ``"onnxruntime"``
             (float32; an error where it cannot run); ``"torch"``; ``"onnxruntime-int8"`` (the 8-bit model;
             an error without one). The edge-on expert is asked for the same engine (with ``"auto"`` it
             resolves it on its own file); the twin verifiers run on torch with ``"torch"``, else on ONNX Runtime in
-            float32 (:class:`~hybridpose.regressors.twin_verifier.TwinVerifier`'s ``engine="auto"``,
-            session 33). Direct models always run on torch.
+            float32 (:class:`~hybridpose.regressors.twin_verifier.TwinVerifier`'s ``engine="auto"``). Direct models always run on torch.
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
@@ -955,9 +952,8 @@ class CheckpointRegressor(PoseRegressor):
         quality = _pnp_quality(est)
         pose, twin = res.pose, order[0]
         # the covariance cannot say "maybe turned end for end" (a 180° mode, not a Gaussian spread): the
-        # quality does, through the belief in the returned twin (benchmarks/RESULTS.md, "accuracy by
-        # quality": a gate on it removes most of the gross errors): the head's, or the mirror verifier's
-        # where it replaced the pose
+        # quality does, through the belief in the returned twin (a gate on it removes most of the gross
+        # errors): the head's, or the mirror verifier's where it replaced the pose
         belief = None
         if self.twin_check is not None:
             undistorted = Frame(image, cam, frame.timestamp, frame.index)

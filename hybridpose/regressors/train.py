@@ -58,9 +58,9 @@ class TrainConfig:
         augment: photometric augmentations (brightness, contrast, gamma, noise, blur).
         freeze_features: train the FC head only (the paper's baselines).
         vgg_init: how a VGG model's weights start, ``"torchvision"`` (``init_vgg_weights``: He-normal
-            convolutions, small linear layers; the default since session 34) or ``"torch-default"``
+            convolutions, small linear layers; the default) or ``"torch-default"``
             (torch's per-layer defaults, under which a plain VGG's output hardly depends on the image
-            at the start: to reproduce runs before session 34). Keypoint models ignore it.
+            at the start: to reproduce older runs). Keypoint models ignore it.
         imagenet_weights: optional local torchvision-format VGG state dict.
         workers: DataLoader worker processes. device: "auto", "cpu" or "cuda".
         schedule: learning rate over epochs, "constant" (the paper) or "cosine" (to 1 % of lr).
@@ -79,7 +79,7 @@ class TrainConfig:
         cache_images: a directory where the direct (VGG) models' inputs are decoded and resized (or
             cropped) once and memory-mapped from then on (:meth:`PoseDataset.cache_images`; reused by
             later runs on the same views): 0.7 ms per item instead of 7.7 (1.8 instead of 10.1 for the
-            parallel model's two) on a core (`benchmarks/loader_speed.py`); the GPU then no longer
+            parallel model's two) on a core; the GPU then no longer
             waits for the loaders. Keypoint models
             train on random crops and ignore it. None: no cache.
         checkpoint_every: write ``last.pt`` every this many epochs (epoch numbers divisible by it,
@@ -593,7 +593,7 @@ def _init_from(model, path) -> None:
     src_size = (src.get("build") or {}).get("image_size")
     if src_size and getattr(model, "image_size", src_size) != src_size:
         # the keypoint nets are fully convolutional, so this runs, but every feature sees a new scale
-        # (one epoch 128 → 160 px cost stage 7 2.8° mean: benchmarks/RESULTS.md)
+        # (one epoch 128 → 160 px cost the default network of the time 2.8° mean)
         log.warning("%s was trained on %d px crops, this run uses %d px (--image-size %d keeps its scale)",
                     path, src_size, model.image_size, src_size)
     take = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
@@ -651,7 +651,7 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-augment", action="store_true")
     p.add_argument("--freeze-features", action="store_true")
     p.add_argument("--vgg-init", choices=VGG_INITS, default="torchvision",
-                   help="VGG models: how the weights start (torch-default: as before session 34)")
+                   help="VGG models: how the weights start (torch-default: torch's per-layer defaults, for older runs)")
     p.add_argument("--imagenet-weights", default=None, help="local torchvision-format VGG state dict")
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--schedule", choices=SCHEDULES, default=None, help="lr schedule (default: constant; cosine for default/keypoints)")

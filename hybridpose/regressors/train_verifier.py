@@ -47,7 +47,7 @@ CHUNK = 2000
 # the candidates' shared rotation error: |N(0, σ)| about a random axis, σ drawn per view from this
 # (share, σ°) mixture. The regressor's PnP poses before the edge fit are 2.5° off in the median and
 # 5–30° off in the hard views where the head doubts: a first verifier trained with σ = 2° (8° for 10 %)
-# failed mostly on those (benchmarks/RESULTS.md, "twin verifier")
+# failed mostly on those
 ROT_NOISE_MIX = ((0.5, 2.0), (0.35, 6.0), (0.15, 12.0))
 TRANS_NOISE = (0.004, 0.004, 0.02)  # σ of the translation error as a fraction of the distance (x, y, depth)
 # with regressor estimates: a view whose nearest twin is further off than this has no right twin to learn

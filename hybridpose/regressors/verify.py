@@ -41,8 +41,7 @@ def edge_on_mirror(pose: Pose, obj: ObjectModel) -> Pose:
 
     Seen edge-on, a flat object's image fixes how foreshortened its long axis is but hardly whether
     that axis leans towards or away from the camera (the two differ only in perspective): the keypoint
-    network's failures near edge-on are this pose, or its box twins (benchmarks/RESULTS.md, "Edge-on
-    mirror check"). The box centre stays where it is in the camera frame and the view's elevation
+    network's failures near edge-on are this pose, or its box twins. The box centre stays where it is in the camera frame and the view's elevation
     (:func:`~hybridpose.objects.view_elevation_deg`) is kept; applying it twice gives ``pose`` back.
 
     Args:

@@ -21,7 +21,7 @@ CFG = {
 }
 FEATURE_DIM = 512 * 7 * 7
 BRANCH_DIM = 1024
-# how a VGG model's weights start: "torchvision" (init_vgg_weights, the default since session 34) or
+# how a VGG model's weights start: "torchvision" (init_vgg_weights, the default) or
 # "torch-default" (torch's per-layer defaults, which the models had before: to reproduce those runs)
 VGG_INITS = ("torchvision", "torch-default")
 
@@ -50,9 +50,8 @@ def init_vgg_weights(module: nn.Module) -> None:
     Why not torch's layer defaults: they scale each ReLU layer's output variance by about 1/6, so after
     VGG-19's 16 convolutions the features hold little but the biases — at initialisation the outputs
     of different views differ by ~1e-8 m, the gradient carries almost no image, and training from
-    scratch can sit at the constant pose: one batch is not fitted in 40 steps (``benchmarks/vgg_init.py``),
-    session 34's parallel model's translation stream stayed there for 100 epochs, session 30's VGG-16/19
-    rotation for 10.
+    scratch can sit at the constant pose: one batch is not fitted in 40 steps, a parallel model's
+    translation stream stayed there for 100 epochs, the VGG-16/19 rotation for 10 (docs/decisions.md).
     """
     for m in module.modules():
         if isinstance(m, nn.Conv2d):

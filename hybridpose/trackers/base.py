@@ -24,7 +24,7 @@ class Tracker(ABC):
     Args:
         object: the tracked object's CAD model (metres).
         lost_quality: ``track`` reports ``lost`` when its quality falls below this (per-backend
-            default, documented by each backend; measured in ``benchmarks/tracker_accuracy.py``).
+            default, documented by each backend; measured by ``hybridpose bench --modes tracker``).
 
     Subclasses implement :meth:`_init` and :meth:`_track`.
     """

@@ -23,7 +23,7 @@ class EdgeTracker(Tracker):
             iteration, pixels (covers the inter-frame motion the prior does not predict).
         max_samples: edge samples per iteration (cost ∝ samples). lost_quality: see module doc.
         covariance_scale: inflation of the Gauss–Newton covariance (correlated samples); the
-            default is measured in ``benchmarks/tracker_accuracy.py`` (NEES on rendered sequences).
+            default is measured by ``hybridpose bench`` (NEES coverage on rendered sequences).
         explain: the quality also asks how much of the image's edges around the object the model
             explains (:func:`honest_quality`); False: the fit's quality alone.
     """

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import platform
 import re
 import subprocess
@@ -33,32 +32,6 @@ def weights_tag(*paths) -> str:
     for path in paths:
         h.update(Path(path).read_bytes())
     return h.hexdigest()[:8]
-
-
-def cached_npz(folder, key: str, compute) -> dict:
-    """``compute()`` (a dict of arrays), kept in ``folder``/``key``.npz and read back from there when
-    present (written atomically); no cache when ``folder`` is None. For benchmarks that measure each
-    view once and replay rules on the numbers."""
-    import numpy as np
-
-    if folder is None:
-        return compute()
-    path = Path(folder) / f"{key}.npz"
-    if path.is_file():
-        with np.load(path) as f:
-            return {k: f[k] for k in f.files}
-    m = compute()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path.with_suffix(".tmp.npz"), **m)
-    path.with_suffix(".tmp.npz").replace(path)
-    return m
-
-
-def concat_sets(sets: list[dict]) -> dict:
-    """Per-view arrays of several test sets (dicts with the same keys) joined into one."""
-    import numpy as np
-
-    return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
 
 
 def test_views(data: str, limit=None):
@@ -102,20 +75,6 @@ LIGHTING_GROUPS = (("cone", "sets lit from the 40° cone (as most training data)
                    ("side", "sets lit from within 120° (side- and back-light)"))
 
 
-def add_lighting_groups(ap) -> None:
-    """``--cone``, ``--wide``, ``--side``: the test sets of each lighting (BOP folders)."""
-    for name, help_text in LIGHTING_GROUPS:
-        ap.add_argument(f"--{name}", nargs="*", default=[], help=help_text)
-
-
-def lighting_groups(ap, args) -> dict:
-    """{group: [sets]} of the lightings given (:func:`add_lighting_groups`); an argparse error if none."""
-    groups = {name: getattr(args, name) for name, _ in LIGHTING_GROUPS if getattr(args, name)}
-    if not groups:
-        ap.error("give at least one of " + ", ".join(f"--{name}" for name, _ in LIGHTING_GROUPS))
-    return groups
-
-
 def set_names(dirs) -> str:
     """``test154, test155`` for ``data/truss_test154 data/truss_test155`` (table cells)."""
     return ", ".join(Path(d).name.split("_")[-1] for d in dirs)
@@ -149,18 +108,3 @@ def paired_cells(c: dict) -> str:
             f"{d['estimate']:+.2f} ({d['ci95'][0]:+.2f}, {d['ci95'][1]:+.2f}) | "
             f"{100 * c['a']['gross_share']:.2f} % → {100 * c['b']['gross_share']:.2f} % | "
             f"{c['gross_only_a']} / {c['gross_only_b']} | {c['mcnemar_p']:.3g}")
-
-
-def tune_confirm_parser(chooses: str):
-    """Arguments of the benchmarks that tune a rule of the shipped regressor on the first ``--tune``
-    held-out views and confirm it on the rest: --data, --checkpoint, --tune, --limit."""
-    import argparse
-
-    from hybridpose.regressors.predictor import shipped_checkpoint
-
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--data", required=True)
-    ap.add_argument("--checkpoint", default=str(shipped_checkpoint("default")))
-    ap.add_argument("--tune", type=int, default=400, help=f"views that choose {chooses}; the rest confirm")
-    ap.add_argument("--limit", type=int, default=None)
-    return ap

@@ -9,7 +9,7 @@ Default checkpoint: the shipped ``default``. Runs ``hybridpose eval`` for each (
 no roi: detection, a network pass (the crop turned by ±20°/±40° too where PnP drops keypoints, a
 second pass where the twin head is unsure), PnP dropping the worst keypoint, twin head + verifier +
 edge check), without the crop turns, with RANSAC for PnP's outliers, without the twin verifier, without the
-edge-on expert (where one is shipped), with the expert's quality rule (the default before session 26),
+edge-on expert (where one is shipped), with the expert's quality rule (the older default),
 without the final edge refinement, with always one and always two passes, with each view's true
 object box as ``roi`` (what a tracker on the object passes), with float32 networks instead of the 8-bit
 ones ``engine="auto"`` runs, and what a quality gate keeps (accuracy by quality); copies its plots to
@@ -45,7 +45,7 @@ def main() -> None:
                 (", float32 networks (engine onnxruntime)", {"engine": "onnxruntime"})]
     if (WEIGHTS_DIR / "edge_on_expert.pt").is_file():
         variants.insert(4, (", no edge-on expert", {"edge_on_expert": None}))
-        variants.insert(5, (", quality rule (the default before session 26)", {"expert_rule": "quality"}))
+        variants.insert(5, (", quality rule (the older default)", {"expert_rule": "quality"}))
     runs = [(n + suffix, p, options) for suffix, options in variants for n, p in pairs]
     for name, path, options in runs:
         tmp = Path(tempfile.mkdtemp())
@@ -72,8 +72,7 @@ def main() -> None:
         f"ellipsoid of the reported covariance, around the true pose (around the nearest box twin): ≈ 90 % when the "
         f"covariance is calibrated, far below when over-confident. git {env['git']}, {cpu_label(env)}. "
         "This set has tuned many of the path's choices (the seed-100 views are the tuning set): fresh sets score "
-        "higher, e.g. 4.44° mean / 0.51° median / 1.8 % > 30° on the 48 000 views of rule 23 (seeds 311–358, "
-        "RESULTS \"Session 35 notes\"), still below the paper's 4.61° / 4.41°.",
+        "higher, e.g. 4.44° mean / 0.51° median / 1.8 % > 30° on 48 000 fresh views (seeds 311–358), still below the paper's 4.61° / 4.41°.",
         "",
         "| model | mean rot ° | median rot ° | mean trans m | median trans m | SPEED | ADD-0.1d | > 30° | failures | "
         "in 90 % ellipsoid (twin) | ms/img 1 thr | ms/img 2 thr |",

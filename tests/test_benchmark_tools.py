@@ -120,36 +120,3 @@ def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
     md = vgg_runs.markdown(two, "note", title="Two runs")
     assert md.startswith("## Two runs") and md.count("| paper: VGG-16") == 1
     assert "| **vgg16 (`seed1`)** | 1 × 50 | 126.0 / 129.0 / 0.160 (epoch 0) | – |" in md
-
-
-def test_bounded_crop_agreement_and_training_jitter():
-    import bounded_crop
-    from hybridpose.datasets.torch_dataset import crop_box
-
-    crop = lambda box: crop_box(box, bounded_crop.CROP_MARGIN)  # noqa: E731  (as training crops a box)
-    assert bounded_crop.crop_agreement((100, 100, 50, 20), crop((100, 100, 50, 20))) == (0.0, 1.2)  # the crop it trained on
-    offset, scale = bounded_crop.crop_agreement((100, 100, 50, 20), crop((110, 100, 50, 20)))        # 10 px to the right
-    assert offset == pytest.approx(10 / 60) and scale == pytest.approx(1.2)
-    assert bounded_crop.crop_agreement((100, 100, 50, 20), None) == (np.inf, np.inf)
-    inside = bounded_crop.inside_training_jitter(np.array([0.0, 0.16, 0.18, 0.0, 0.0, np.inf]),
-                                                 np.array([1.2, 1.2, 1.2, 1.05, 1.9, np.inf]))
-    assert inside.tolist() == [True, True, False, False, False, False]
-
-
-def test_vgg_init_constant_pose_loss_by_hand():
-    """benchmarks/vgg_init.py: the level a network that ignores the image stays at — the labels' mean translation
-    and rotation mean (a quaternion and its negative are one rotation), scored with the paper's loss."""
-    import math
-
-    import torch
-    import vgg_init
-
-    q = torch.tensor([[1.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0]])             # the identity, both signs
-    t = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.2]])
-    # 0.1 m of translation; the loss's rotation term never reaches 0 (acos is clamped below 1 for a finite
-    # gradient: ≥ 10 · 2·acos(1 − 1e-7) ≈ 0.009), where averaging q and −q would give ≈ 10 · 180°
-    assert vgg_init.constant_pose_loss({"q": q, "t": t}) == pytest.approx(0.1, abs=0.015)
-    half = math.cos(math.pi / 4), math.sin(math.pi / 4)                           # 0° and 90° about z: mean 45°
-    q = torch.tensor([[1.0, 0.0, 0.0, 0.0], [half[0], 0.0, 0.0, half[1]]])
-    t = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
-    assert vgg_init.constant_pose_loss({"q": q, "t": t}) == pytest.approx(10 * math.radians(45), rel=1e-5)

@@ -77,7 +77,7 @@ def test_vgg_shapes_and_unit_quaternions():
 @torch.no_grad()
 def test_every_vgg_stream_sees_the_image_at_initialisation():
     # With torch's layer defaults the plain VGG streams' outputs differed across images by ~1e-9 m: no
-    # image in the gradient, and training from scratch sat at the constant pose (benchmarks/vgg_init.py)
+    # image in the gradient, and training from scratch sat at the constant pose (experiment `vgg_init`)
     torch.manual_seed(0)
     x = torch.rand(4, 3, 64, 64)
     models = {"vgg16": VGGPose("vgg16"), "vgg19": VGGPose("vgg19"), "branched": BranchedVGG19(image_size=64),

@@ -11,15 +11,15 @@
 #           that every keep-warm call brings back what is finished (a lost warm window loses the rest)
 #   collect exported checkpoints (split below the 16 MiB a returned file may have), metrics, logs and
 #           the parallel-vgg19 evaluation report into OUTDIR (a short call of its own: see README.md)
-# The paper's four VGG models (session 30): start-vgg (= setup render launch-vgg, then wait-vgg) |
+# The paper's four VGG models: start-vgg (= setup render launch-vgg, then wait-vgg) |
 # wait-vgg OUTDIR SECONDS (sleep until SECONDS after the call began, CALL_START in epoch seconds, then
 # status and collect-vgg: every call brings back what is done)
 #   launch-vgg  vgg16, vgg19, branched-vgg19, parallel-vgg19 at once, detached, from scratch (no ImageNet
 #           weights can reach the machine), the paper's loss and Adam 1e-4, bf16, batch 32, 100 epochs
 #           planned and TIME_LIMIT minutes allowed; each then evaluated on the GPU on the seed-100 test set,
-#           without a prior and with each view's true box as roi (the paper's bounded image; after session 30)
+#           without a prior and with each view's true box as roi (the paper's bounded image)
 #   cache-vgg   decode the training views once into $DATA/cache (224 px frames and fixed crops) for
-#           all four runs (`--cache-images`, session 31; launch-vgg and crop-check run it first); the
+#           all four runs (`--cache-images`; launch-vgg and crop-check run it first); the
 #           runs write last.pt every 10 epochs (`--checkpoint-every`: a parallel VGG-19's is 4.6 GB)
 #   collect-vgg OUTDIR  metrics, logs and the evaluation reports in one archive (checkpoints of
 #           0.5-1.1 GB cannot come back)
@@ -35,7 +35,7 @@ if [ "$phase" = start ]; then bash "$0" setup && bash "$0" render && exec bash "
 if [ "$phase" = start-vgg ]; then
     bash "$0" setup && bash "$0" render && bash "$0" launch-vgg && exec bash "$0" wait-vgg "${2:?start-vgg OUTDIR SECONDS}" "${3:?}"
 fi
-# which VGG models launch-vgg trains (all four by default; session 34: VGG_RUNS=parallel-vgg19 alone; MODEL@INIT
+# which VGG models launch-vgg trains (all four by default, e.g. VGG_RUNS=parallel-vgg19 alone; MODEL@INIT
 # trains MODEL with `--vgg-init INIT` in the folder MODEL-INIT, e.g. "vgg19@torchvision vgg19@torch-default" for an
 # A/B of the initialisation), the validation share (the paper: an 80/20 split, VAL_FRACTION=0.2), loader workers
 # (WORKERS: one number for every run; default 3, 5 for the parallel model when four share the machine) and the
@@ -121,7 +121,7 @@ wait-vgg)
     ;;
 crop-check)
     # the parallel VGG-19 alone for TIME_LIMIT minutes, then evaluated on EVAL_LIMIT test views without a roi
-    # (the detected object's crop since session 30) and with the true box: one call, what is left of a lease
+    # (the detected object's crop) and with the true box: one call, what is left of a lease
     out=${2:?crop-check OUTDIR}
     bash "$0" setup && bash "$0" render && bash "$0" cache-vgg
     mkdir -p "$RUNS"

@@ -3,7 +3,7 @@
 Usage (after a lease of ``train_on_gpu.sh start-vgg`` / ``wait-vgg`` brought back ``vgg_runs.tgz``):
     mkdir -p runs/gpu30 && tar -C runs/gpu30 -xzf vgg_runs.tgz
     python benchmarks/gpu/vgg_runs.py --runs runs/gpu30 --note "..."
-    # session 34: the parallel model alone, two runs (folders parallel-vgg19 and pv_seed1), own section
+    # the parallel model alone, two runs (folders parallel-vgg19 and pv_seed1), its own section
     python benchmarks/gpu/vgg_runs.py --runs runs/gpu34 --run parallel-vgg19 --run pv_seed1:parallel-vgg19 \
         --section gpu-vgg-100-epochs --name gpu_vgg_100_epochs --title "..." --note "..."
 

@@ -26,8 +26,10 @@ import torch
 from _common import PAIRED_HEADER, environment, paired_cells, publish, test_views, weights_tag
 from hybridpose.machine import cpu_label
 from hybridpose.metrics import rotation_error_deg, translation_error_m
-from hybridpose.regressors.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, network_call_ms, paired_comparison
-from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint
+from hybridpose.regressors.compare import paired_comparison
+from hybridpose.regressors.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, network_call_ms
+from hybridpose.regressors.predictor import CheckpointRegressor
+from hybridpose.regressors.checkpoints import shipped_checkpoint
 from hybridpose.regressors.quantize import int8_path
 
 ENGINES = ("torch", "onnxruntime", "onnxruntime-int8")

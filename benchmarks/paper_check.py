@@ -28,7 +28,7 @@ import numpy as np
 from _common import environment, publish, set_names, weights_tag
 from hybridpose.machine import cpu_label
 from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, PAPER
-from hybridpose.regressors.predictor import shipped_checkpoint
+from hybridpose.regressors.checkpoints import shipped_checkpoint
 
 PAPER_BEST = "Parallel VGG-19"
 
@@ -50,7 +50,7 @@ def evaluate_set(job) -> str:
 def verifier_tag() -> str:
     """The shipped twin verifier's file and :func:`weights_tag` (the part of the path that ships changed most
     often: the table says which one it measured)."""
-    from hybridpose.regressors.predictor import WEIGHTS_DIR
+    from hybridpose.regressors.checkpoints import WEIGHTS_DIR
 
     return f"`twin_verifier.pt` {weights_tag(WEIGHTS_DIR / 'twin_verifier.pt')}"
 

@@ -27,7 +27,8 @@ from _common import environment, publish, test_views
 from hybridpose.machine import cpu_label
 from hybridpose.regressors import engines, predictor, twin_verifier
 from hybridpose.regressors.evaluate import network_call_ms
-from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint
+from hybridpose.regressors.predictor import CheckpointRegressor
+from hybridpose.regressors.checkpoints import shipped_checkpoint
 from hybridpose.edges import fit as edge_fit
 
 # (owner, attribute, stage): where predict looks each stage up when it runs (module globals are read at

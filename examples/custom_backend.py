@@ -17,7 +17,6 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import numpy as np  # noqa: E402
 
 from hybridpose import Camera, Frame, HybridEstimator, Measurement, registry  # noqa: E402
 from hybridpose.core import LOST_COVARIANCE  # noqa: E402

@@ -66,7 +66,7 @@ def _sun_dir(text: str) -> tuple[float, float, float]:
 def cmd_render(args) -> int:
     from .datasets import render_random_dataset, render_sequence_dataset
     from .objects import load_object
-    from .render import SensorModel, SpaceLighting
+    from .render import AppearanceSpec, SensorModel, SpaceLighting
     from .render.sequences import SequenceSpec
 
     obj = load_object(args.object, scale=args.scale)
@@ -74,12 +74,15 @@ def cmd_render(args) -> int:
     lighting = SpaceLighting(sun_direction_cam=args.sun_dir, sun_intensity=args.sun, exposure=args.exposure,
                              background=args.background)
     sensor = SensorModel(blur_sigma_px=args.blur, noise_std=args.noise, gamma=args.gamma)
+    if args.kind != "random" and (args.appearance != "space" or args.backgrounds):
+        raise ValueError("--appearance/--backgrounds: only for --kind random")
+    looks = AppearanceSpec(args.appearance, args.backgrounds)
     if args.kind == "random":
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
                                       progress=_progress("render"), sun_cone_deg=args.sun_cone,
                                       sun_scale_range=args.sun_range, in_view=args.in_view, workers=args.workers,
-                                      elevation_range_deg=args.elevation)
+                                      elevation_range_deg=args.elevation, appearance=looks)
     else:
         spec = SequenceSpec(trajectory=args.trajectory, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                             lighting=args.lighting, seed=args.seed)
@@ -235,6 +238,17 @@ def _names(text: str) -> tuple[str, ...]:
     return tuple(n.strip() for n in text.split(",") if n.strip())
 
 
+def cmd_fit(args) -> int:
+    from .fit import fit
+    from .geometry import load_camera
+
+    camera = load_camera(args.camera) if args.camera else None
+    fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
+        backgrounds=args.backgrounds, workers=args.workers,
+        init_from=None if args.init_from == "none" else args.init_from)
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .bench.command import BenchRequest, bench, rewrite_report, write_results_page
 
@@ -274,7 +288,7 @@ def cmd_bench(args) -> int:
 
 def cmd_eval(args) -> int:
     from .regressors.evaluate import evaluate_checkpoint
-    from .regressors.predictor import checkpoint_or_shipped
+    from .regressors.checkpoints import checkpoint_or_shipped
 
     s = evaluate_checkpoint(checkpoint_or_shipped(args.checkpoint), args.data, args.out, limit=args.limit, progress=_progress("eval"),
                             timing_images=args.timing_images,
@@ -299,7 +313,7 @@ def cmd_eval(args) -> int:
 
 def cmd_compare(args) -> int:
     from .io import atomic_write_json
-    from .regressors.evaluate import compare_reports, comparison_markdown
+    from .regressors.compare import compare_reports, comparison_markdown
 
     if len(args.reports) % 2:
         raise ValueError("reports: expected pairs, A B [A2 B2 ...] (model A's and model B's report on each test "
@@ -314,7 +328,7 @@ def cmd_compare(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from .regressors.evaluate import calibrate_checkpoint
-    from .regressors.predictor import checkpoint_or_shipped
+    from .regressors.checkpoints import checkpoint_or_shipped
 
     cal = calibrate_checkpoint(checkpoint_or_shipped(args.checkpoint), args.data, args.out, limit=args.limit, progress=_progress("calibrate"),
                                coverage=args.coverage, by_quality=not args.single_scale)
@@ -344,7 +358,7 @@ def cmd_quantize(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from .regressors.train import export_checkpoint
+    from .regressors.checkpoints import export_checkpoint
 
     ck = export_checkpoint(args.checkpoint, args.out)
     print(f"export: {ck['config']['model']} (epoch {ck.get('epoch')}) → {args.out} "
@@ -420,6 +434,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--elevation", type=_float_pair, default=None, metavar="LOW,HIGH",
                    help="random: only views LOW..HIGH degrees from edge-on (0 edge-on, 90 face-on), "
                         "e.g. 0,20 for more of the hard views of a flat object")
+    r.add_argument("--appearance", choices=("space", "random"), default="space",
+                   help="random: 'space' (black or Earth background, no ambient light) or 'random' (per image a "
+                        "cluttered or photo background, ambient and extra lights, a random part colour: "
+                        "for a part outside space)")
+    r.add_argument("--backgrounds", default=None, metavar="DIR",
+                   help="with --appearance random: a folder of photos, half the backgrounds are crops of them")
     r.add_argument("--sun-range", type=_float_pair, default=(1.0, 1.0),
                    help="random: per-image sun intensity factor drawn from LOW,HIGH")
     r.add_argument("--exposure", type=float, default=1.0)
@@ -614,6 +634,20 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--report-only", action="store_true",
                    help="rewrite report.md and the plots (and --results-md) from OUT/results.json; run nothing")
     b.set_defaults(func=cmd_bench)
+
+    f = sub.add_parser("fit", help="a CNN pose regressor for your own CAD model within a time budget: renders randomised "
+                                   "views, trains, calibrates and evaluates on this CPU (resumable)")
+    f.add_argument("mesh", help="the part's mesh file (.obj/.ply/.stl) or a built-in object name")
+    f.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
+    f.add_argument("--camera", default=None, help="camera file (.json/.yaml); default 640×480, f = 600 px")
+    f.add_argument("--out", required=True, help="the fit's folder (an interrupted fit resumes there)")
+    f.add_argument("--budget", default="60m", help="time for the whole fit: 60m, 1h30m, 90s (default 60m)")
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--backgrounds", default=None, metavar="DIR", help="photos: half the training backgrounds are crops of them")
+    f.add_argument("--workers", type=int, default=1, help="render processes")
+    f.add_argument("--init-from", default="default",
+                   help="checkpoint to start from: 'default' (the shipped network's weights), a path, or 'none'")
+    f.set_defaults(func=cmd_fit)
 
     d = sub.add_parser("demo", help="render an arm-occlusion sequence, run tracker-only, CNN-only and the hybrid "
                                     "(no ground truth) on it, print their errors, write the overlay video and plots")

@@ -13,7 +13,8 @@ from _common import test_views as views_of  # noqa: E402  (not a test: renamed s
 from hybridpose.datasets import render_random_dataset  # noqa: E402
 from hybridpose.geometry import Camera  # noqa: E402
 from hybridpose.regressors import predictor  # noqa: E402
-from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint  # noqa: E402
+from hybridpose.regressors.predictor import CheckpointRegressor  # noqa: E402
+from hybridpose.regressors.checkpoints import shipped_checkpoint  # noqa: E402
 
 
 def test_stage_timers_split_the_predict_path_and_put_every_function_back(truss, tmp_path):
@@ -113,7 +114,7 @@ def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
             "3.6 | 20.00 / 10.00 / 0.050 |") in md
     assert "| **vgg19** | – × – | – | – | – | – | – | – | – | – | – |" in md
     assert "| paper: Parallel VGG-19 (their data, GPU, 100 epochs, ImageNet) | 100 | – | 4.61 | 4.41 | 0.03 |" in md
-    # two runs of one model in folders of their own (session 34): one paper row, each run named by its folder
+    # two runs of one model in folders of their own: one paper row, each run named by its folder
     (tmp_path / "seed1").mkdir()
     (tmp_path / "seed1" / "metrics.csv").write_text(head + "0,22,22.2,126,129,0.16,1e-4,50,100\n")
     two = [vgg_runs.read_run(tmp_path, "vgg16"), vgg_runs.read_run(tmp_path, "vgg16", "seed1")]

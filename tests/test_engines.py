@@ -13,7 +13,8 @@ from hybridpose.geometry import Camera
 from hybridpose.regressors.engines import ENGINES, OnnxRuntimeEngine, TorchEngine, keypoint_engine
 from hybridpose.regressors.keypoint_net import KeypointNet
 from hybridpose.regressors.models import fold_batch_norm
-from hybridpose.regressors.predictor import CheckpointRegressor, shipped_checkpoint
+from hybridpose.regressors.predictor import CheckpointRegressor
+from hybridpose.regressors.checkpoints import shipped_checkpoint
 
 pytest.importorskip("onnxruntime")
 
@@ -65,7 +66,7 @@ def test_auto_engine_is_onnxruntime_on_the_cpu_and_falls_back_to_torch(truss, mo
     net = _net(truss)
     assert keypoint_engine("torch", net, torch.device("cpu"), 64).name == "torch"
     assert keypoint_engine("auto", net, torch.device("cpu"), 64).name == "onnxruntime"
-    shipped = CheckpointRegressor(shipped_checkpoint("default"))     # the default: its 8-bit models (rule 23)
+    shipped = CheckpointRegressor(shipped_checkpoint("default"))     # the default: its 8-bit models
     assert shipped.engine.name == "onnxruntime-int8" and shipped.expert.engine.name == "onnxruntime-int8"
     assert engines.call_ms(TorchEngine(net, torch.device("cpu")), torch.zeros(1, 3, 64, 64), calls=2, repeats=2) > 0
     monkeypatch.setitem(sys.modules, "onnxruntime", None)  # as if not installed
@@ -138,7 +139,7 @@ def test_int8_engine_refuses_a_missing_stale_or_foreign_file(tiny_checkpoint, tm
     assert main(["quantize", "--checkpoint", str(ck), "--data", str(tiny_checkpoint.parent.parent / "ds"),
                  "--crops", "4"]) == 0
     assert "net.int8.onnx" in capsys.readouterr().out
-    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
 
     state = load_checkpoint(ck)
     state["model"] = {k: v * 1.01 if v.is_floating_point() else v for k, v in state["model"].items()}
@@ -159,7 +160,7 @@ def test_auto_engine_runs_the_8bit_model_made_from_this_very_checkpoint(tiny_che
     """engine='auto': the 8-bit file beside the checkpoint where it was made from it; float32 where there is
     none, or where the checkpoint changed since (a warning naming the file, not a silent older network)."""
     from hybridpose.regressors.quantize import quantize_checkpoint
-    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
 
     ck = tmp_path / "net.pt"
     ck.write_bytes(tiny_checkpoint.read_bytes())
@@ -178,7 +179,7 @@ def test_auto_engine_runs_the_8bit_model_made_from_this_very_checkpoint(tiny_che
 def test_stale_int8_names_an_8bit_file_not_made_from_the_checkpoint(tiny_checkpoint, tmp_path):
     """What `hybridpose calibrate` checks after writing --out (in place, the 8-bit model goes stale)."""
     from hybridpose.regressors.quantize import int8_path, quantize_checkpoint, stale_int8
-    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
 
     ck = tmp_path / "net.pt"
     ck.write_bytes(tiny_checkpoint.read_bytes())

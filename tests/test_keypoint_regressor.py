@@ -15,8 +15,8 @@ from hybridpose.regressors.calibration import nees, pnp_covariance
 from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax, widen_state_dict
 from hybridpose.regressors.engines import TorchEngine
 from hybridpose.regressors.keypoint_pnp import solve_pnp
-from hybridpose.regressors.predictor import (CheckpointRegressor, detect_bright_object, detect_dim_object,
-                                             TWIN_EDGE_WEIGHT, twin_scores)
+from hybridpose.regressors.predictor import CheckpointRegressor, TWIN_EDGE_WEIGHT, twin_scores
+from hybridpose.regressors.detection import detect_bright_object, detect_dim_object
 from hybridpose.registry import available, create
 
 
@@ -124,7 +124,7 @@ def test_solve_pnp_without_ransac_gives_none_where_most_points_disagree(truss, r
 
 def test_turned_passes_use_their_own_outlier_strategy(tiny_checkpoint, truss, camera, monkeypatch):
     """``turn_pnp_outliers`` reaches the PnP of the turned crops only (the first pass keeps ``pnp_outliers``);
-    by default (rule 22) no RANSAC there, with None the turned crops use ``pnp_outliers`` too, and the edge-on
+    by default no RANSAC there, with None the turned crops use ``pnp_outliers`` too, and the edge-on
     expert inherits both."""
     from hybridpose.regressors import predictor
     from hybridpose.render import Renderer
@@ -538,7 +538,7 @@ def test_compare_reports_pairs_the_views(tmp_path, capsys):
     from scipy.stats import binomtest
 
     from hybridpose.cli import main
-    from hybridpose.regressors.evaluate import compare_reports
+    from hybridpose.regressors.compare import compare_reports
 
     rng = np.random.default_rng(0)
     base = rng.gamma(2.0, 0.5, 400)                   # degrees, none gross
@@ -574,7 +574,7 @@ def test_compare_reports_pairs_the_views(tmp_path, capsys):
 
 
 def test_compare_reports_bad_input(tmp_path):
-    from hybridpose.regressors.evaluate import compare_reports
+    from hybridpose.regressors.compare import compare_reports
 
     a = _write_report(tmp_path / "a", [1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="not the same images in the same order"):
@@ -668,7 +668,7 @@ def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
 def test_sun_turn_aligns_the_light_with_the_training_sun(tiny_checkpoint, truss):
     from hybridpose.regressors.predictor import (SUN_TURN_BEYOND_DEG, CheckpointRegressor, sun_turn_deg,
                                                  trained_light_azimuth_deg)
-    from hybridpose.regressors.train import load_checkpoint
+    from hybridpose.regressors.checkpoints import load_checkpoint
 
     # the training data's sun is recorded (the tiny set: the default sun, no cone)
     light = load_checkpoint(tiny_checkpoint)["dataset"]["lighting"]
@@ -1013,7 +1013,7 @@ def test_folding_batch_norm_keeps_the_outputs(truss):
 
 def test_components_in_the_masks_box_are_the_full_frames(rng):
     """Labelling only the box around a mask's pixels must find what labelling the frame finds."""
-    from hybridpose.regressors.predictor import _components
+    from hybridpose.regressors.detection import _components
 
     for _ in range(20):
         mask = np.zeros((120, 160), np.uint8)
@@ -1123,7 +1123,7 @@ def test_a_mirror_switch_returns_that_pose_with_the_verifiers_belief_in_its_qual
                                                                                    monkeypatch):
     """predict: where the mirror check replaces the pose, the measurement carries it, and its quality
     weighs the verifier's belief instead of the twin head's; where it keeps the pose, nothing changes."""
-    from hybridpose.regressors.predictor import shipped_checkpoint
+    from hybridpose.regressors.checkpoints import shipped_checkpoint
     from hybridpose.render import Renderer
 
     pose = Pose.from_rotvec_t([0.4, 0.3, 0.2], [0.0, 0.0, 0.7])
@@ -1171,7 +1171,7 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
     from scipy.spatial.transform import Rotation
 
     from hybridpose.objects import view_elevation_deg
-    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
 
     assert CheckpointRegressor(tiny_checkpoint, edge_on_expert=None).expert is None
     with pytest.raises(ValueError, match="expert_below_deg"):
@@ -1263,7 +1263,7 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
     other = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
     reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False,
                               expert_below_deg=90.0, expert_rule="quality")
-    assert CheckpointRegressor(tiny_checkpoint).expert_rule == "pooled-unsure"   # the default since session 26
+    assert CheckpointRegressor(tiny_checkpoint).expert_rule == "pooled-unsure"   # the default
     assert res.inlier_ratio == 1.0
     first = replace(res, pose=near, rms_px=2.0)
     reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (first, order, prob, 64)

@@ -45,7 +45,7 @@ def _regressor(name, truss, tmp_path, tiny_keypoints):
     if name == "keypoints":
         return create("regressor", "keypoints", checkpoint=tiny_keypoints, object=truss, threads=1)
     from hybridpose.regressors.models import build_model
-    from hybridpose.regressors.train import save_checkpoint
+    from hybridpose.regressors.checkpoints import save_checkpoint
 
     torch.manual_seed(0)
     build = {} if name in ("vgg16", "vgg19") else {"image_size": 64}

@@ -91,7 +91,7 @@ def test_every_vgg_stream_sees_the_image_at_initialisation():
     branched = models["branched"]
     for fc in (branched.classifier[0], branched.classifier[3], branched.branch[2]):
         assert fc.bias.abs().max() == 0 and fc.weight.std() == pytest.approx(0.01, rel=0.05)
-    # the start before session 34 (`hybridpose train --vgg-init torch-default`): the image is all but lost
+    # the older start (`hybridpose train --vgg-init torch-default`): the image is all but lost
     t, _ = build_model("parallel-vgg19", image_size=64, init="torch-default").eval()(x, x)
     assert t.std(0).max() < 1e-6
     with pytest.raises(ValueError, match="init: expected one of torchvision, torch-default"):
@@ -147,9 +147,10 @@ def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
     """`hybridpose eval`'s Grad-CAM sheet and bare-call timing work for each direct model (the branched one runs slices
     of its features, which once left a hook on the whole Sequential unfired)."""
     from hybridpose.core import Camera, Frame
-    from hybridpose.regressors.evaluate import gradcam, network_call_ms
+    from hybridpose.regressors.evaluate import network_call_ms
+    from hybridpose.regressors.gradcam import gradcam
     from hybridpose.regressors.predictor import CheckpointRegressor
-    from hybridpose.regressors.train import save_checkpoint
+    from hybridpose.regressors.checkpoints import save_checkpoint
 
     torch.manual_seed(0)
     build = {} if name == "vgg16" else {"image_size": 64}
@@ -201,9 +202,10 @@ def test_parallel_model_crops_around_the_detected_object_or_else_its_translation
     """Without a roi the bounded image is the detected object's box × CROP_MARGIN (as it trained, on the
     true box); with nothing to detect, the projection of its own translation, sized by the diameter."""
     from hybridpose.core import Camera, Frame
-    from hybridpose.datasets.torch_dataset import crop_box
-    from hybridpose.regressors.predictor import CROP_MARGIN, CheckpointRegressor
-    from hybridpose.regressors.train import save_checkpoint
+    from hybridpose.geometry.crops import crop_box
+    from hybridpose.regressors.detection import CROP_MARGIN
+    from hybridpose.regressors.predictor import CheckpointRegressor
+    from hybridpose.regressors.checkpoints import save_checkpoint
 
     torch.manual_seed(0)
     save_checkpoint(tmp_path / "ck.pt", {"config": {"model": "parallel-vgg19", "image_size": 64}, "build": {"image_size": 64},
@@ -231,7 +233,7 @@ def test_checkpoint_weights_that_do_not_fit_the_network_name_the_file(tmp_path):
     """The network is built without weights (meta device) and given the checkpoint's: a wrong shape or a missing
     tensor is refused naming the file, and a good checkpoint leaves no tensor without storage."""
     from hybridpose.regressors.predictor import CheckpointRegressor
-    from hybridpose.regressors.train import save_checkpoint
+    from hybridpose.regressors.checkpoints import save_checkpoint
 
     good = build_model("vgg16").state_dict()
     wrong_shape = {**good, "classifier.6.weight": torch.zeros(5, 4096)}

@@ -8,7 +8,8 @@ from hybridpose.core import Frame
 from hybridpose.geometry import Camera
 from hybridpose.metrics import rotation_error_deg, translation_error_m
 from hybridpose.registry import create
-from hybridpose.regressors.predictor import checkpoint_or_shipped, detect_bright_object, shipped_checkpoint
+from hybridpose.regressors.checkpoints import checkpoint_or_shipped, shipped_checkpoint
+from hybridpose.regressors.detection import detect_bright_object
 from hybridpose.render import Renderer, SpaceLighting, random_poses
 from hybridpose.datasets.generate import sun_directions_in_cone
 
@@ -124,7 +125,7 @@ def test_the_covariance_grows_by_the_calibrated_factor_of_the_measurements_quali
     """A calibration with quality bands multiplies the PnP covariance by the band's factor, and only
     that: same pose, same quality."""
     from hybridpose.regressors.predictor import CheckpointRegressor
-    from hybridpose.regressors.train import load_checkpoint, save_checkpoint
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
 
     ck = load_checkpoint(shipped_checkpoint("default"))
     cal = {k: v for k, v in ck["calibration"].items() if k != "quality_scale"}
@@ -227,7 +228,7 @@ def test_the_twin_verifier_ships_and_is_used_by_default(regressor, truss):
     estimates": confirmed on 5000 fresh views) is small, loads by default, can be turned off, and
     prefers the true twin of a clearly seen truss."""
     from hybridpose.geometry import Pose
-    from hybridpose.regressors.predictor import WEIGHTS_DIR
+    from hybridpose.regressors.checkpoints import WEIGHTS_DIR
 
     path = WEIGHTS_DIR / "twin_verifier.pt"
     assert path.stat().st_size < 2 * 2**20
@@ -244,13 +245,14 @@ def test_the_twin_verifier_ships_and_is_used_by_default(regressor, truss):
 
 def test_the_edge_on_expert_ships_and_measures_near_edge_on_views(regressor, truss):
     """`weights/edge_on_expert.pt` (benchmarks/RESULTS.md, "Edge-on expert": confirmed on 4000 fresh
-    views) loads by default with the pooled-unsure rule (session 26) at EXPERT_BELOW_DEG, can be turned off, runs only
+    views) loads by default with the pooled-unsure rule at EXPERT_BELOW_DEG, can be turned off, runs only
     where the first estimate is near edge-on, and finds a near edge-on truss by itself."""
     from scipy.spatial.transform import Rotation
 
     from hybridpose.geometry import Pose
     from hybridpose.objects import view_elevation_deg
-    from hybridpose.regressors.predictor import EXPERT_BELOW_DEG, WEIGHTS_DIR
+    from hybridpose.regressors.predictor import EXPERT_BELOW_DEG
+    from hybridpose.regressors.checkpoints import WEIGHTS_DIR
 
     path = WEIGHTS_DIR / "edge_on_expert.pt"
     assert path.stat().st_size < 12 * 2**20
@@ -283,7 +285,7 @@ def test_calibrating_the_shipped_default_on_its_full_path(truss, tmp_path, capsy
     from hybridpose.cli import main
     from hybridpose.datasets import render_random_dataset
     from hybridpose.regressors.evaluate import evaluate_checkpoint
-    from hybridpose.regressors.train import load_checkpoint
+    from hybridpose.regressors.checkpoints import load_checkpoint
 
     data = tmp_path / "calib"
     render_random_dataset(data, truss, Camera.default(), count=24, seed=HELD_OUT_SEED + 1, in_view=True,

@@ -3,8 +3,6 @@ default camera: at 320 px the parallel edges of the thin beams fall within a few
 other and every edge tracker mismatches them on edge-on views)."""
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from hybridpose.core import Frame
 from hybridpose.geometry import Camera, Pose

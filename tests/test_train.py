@@ -9,7 +9,8 @@ from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera
 from hybridpose.regressors import models
 from hybridpose.regressors.losses import normalize_quat
-from hybridpose.regressors.train import TrainConfig, load_checkpoint, run_summary, train
+from hybridpose.regressors.train import run_summary, train, TrainConfig
+from hybridpose.regressors.checkpoints import load_checkpoint
 
 
 class TinyPose(nn.Module):

@@ -196,7 +196,7 @@ def _chunk_errors(pairs) -> np.ndarray:
 def test_pairs_from_the_regressors_own_estimates(views, truss, tmp_path):
     """--estimates-from: the candidates are the shipped regressor's box twins of its own pose of each
     view; the label is the twin nearest the truth, and views with no twin near it are left out."""
-    from hybridpose.regressors.predictor import shipped_checkpoint
+    from hybridpose.regressors.checkpoints import shipped_checkpoint
     from hybridpose.regressors.train_verifier import LABEL_MAX_DEG
 
     pairs = build_pairs([views], tmp_path / "est", truss, seed=2, progress=False, chunk=4,
@@ -217,7 +217,7 @@ def test_pairs_from_the_regressors_own_estimates(views, truss, tmp_path):
 def test_label_max_deg_chooses_which_estimates_teach(views, truss, tmp_path):
     """--label-max-deg: every view the regressor finds is kept at 180°; a tight bound keeps only the
     views whose nearest twin lies within it, and says so in meta.json."""
-    from hybridpose.regressors.predictor import shipped_checkpoint
+    from hybridpose.regressors.checkpoints import shipped_checkpoint
 
     ckpt = shipped_checkpoint("default")
     wide = build_pairs([views], tmp_path / "wide", truss, seed=2, progress=False, estimates_from=ckpt,
@@ -296,7 +296,7 @@ def test_train_verifier_on_the_estimates_of_the_default_and_its_edge_on_expert(v
     folder with its own record, and the verifier trained on both (the pooled rule scores the twins of
     both estimates); a bad checkpoint among them fails before any pairs are cut."""
     from hybridpose.cli import main
-    from hybridpose.regressors.predictor import shipped_checkpoint
+    from hybridpose.regressors.checkpoints import shipped_checkpoint
 
     default, expert = shipped_checkpoint("default"), shipped_checkpoint("edge_on_expert")
     out = tmp_path / "tv"
@@ -325,7 +325,7 @@ def test_verifier_on_onnxruntime_scores_what_torch_does(views, truss, tmp_path, 
     import logging
     import sys
 
-    from hybridpose.regressors.predictor import WEIGHTS_DIR
+    from hybridpose.regressors.checkpoints import WEIGHTS_DIR
 
     path = WEIGHTS_DIR / "twin_verifier.pt"
     on_torch, on_ort = TwinVerifier(path, truss, engine="torch"), TwinVerifier(path, truss)

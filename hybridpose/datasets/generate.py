@@ -19,6 +19,7 @@ from ..geometry import Camera, Pose
 from ..io import atomic_write_json, read_json
 from ..objects import ObjectModel
 from ..render import Renderer, SensorModel, SpaceLighting, random_poses
+from ..render.appearance import AppearanceSpec
 from ..render.occluder import ArmState
 from ..render.sequences import SequenceSpec, make_sequence
 from .bop import BopSceneWriter, write_camera_json, write_models
@@ -53,21 +54,23 @@ def _open_job(out: Path, kind: str, obj: ObjectModel, camera: Camera, lighting: 
 
 
 def _render_chunk(scene_dir: Path, obj: ObjectModel, camera: Camera, chunk, seed: int,
-                  lighting: SpaceLighting, sensor: SensorModel) -> BopSceneWriter:
+                  lighting: SpaceLighting, sensor: SensorModel, looks: AppearanceSpec) -> BopSceneWriter:
     """Worker process: render and write the images of ``chunk`` ([(index, item), ...]); returns a
     writer holding only their ground-truth records (the parent merges and flushes them)."""
     writer = BopSceneWriter(scene_dir, camera, load=False)
     with Renderer(obj, camera, lighting, sensor) as renderer:
-        for _ in _render_into(renderer, writer, obj, chunk, seed):
+        for _ in _render_into(renderer, writer, obj, chunk, seed, looks):
             pass
     return writer
 
 
-def _render_into(renderer: Renderer, writer: BopSceneWriter, obj: ObjectModel, chunk, seed: int):
+def _render_into(renderer: Renderer, writer: BopSceneWriter, obj: ObjectModel, chunk, seed: int,
+                 looks: AppearanceSpec):
     """Render the images of ``chunk`` ([(index, item), ...]) into ``writer``, yielding after each."""
+    cam = renderer.camera
     for i, (pose, arm, sun, sun_dir) in chunk:
         res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
-                              sun_direction_cam=sun_dir)
+                              sun_direction_cam=sun_dir, appearance=looks.draw(cam.width, cam.height, seed, i))
         writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
         yield i
 
@@ -91,6 +94,7 @@ def _run_job(
     sensor: SensorModel,
     progress: Callable[[int, int], None] | None,
     workers: int = 1,
+    looks: AppearanceSpec = AppearanceSpec(),
 ) -> Path:
     if workers < 1:
         raise ValueError(f"workers: expected ≥ 1 processes, got {workers}")
@@ -107,7 +111,7 @@ def _run_job(
         # one process: a single renderer (GL context) for the whole job
         with Renderer(obj, camera, lighting, sensor) as renderer:
             for chunk in chunks:
-                for _ in _render_into(renderer, writer, obj, chunk, seed):
+                for _ in _render_into(renderer, writer, obj, chunk, seed, looks):
                     done += 1
                     if progress:
                         progress(done, len(items))
@@ -118,7 +122,7 @@ def _run_job(
         # "spawn": a forked GL context is not safe.
         ctx = multiprocessing.get_context("spawn")
         with ctx.Pool(workers) as pool:
-            jobs = [pool.apply_async(_render_chunk, (scene_dir, obj, camera, chunk, seed, lighting, sensor))
+            jobs = [pool.apply_async(_render_chunk, (scene_dir, obj, camera, chunk, seed, lighting, sensor, looks))
                     for chunk in chunks]
             for chunk, job in zip(chunks, jobs):
                 writer.merge(job.get())
@@ -161,6 +165,7 @@ def render_random_dataset(
     in_view: bool = False,
     workers: int = 1,
     elevation_range_deg: tuple[float, float] | None = None,
+    appearance: AppearanceSpec | None = None,
 ) -> Path:
     """``count`` random views within arm's reach (split ``train``) + ``labels.csv``; resumable.
 
@@ -173,8 +178,11 @@ def render_random_dataset(
     trained on the data does not learn one shading; each image's sun (unit direction the light
     travels, camera frame, and intensity factor) is recorded in ``<scene>/scene_meta.json``.
     ``workers`` > 1 renders in that many processes (identical images: each image's noise is seeded
-    by its index). Returns the scene directory.
+    by its index). ``appearance`` ``AppearanceSpec("random", backgrounds=DIR)`` draws each image's
+    background, ambient and fill lights and part colour (:mod:`hybridpose.render.appearance`): data
+    for a part on a bench or in a hand rather than in space. Returns the scene directory.
     """
+    appearance = appearance or AppearanceSpec()
     if count < 1:
         raise ValueError(f"count: expected ≥ 1 images, got {count}")
     if not 0 <= sun_cone_deg <= 180:
@@ -189,7 +197,8 @@ def render_random_dataset(
               sun_scale_range=[float(lo), float(hi)], in_view=bool(in_view),
               # recorded only when set, so that datasets written before the option still resume
               **({} if elevation_range_deg is None
-                 else {"elevation_range_deg": [float(v) for v in elevation_range_deg]}))
+                 else {"elevation_range_deg": [float(v) for v in elevation_range_deg]}),
+              **({} if appearance == AppearanceSpec() else {"appearance": asdict(appearance)}))
     poses = random_poses(count, camera, distance_range_m, rng=seed, in_view_points=obj.bbox_corners if in_view else None,
                          elevation_range_deg=elevation_range_deg, obj=obj)
     # lighting draws use their own stream so that the poses of a seed never change
@@ -198,7 +207,7 @@ def render_random_dataset(
             if sun_cone_deg > 0 else [None] * count)
     scales = sun_rng.uniform(lo, hi, count) if hi > lo else np.full(count, lo)
     items = [(p, None, float(k), d) for p, k, d in zip(poses, scales, dirs)]
-    scene_dir = _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress, workers)
+    scene_dir = _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress, workers, appearance)
     default_dir = list(lighting.sun_direction_cam)
     # Each image's sun, so that an evaluation can report error against the lighting geometry
     # (phase angle, where the light comes from in the image): written last, from the same draws.

@@ -14,10 +14,10 @@ import torch
 from torch.utils.data import Dataset
 
 from ..geometry import parse_size
+from ..geometry.crops import MIN_CROP_PX, crop_affine, crop_box, crop_image
 from ..io import atomic_write_json, read_json
 from .bop import BopScene, find_scenes
 
-MIN_CROP_PX = 16
 JITTER_MARGIN = (1.1, 1.8)
 JITTER_SHIFT = 0.12
 FULL_VIEW_PROB = 0.0
@@ -32,20 +32,6 @@ def split_indices(n: int, val_fraction: float = 0.2, seed: int = 0) -> tuple[np.
     perm = np.random.default_rng(seed).permutation(n)
     n_val = max(1, int(round(n * val_fraction)))
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
-
-
-def crop_box(bbox_xywh, margin: float = 1.2) -> tuple[float, float, float]:
-    """Square crop ``(cx, cy, side)`` in pixels around a BOP bbox, ``side = margin · max(w, h)``."""
-    x, y, w, h = (float(v) for v in bbox_xywh)
-    if w <= 0 or h <= 0:
-        raise ValueError(f"bbox: expected positive width and height, got {bbox_xywh}")
-    return x + (w - 1) / 2, y + (h - 1) / 2, max(MIN_CROP_PX, margin * max(w, h))
-
-
-def crop_affine(cx: float, cy: float, side: float, out_w: int, out_h: int) -> np.ndarray:
-    """(2, 3) affine mapping source pixels to crop pixels (pixel centres at integers)."""
-    sx, sy = out_w / side, out_h / side
-    return np.array([[sx, 0.0, (out_w - 1) / 2 - sx * cx], [0.0, sy, (out_h - 1) / 2 - sy * cy]])
 
 
 def single_threaded_worker(_worker_id: int) -> None:
@@ -64,17 +50,6 @@ def _cache_record(path: Path) -> dict | None:
         return None
 
 
-def crop_image(image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float, size: tuple[int, int]):
-    """The square ``(cx, cy, side)`` (source pixels) of ``image`` resampled to ``size`` (W, H), and the
-    intrinsics of the crop; outside the frame is black (space). Training and inference share it so
-    the network sees the same resampling in both."""
-    w, h = size
-    A = crop_affine(cx, cy, side, w, h)
-    out = cv2.warpAffine(image, A, (w, h), flags=cv2.INTER_AREA if side > w else cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return out, np.vstack([A, [0, 0, 1]]) @ K
-
-
 class PoseDataset(Dataset):
     """Images and labels of one or more BOP scenes for training a pose regressor.
 
@@ -87,9 +62,12 @@ class PoseDataset(Dataset):
         crop_margin: crop side / max(bbox w, h).
         jitter: crop mode only — random, label-consistent crops for training: margin drawn from
             ``JITTER_MARGIN``, centre shifted by up to ``JITTER_SHIFT`` × side, and with probability
-            ``FULL_VIEW_PROB`` the whole frame (a square around the image centre) instead — 0: the
-            regressors find the object by detection, and whole-frame views slowed learning. Draws
-            use torch's RNG (seeded runs repeat).
+            ``full_view`` the whole frame (a square around the image centre) instead. Draws use
+            torch's RNG (seeded runs repeat).
+        full_view: the share of jittered crops that show the whole frame: 0 (default) where the
+            regressor finds the object by detection (sunlit pixels on black: whole-frame views slowed
+            learning there); > 0 teaches the network to find the object itself in a cluttered
+            frame (its ``detection="network"``).
         keypoints_m: (N, 3) model keypoints in metres; adds ``kp2d`` (N, 2), their projections in
             the returned image's pixels. A (T, N, 3) stack (e.g. the keypoints under an object's
             near-symmetries) gives ``kp2d`` (T, N, 2).
@@ -101,7 +79,7 @@ class PoseDataset(Dataset):
     """
 
     def __init__(self, root, size=224, crop: bool = False, indices=None, crop_margin: float = 1.2,
-                 jitter: bool = False, keypoints_m=None) -> None:
+                 jitter: bool = False, keypoints_m=None, full_view: float = FULL_VIEW_PROB) -> None:
         self.scenes = [BopScene(p) for p in find_scenes(root)]
         self.samples = [(s, i) for s, sc in enumerate(self.scenes) for i in sc.image_ids]
         if not self.samples:
@@ -110,6 +88,9 @@ class PoseDataset(Dataset):
         self.crop, self.crop_margin, self.jitter = bool(crop), float(crop_margin), bool(jitter)
         if self.jitter and not self.crop:
             raise ValueError("jitter: random crops need crop=True")
+        if not 0.0 <= full_view <= 1.0:
+            raise ValueError(f"full_view: expected a share of the crops in [0, 1], got {full_view!r}")
+        self.full_view = float(full_view)
         self.keypoints_m = None
         if keypoints_m is not None:
             self.keypoints_m = np.asarray(keypoints_m, dtype=np.float64)
@@ -288,7 +269,7 @@ class PoseDataset(Dataset):
 
     def _jittered(self, cx: float, cy: float, extent: float, width: int, height: int) -> tuple[float, float, float]:
         r = torch.rand(4).tolist()
-        if r[0] < FULL_VIEW_PROB:
+        if r[0] < self.full_view:
             return (width - 1) / 2, (height - 1) / 2, float(max(width, height))
         lo, hi = JITTER_MARGIN
         side = max(MIN_CROP_PX, (lo + (hi - lo) * r[1]) * extent)

@@ -158,3 +158,15 @@ def calibrate(model, loader, predict_batch, twins=(), device=None) -> dict:
     raw = [nees(x, cov) for x in xis]
     scale = max(float(np.quantile(raw, COVERAGE)) / target, 1.0)
     return {"kind": "fixed", "covariance": (scale * cov).tolist(), "coverage": COVERAGE, "samples": len(xis), "failures": 0}
+
+
+UNCALIBRATED_SCALE = 100.0  # covariance inflation for a checkpoint without calibration
+
+
+def uncalibrated_record(kind: str) -> dict:
+    """The calibration a checkpoint without one is used with (and :func:`~hybridpose.regressors.
+    evaluate.calibrate_checkpoint` starts from): PnP covariances inflated ``UNCALIBRATED_SCALE``×
+    for keypoint models, a fixed diagonal of variances 0.01 rad² / m² × ``UNCALIBRATED_SCALE`` for direct ones."""
+    if kind == "keypoints":
+        return {"kind": "pnp", "scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
+    return {"kind": "fixed", "covariance": (UNCALIBRATED_SCALE * np.diag([0.01] * 6)).tolist()}

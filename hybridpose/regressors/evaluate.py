@@ -22,14 +22,16 @@ from scipy.stats import chi2
 from ..core import Frame
 from ..datasets.bop import BopScene, find_scenes
 from ..geometry import Pose
-from ..io import atomic_write_json, atomic_write_text, write_image
+from ..io import atomic_write_json, atomic_write_text
 from ..machine import cpu_label, describe_cpu
 from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .calibration import MIN_BAND_POSES, nees, quality_scale
 from .engines import call_ms, keypoint_engine
-from .predictor import CheckpointRegressor, uncalibrated_record
+from .calibration import uncalibrated_record
+from .gradcam import write_gradcam_sheet
+from .predictor import CheckpointRegressor
 
 log = logging.getLogger(__name__)
 
@@ -115,10 +117,13 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
                "elevation_deg": view_elevation_deg(gt.pose, obj), "lost": m.lost, "quality": m.quality,
                **lighting_columns(sun, gt.pose, obj)}
         if m.pose is None:
-            row.update(rot_deg=FAILED_ROT_DEG, trans_m=FAILED_TRANS_M, speed=np.pi + FAILED_TRANS_M / np.linalg.norm(gt.pose.t),
+            row.update(rot_deg=FAILED_ROT_DEG, rot_twin_deg=FAILED_ROT_DEG, trans_m=FAILED_TRANS_M, speed=np.pi + FAILED_TRANS_M / np.linalg.norm(gt.pose.t),
                        add_m=float("inf"))
         else:
-            row.update(rot_deg=rotation_error_deg(m.pose, gt.pose), trans_m=translation_error_m(m.pose, gt.pose),
+            row.update(rot_deg=rotation_error_deg(m.pose, gt.pose),
+                       # to the nearest box twin: the error a truly box-symmetric part cannot avoid
+                       rot_twin_deg=min(rotation_error_deg(m.pose, gt.pose @ S) for S in (Pose.identity(), *reg.twins)),
+                       trans_m=translation_error_m(m.pose, gt.pose),
                        speed=speed_score(m.pose, gt.pose), add_m=add(m.pose, gt.pose, points),
                        **covariance_nees(m, gt.pose, reg.twins))
         rows.append(row)
@@ -238,7 +243,7 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     with a ``full_path`` entry: data, poses used, factor, share inside before). Writes atomically;
     ``out`` may be ``checkpoint`` itself.
     """
-    from .train import load_checkpoint, save_checkpoint
+    from .checkpoints import load_checkpoint, save_checkpoint
 
     if not 0.5 <= coverage < 1.0:
         raise ValueError(f"coverage: expected a probability in [0.5, 1), got {coverage}")
@@ -426,73 +431,6 @@ def plot_error_vs_distance(bins, path, title: str) -> None:
         plt.close(fig)
 
 
-def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
-    """(H, W) float in [0, 1]: Grad-CAM of the network's deepest feature map for ``frame``.
-
-    The score differentiated is the sum of each keypoint heatmap's peak logit (keypoint models)
-    or the sum of the pose outputs (direct models); the map is shown on the network's input. For the
-    parallel model it is its rotation stream's, on the bounded image it crops at inference (the sheet
-    ranks views by rotation error; its translation stream sees the whole frame).
-    """
-    import cv2
-
-    from ..datasets.torch_dataset import crop_box
-    from .predictor import CROP_MARGIN, detect_bright_object
-
-    net = reg.net
-    # direct models: the last module of the VGG features (its final max-pool), not the features
-    # Sequential itself — the branched model runs slices of it, which a hook on the whole never sees
-    parallel = reg.model_name == "parallel-vgg19"
-    layer = net.layer4 if reg.kind == "keypoints" else (net.rotation.features if parallel else net.features)[-1]
-    feats = {}
-    h1 = layer.register_forward_hook(lambda m, i, o: feats.__setitem__("a", o))
-    h2 = layer.register_full_backward_hook(lambda m, gi, go: feats.__setitem__("g", go[0]))
-    try:
-        S = reg.image_size
-        if reg.kind == "keypoints":
-            box = detect_bright_object(frame.image)
-            box = crop_box(box, CROP_MARGIN) if box else ((frame.camera.width - 1) / 2, (frame.camera.height - 1) / 2, float(frame.camera.width))
-            img, _ = reg._crop(frame.image, frame.camera.K, *box)
-        elif parallel:  # the crop predict gives the rotation stream without a roi
-            with torch.no_grad():
-                img = reg._translation_and_bounded_image(*reg._undistorted(frame))[1]
-        else:
-            img = cv2.resize(frame.image, (S, S), interpolation=cv2.INTER_AREA)
-        x = reg._tensor(img).requires_grad_(True)
-        with torch.enable_grad():
-            if reg.kind == "keypoints":
-                score = net.heatmaps(x).flatten(2).max(-1).values.sum()
-            elif parallel:
-                score = net.rotation(x).sum()
-            else:
-                t, q = net(x)
-                score = t.sum() + q.sum()
-            net.zero_grad()
-            score.backward()
-        a, g = feats["a"][0], feats["g"][0]
-        cam = torch.relu((g.mean((1, 2), keepdim=True) * a).sum(0)).detach().float().cpu().numpy()
-    finally:
-        h1.remove()
-        h2.remove()
-    cam = cv2.resize(cam, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_LINEAR)
-    cam = cam / cam.max() if cam.max() > 0 else cam
-    return img, cam
-
-
-def write_gradcam_sheet(reg, items, labels, path) -> None:
-    import cv2
-
-    from ..viz import contact_sheet
-
-    tiles = []
-    for scene, im_id in items:
-        frame = Frame(scene.rgb(im_id), scene.image(im_id).camera, 0.0)
-        img, cam = gradcam(reg, frame)
-        heat = cv2.applyColorMap((255 * cam).astype(np.uint8), cv2.COLORMAP_JET)[:, :, ::-1]
-        tiles.append((0.55 * img + 0.45 * heat).astype(np.uint8))
-    write_image(path, contact_sheet(tiles, columns=max(1, len(tiles) // 2), tile_width=192, labels=labels))
-
-
 def accuracy_by_quality(rows, gates=QUALITY_GATES) -> list[dict]:
     """Per gate ``g``: the share of all views whose measurement has quality ≥ ``g`` (``kept_share``;
     failures, quality 0, are kept only by the gate 0) and, over those kept, mean / median rotation
@@ -595,132 +533,8 @@ def quality_table(gates) -> str:
     return "\n".join(lines)
 
 
-def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resamples: int = 2000,
-                    seed: int = 0) -> dict:
-    """Paired comparison of two ``hybridpose eval`` reports on the same images: is B really better than A?
-
-    Two checkpoints evaluated on the same 1000 views differ by a handful of gross errors, and a
-    gross share of 3 % has a binomial standard error of ±0.5 %: one table row beside another does
-    not say which model is better. Pairing the views does. Gross errors (rotation > ``gross_deg``)
-    are compared with McNemar's exact test (the views where exactly one model errs, binomial with
-    p = ½ under "no difference"); the mean and median rotation errors with a paired bootstrap
-    (the same resampled views for both) 95 % interval of B − A.
-
-    Args:
-        report_a, report_b: ``report.json`` paths (or the folders holding them) from ``hybridpose eval``,
-            or lists of them paired by position (A's and B's reports on several test sets, pooled:
-            the views of different sets are independent samples too).
-        gross_deg: rotation error that counts as gross, degrees (> 0).
-        resamples, seed: the bootstrap.
-    Returns:
-        ``{"images", "a", "b"`` (each: path, model, rot_mean_deg, rot_median_deg, gross_share),
-        ``"gross_only_a", "gross_only_b", "gross_both", "mcnemar_p",
-        "rot_mean_diff_deg", "rot_median_diff_deg", "gross_share_diff"`` (each: estimate, ci95 low, high;
-        B − A; the last a share of the views, 0..1)}.
-    """
-    if not (gross_deg > 0 and np.isfinite(gross_deg)):
-        raise ValueError(f"gross_deg: expected a rotation error > 0 degrees, got {gross_deg}")
-    many_a = list(report_a) if isinstance(report_a, (list, tuple)) else [report_a]
-    many_b = list(report_b) if isinstance(report_b, (list, tuple)) else [report_b]
-    if len(many_a) != len(many_b) or not many_a:
-        raise ValueError(f"report_a, report_b: expected as many reports of A as of B (paired by position), "
-                         f"got {len(many_a)} and {len(many_b)}")
-    a, b, paths_a, paths_b = [], [], [], []
-    for ra, rb in zip(many_a, many_b):
-        (path_a, model_a, rows_a), (path_b, model_b, rows_b) = _report_rows(ra), _report_rows(rb)
-        if [r["image"] for r in rows_a] != [r["image"] for r in rows_b]:
-            raise ValueError(f"{path_a} and {path_b}: not the same images in the same order ({len(rows_a)} vs "
-                             f"{len(rows_b)} rows); evaluate both on one dataset with the same --limit")
-        a += rows_a
-        b += rows_b
-        paths_a.append(str(path_a))
-        paths_b.append(str(path_b))
-    # a failure's row already holds FAILED_ROT_DEG (evaluate_checkpoint)
-    c = paired_comparison([r["rot_deg"] for r in a], [r["rot_deg"] for r in b], gross_deg, resamples, seed)
-    c["a"].update(report=", ".join(paths_a), model=model_a)
-    c["b"].update(report=", ".join(paths_b), model=model_b)
-    return c
-
-
-def paired_comparison(rot_a, rot_b, gross_deg: float = GROSS_ERROR_DEG, resamples: int = 2000, seed: int = 0) -> dict:
-    """:func:`compare_reports` on two (N,) arrays of rotation errors (°) of the same views (A's and B's):
-    McNemar's exact test on the views more than ``gross_deg`` off, paired bootstrap 95 % intervals of
-    the mean and median difference B − A. Same keys as :func:`compare_reports` (``a`` and ``b`` without
-    report paths and models)."""
-    from scipy.stats import binomtest
-
-    rot_a, rot_b = np.asarray(rot_a, dtype=float), np.asarray(rot_b, dtype=float)
-    if rot_a.shape != rot_b.shape or rot_a.ndim != 1 or not len(rot_a):
-        raise ValueError(f"rot_a, rot_b: expected two (N,) error arrays of the same views, got shapes "
-                         f"{rot_a.shape} and {rot_b.shape}")
-    gross_a, gross_b = rot_a > gross_deg, rot_b > gross_deg
-    only_a, only_b = int(np.sum(gross_a & ~gross_b)), int(np.sum(gross_b & ~gross_a))
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, len(rot_a), size=(resamples, len(rot_a)))
-    boot_mean = rot_b[idx].mean(1) - rot_a[idx].mean(1)
-    boot_median = np.median(rot_b[idx], 1) - np.median(rot_a[idx], 1)
-    boot_gross = gross_b[idx].mean(1) - gross_a[idx].mean(1)
-
-    def interval(estimate, boot):
-        lo, hi = np.percentile(boot, [2.5, 97.5])
-        return {"estimate": float(estimate), "ci95": [float(lo), float(hi)]}
-
-    def side(rot, gross):
-        return {"rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)),
-                "gross_share": float(gross.mean())}
-
-    return {
-        "images": len(rot_a), "gross_deg": float(gross_deg), "a": side(rot_a, gross_a), "b": side(rot_b, gross_b),
-        "gross_only_a": only_a, "gross_only_b": only_b, "gross_both": int(np.sum(gross_a & gross_b)),
-        "mcnemar_p": float(binomtest(only_b, only_a + only_b).pvalue) if only_a + only_b else 1.0,
-        "rot_mean_diff_deg": interval(rot_b.mean() - rot_a.mean(), boot_mean),
-        "rot_median_diff_deg": interval(np.median(rot_b) - np.median(rot_a), boot_median),
-        # a share (0..1), not %: what a non-inferiority margin on the gross errors is set on
-        "gross_share_diff": interval(gross_b.mean() - gross_a.mean(), boot_gross),
-    }
-
-
-def _report_rows(report) -> tuple[Path, str | None, list[dict]]:
-    import json
-
-    path = Path(report)
-    if path.is_dir():
-        path = path / "report.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no report (run `hybridpose eval ... --out DIR` first)")
-    try:
-        report = json.loads(path.read_text())
-        rows = report["per_image"]
-        for r in rows:
-            r["image"], r["lost"], float(r["rot_deg"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: not a `hybridpose eval` report.json (per_image rows with image, lost, "
-                         f"rot_deg): {exc!r}") from exc
-    if not rows:
-        raise ValueError(f"{path}: the report has no images")
-    return path, report.get("summary", {}).get("model"), rows
-
-
 def _ms_cell(ms: dict, key: str) -> str:
     """A table cell of ms: ``ms[key]`` to 0.1 ms, or – where it was not timed (``timing_images=0``)."""
     return f"{ms[key]:.1f}" if key in ms else "–"
 
 
-def comparison_markdown(c: dict) -> str:
-    """The result of :func:`compare_reports` as a short Markdown table and verdict."""
-    a, b = c["a"], c["b"]
-    mean, med = c["rot_mean_diff_deg"], c["rot_median_diff_deg"]
-    lines = [f"Paired comparison on {c['images']} images (gross: rotation > {c['gross_deg']:g}°)", "",
-             "| | report | mean rot ° | median rot ° | gross |", "|---|---|---|---|---|",
-             f"| A | `{a['report']}` | {a['rot_mean_deg']:.2f} | {a['rot_median_deg']:.2f} | {100 * a['gross_share']:.1f}% |",
-             f"| B | `{b['report']}` | {b['rot_mean_deg']:.2f} | {b['rot_median_deg']:.2f} | {100 * b['gross_share']:.1f}% |",
-             "",
-             f"- gross in A only {c['gross_only_a']}, in B only {c['gross_only_b']}, in both {c['gross_both']}: "
-             f"McNemar exact p = {c['mcnemar_p']:.3f}",
-             f"- mean rotation B − A {mean['estimate']:+.2f}° (95 % paired bootstrap {mean['ci95'][0]:+.2f} … {mean['ci95'][1]:+.2f})",
-             f"- median rotation B − A {med['estimate']:+.3f}° ({med['ci95'][0]:+.3f} … {med['ci95'][1]:+.3f})"]
-    if "gross_share_diff" in c:  # older saved comparisons lack it
-        g = c["gross_share_diff"]
-        lines.append(f"- share of views > {c['gross_deg']:g}° B − A {100 * g['estimate']:+.2f} points "
-                     f"({100 * g['ci95'][0]:+.2f} … {100 * g['ci95'][1]:+.2f})")
-    return "\n".join(lines) + "\n"

@@ -4,16 +4,15 @@
 (``hybridpose/regressors/weights/default.pt``, how it was made: ``weights/README.md``); every other
 name needs ``checkpoint=PATH`` from ``hybridpose train --model NAME``.
 
-Keypoint models run one pass on a crop around the ``roi`` or, without one, around the sunlit
-pixels (:func:`detect_bright_object`); where its PnP drops keypoints, the same crop turned in-plane
-by ±20°/±40° too (``turns="auto"``, one batch; the pass keeping the most keypoints wins:
-docs/decisions.md); and a second pass on the crop centred on the pose
-where the twin head is unsure (``passes="auto"``; ``passes=2`` always makes it, at ≈ 7 ms more;
-"Second network pass"). Where the first estimate is near edge-on, a second network trained on such
-views (``edge_on_expert``, shipped for the truss) estimates too, and the better measurement is kept
-("Edge-on expert"). Keypoints → PnP → pose; the calibrated PnP covariance, widened or narrowed by the
-measurement's quality band, is its uncertainty. Direct models (the paper's VGGs) take the whole frame resized (and the parallel model
-the crop around ``roi``, else around the detected object, else around its own translation estimate).
+Keypoint models (the path step by step: ``docs/cnn.md``): one network pass on a crop around the
+``roi`` or, without one, around the object found by :mod:`.detection`; keypoints → PnP → pose. Where
+PnP drops keypoints, the same crop turned in-plane by ±20°/±40° too (``turns="auto"``); a second pass
+on the crop centred on the pose where the twin head is unsure (``passes="auto"``); near edge-on, a
+second network trained on such views (``edge_on_expert``); the end-for-end twin chosen by the twin
+head, edge fits and the twin verifier; the pose refined by an edge fit. The calibrated PnP covariance,
+widened or narrowed by the measurement's quality band, is its uncertainty. Direct models (the paper's
+VGGs) take the whole frame resized (and the parallel model the crop around ``roi``, else around the
+detected object, else around its own translation estimate).
 """
 from __future__ import annotations
 
@@ -26,12 +25,14 @@ import numpy as np
 import torch
 
 from ..core import LOST_COVARIANCE, Frame, Measurement
-from ..datasets.torch_dataset import crop_box, crop_image
+from ..geometry.crops import crop_box, crop_image
 from ..geometry import Camera, Pose, as_unit_direction
 from ..objects import view_elevation_deg
 from ..registry import register
 from .base import PoseRegressor, check_roi
-from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, pnp_covariance, quality_factor
+from .checkpoints import WEIGHTS_DIR, load_checkpoint, shipped_checkpoint
+from .detection import CROP_MARGIN, detect_bright_object, detect_dim_object, detected_crop, translation_crop
+from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, UNCALIBRATED_SCALE, uncalibrated_record, pnp_covariance, quality_factor
 from .keypoint_pnp import OUTLIER_STRATEGIES, solve_pnp
 from .verify import MIRROR_BELOW_DEG, edge_on_mirror
 from .engines import ENGINES, keypoint_engine
@@ -39,21 +40,8 @@ from .models import available_models, build_model, fold_batch_norm, model_kind, 
 
 log = logging.getLogger(__name__)
 
-WEIGHTS_DIR = Path(__file__).parent / "weights"
-# the regressor checkpoints in WEIGHTS_DIR (NAME.pt; twin_verifier.pt is not a regressor)
-SHIPPED_REGRESSORS = ("default", "edge_on_expert")
-CROP_MARGIN = 1.2
-UNCALIBRATED_SCALE = 100.0  # covariance inflation for a checkpoint without calibration
 QUALITY_RMS = 0.02  # RMS reprojection error (fraction of the crop side) at which quality falls to 1/e
 FOV_TOLERANCE = 0.02
-DETECT_THRESHOLD = 12
-DETECT_DIM_THRESHOLD = 3  # grey levels, after smoothing: the dim rest of an object a glint was found on
-DETECT_GROW_RATIO = 2.0   # …used only when it makes the box this much larger (diagonal)
-DETECT_DIM_SIGMAS = 6.0   # …and only above this many σ of the smoothed sensor noise
-SMOOTH_NOISE_GAIN = 0.26  # noise σ after the 5×5 Gaussian (σ = 1.1 px): 1 / (2 √π · 1.1)
-# detect_dim_object: the dim parts kept (full-resolution pixels). A faint truss 1.2 m away covers
-# thousands; the leftovers of lost views with nothing there covered ≤ 52 (test seeds 128–138)
-DETECT_DIM_MIN_AREA_PX = 200
 REFINE_SEARCH_PX = 16
 REFINE_MIN_QUALITY = 0.5
 # The twin choice (see _refine). Tuned on test views 0–399, confirmed on 400–999 (docs/decisions.md):
@@ -132,6 +120,7 @@ POOLED_PNP_WEIGHT = 1.0
 # before its 8000 fresh views were rendered (commit 16da16f): 10.69° → 10.27° mean (CI −0.69…−0.15; 40° cone 5.46° → 4.78°), 24.1 →
 # 23.6 ms a view; seed 100 3.30° → 3.05° at 17.9 ms (docs/decisions.md)
 EXPERT_RULES = ("pooled", "pooled-unsure", "quality", "replace")
+DETECTIONS = ("auto", "bright", "network")
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -188,38 +177,6 @@ def sun_turn_deg(sun_direction_cam, trained_azimuth_deg: float | None, beyond_de
     return float(delta) if abs(delta) > beyond_deg else 0.0
 
 
-def uncalibrated_record(kind: str) -> dict:
-    """The calibration a checkpoint without one is used with (and :func:`~hybridpose.regressors.
-    evaluate.calibrate_checkpoint` starts from): PnP covariances inflated ``UNCALIBRATED_SCALE``×
-    for keypoint models, a fixed diagonal of variances 0.01 rad² / m² × ``UNCALIBRATED_SCALE`` for direct ones."""
-    if kind == "keypoints":
-        return {"kind": "pnp", "scale": UNCALIBRATED_SCALE, "sigma_floor_px": SIGMA_FLOOR_PX}
-    return {"kind": "fixed", "covariance": (UNCALIBRATED_SCALE * np.diag([0.01] * 6)).tolist()}
-
-
-def shipped_checkpoint(name: str = "default") -> Path:
-    path = WEIGHTS_DIR / f"{name}.pt"
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"checkpoint: no trained {name!r} checkpoint ships with hybridpose ({path}); pass checkpoint=PATH "
-            f"(train one with `hybridpose train --model {name} ...`)"
-        )
-    return path
-
-
-def checkpoint_or_shipped(value) -> Path:
-    """The checkpoint file ``value`` names: the path itself where that file exists, else the checkpoint
-    shipped under that name (``"default"``, ``"edge_on_expert"``: what the command line's
-    ``--checkpoint default`` means). Raises FileNotFoundError naming both where neither exists."""
-    path = Path(value)
-    if path.is_file():
-        return path
-    if str(value) in SHIPPED_REGRESSORS:
-        return shipped_checkpoint(str(value))
-    raise FileNotFoundError(f"{value}: checkpoint not found (no such file, and not the name of one shipped with "
-                            f"hybridpose: {', '.join(SHIPPED_REGRESSORS)})")
-
-
 def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:
     """How far the image extent of ``points_m`` under ``pose`` is from ``box``'s: ≥ 1, ∞ if behind the camera.
 
@@ -240,135 +197,6 @@ def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:
     if d <= 0 or d_box <= 0:
         return float("inf")
     return max(d / d_box, d_box / d)
-
-
-def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, min_area_px: int = 30,
-                         grow: bool = True):
-    """Box ``(x, y, w, h)`` around the sunlit object on a dark background, or None.
-
-    Space imagery is a lit object on black: pixels brighter than ``threshold`` (grey levels),
-    specks smaller than ``min_area_px`` removed (noise, stars). The box then grows over the dim
-    pixels (smoothed, above ``DETECT_DIM_THRESHOLD``) connected to those bright ones: under grazing
-    sun most of the object can sit just above black with only a glint over ``threshold``, and a
-    box around the glint alone gave the network a fragment (a 14 × 20 px box on a truss 1 m away,
-    PnP then put it at 13 m). Dim pixels not connected to a bright one are ignored, so sensor noise
-    does not grow the box. Not for an Earth background — pass the ``roi`` there (the hybrid passes
-    the tracker's predicted box). ``grow=False``: the bright pixels' box only (≈ 0.45 ms less on
-    640 × 480).
-    """
-    # at half resolution (4× fewer pixels to label; a 1.2 m-away beam is still 3–4 px wide)
-    gray = _half_gray(image)
-    bright = (gray > threshold).astype(np.uint8)
-    found = _components(bright)
-    if found is None:
-        return None
-    labels, stats, (bx, by, bw, bh) = found
-    keep = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] * 4 >= min_area_px)
-    if not len(keep):
-        return None
-    if not grow:
-        return _union_box(stats[keep])
-    is_kept = np.zeros(len(stats), bool)
-    is_kept[keep] = True
-    seeds = is_kept[labels]                                    # (bh, bw): the bright mask's box
-    dim = _dim_mask(gray)
-    dim[by:by + bh, bx:bx + bw] |= seeds
-    dim_labels, dim_stats, (dx, dy, _, _) = _components(dim, include=(bx, by, bw, bh))
-    seed_labels = dim_labels[by - dy:by - dy + bh, bx - dx:bx - dx + bw][seeds]
-    box, grown = _union_box(stats[keep]), _union_box(dim_stats[np.unique(seed_labels)])
-    # only a box that grows a lot is a fragment's: growing every box over its dim, shadowed
-    # pixels gave crops the network had not learnt (docs/decisions.md)
-    return grown if np.hypot(*grown[2:]) > DETECT_GROW_RATIO * np.hypot(*box[2:]) else box
-
-
-def detect_dim_object(image: np.ndarray, min_area_px: int = DETECT_DIM_MIN_AREA_PX):
-    """Box ``(x, y, w, h)`` around an object lit too faintly for :func:`detect_bright_object`, or None.
-
-    Under grazing sun the whole truss can sit a few grey levels above black with no glint, or with
-    glints too small to keep (≈ 1 view in 1000 of the 40°-cone test sets): the pixels of the
-    smoothed image above the noise-aware dim threshold (:func:`_dim_mask`), parts smaller than
-    ``min_area_px`` (full-resolution pixels) dropped. With sensor noise the threshold rises with it,
-    so noise alone finds nothing. The predictor falls back to it only where the bright detection
-    found nothing or its box gave no plausible pose.
-    """
-    found = _components(_dim_mask(_half_gray(image)))
-    if found is None:
-        return None
-    _, stats, _ = found
-    keep = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] * 4 >= min_area_px)
-    return _union_box(stats[keep]) if len(keep) else None
-
-
-def detected_crop(image: np.ndarray) -> tuple[float, float, float] | None:
-    """(cx, cy, side) px of the parallel model's "bounded image" around the object detected in ``image``
-    (bright, else dim), cropped as it trained on the true box (× ``CROP_MARGIN``); None where nothing is
-    detected. On the seed-100 views this crop lies within 3.4 % of its side of the true one in 90 % of
-    them, its side 1.14–1.20 × the true extent ."""
-    seen = detect_bright_object(image) or detect_dim_object(image)
-    return None if seen is None else crop_box(seen, CROP_MARGIN)
-
-
-def translation_crop(t: np.ndarray, K: np.ndarray, diameter_m: float) -> tuple[float, float, float]:
-    """(cx, cy, side) px of the crop around the projection of the translation ``t`` (3,) m, sized by the
-    object's diameter: the parallel model's fallback where nothing is detected (an Earth background, a
-    dim object). It misses the true crop by tens of pixels and up to 2× in scale: a parallel VGG-19
-    scored 41° mean on validation (true crops) and 90° on test views through it."""
-    z = max(float(t[2]), 0.05)
-    uv = K @ (np.asarray(t, dtype=np.float64) / z)
-    return float(uv[0]), float(uv[1]), CROP_MARGIN * max(K[0, 0], K[1, 1]) * diameter_m / z
-
-
-def _half_gray(image: np.ndarray) -> np.ndarray:
-    """(H/2, W/2) uint8 grey of an (H, W, 3) uint8 RGB frame: what both detections label."""
-    small = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
-    return cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-
-
-def _dim_mask(gray: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 mask of the pixels of a (half-resolution) grey image that are dimly lit: the
-    5×5-smoothed image above ``DETECT_DIM_THRESHOLD`` and above the sensor noise, so that noise cannot
-    chain dim pixels across the background."""
-    smooth = cv2.GaussianBlur(gray, (5, 5), 0)
-    # above the background (clipped noise lifts black by ≈ 0.4 σ; the median is the background while
-    # the object covers less than half the frame, and above it a dim mask is pointless anyway)
-    dim_threshold = max(DETECT_DIM_THRESHOLD,
-                        float(np.median(smooth)) + DETECT_DIM_SIGMAS * SMOOTH_NOISE_GAIN * noise_sigma(gray))
-    return (smooth > dim_threshold).astype(np.uint8)
-
-
-def _components(mask: np.ndarray, include=None):
-    """8-connected components of a uint8 ``mask``, labelled within the box around its non-zero
-    pixels only (the same components; on a space image that box is a fifth of the frame on average,
-    and labelling is most of the detection's cost), grown to hold the box ``include`` (x, y, w, h)
-    if given: (labels (h, w) int32 of that box, stats as ``cv2.connectedComponentsWithStats`` in
-    ``mask``'s coordinates (row 0: the box's background), box (x, y, w, h)), or None for an empty mask."""
-    x, y, w, h = cv2.boundingRect(mask)
-    if w == 0 or h == 0:
-        return None
-    if include is not None:
-        x0, y0 = min(x, include[0]), min(y, include[1])
-        x, y, w, h = x0, y0, max(x + w, include[0] + include[2]) - x0, max(y + h, include[1] + include[3]) - y0
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask[y:y + h, x:x + w], connectivity=8)
-    stats[:, cv2.CC_STAT_LEFT] += x
-    stats[:, cv2.CC_STAT_TOP] += y
-    return labels, stats, (x, y, w, h)
-
-
-def noise_sigma(gray: np.ndarray) -> float:
-    """Standard deviation of an image's noise, grey levels (Immerkær 1996: a Laplacian-difference
-    filter cancels smooth structure; the mean absolute response scales with σ). OpenCV has no
-    noise estimator; this one is six lines and robust on mostly-black space images."""
-    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    response = cv2.filter2D(gray.astype(np.float32), -1, kernel)[1:-1, 1:-1]
-    return float(np.sqrt(np.pi / 2) * np.abs(response).mean() / 6.0)
-
-
-def _union_box(stats: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, w, h) at full resolution around half-resolution connected-component ``stats`` rows."""
-    x0, y0 = stats[:, cv2.CC_STAT_LEFT].min(), stats[:, cv2.CC_STAT_TOP].min()
-    x1 = (stats[:, cv2.CC_STAT_LEFT] + stats[:, cv2.CC_STAT_WIDTH]).max()
-    y1 = (stats[:, cv2.CC_STAT_TOP] + stats[:, cv2.CC_STAT_HEIGHT]).max()
-    return 2.0 * x0, 2.0 * y0, 2.0 * (x1 - x0), 2.0 * (y1 - y0)
 
 
 def _to_tensor(img: np.ndarray) -> torch.Tensor:
@@ -444,6 +272,11 @@ class CheckpointRegressor(PoseRegressor):
             measurement of higher quality is returned; ``"pooled"``: the best-scored of every box
             twin of both estimates (:meth:`_pooled_measure`; falls back to ``"quality"`` without edge
             fits or a twin head); ``"replace"``: the expert's estimate replaces the first one.
+        detection: keypoint models without a ``roi`` — how the object is found: ``"bright"`` (the
+            sunlit pixels on black space, :mod:`.detection`), ``"network"`` (one network pass on the
+            whole frame, then the crop around the pose it gives: for a checkpoint trained with
+            ``--full-view`` on cluttered backgrounds; the bright detection where it finds nothing),
+            ``"auto"`` (default): ``"network"`` for such a checkpoint, else ``"bright"``.
         dim_fallback: keypoint models without a ``roi`` — where :func:`detect_bright_object` finds
             nothing, or its box gives no plausible pose, look for a faintly lit object
             (:func:`detect_dim_object`) and estimate on its box (default True).
@@ -470,8 +303,7 @@ class CheckpointRegressor(PoseRegressor):
                  device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
                  turn_pnp_outliers: str | None = "drop-worst-only", mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
                  expert_rule: str = "pooled-unsure", dim_fallback: bool = True, max_depth_m=None,
-                 engine: str = "auto") -> None:
-        from .train import load_checkpoint
+                 engine: str = "auto", detection: str = "auto") -> None:
 
         self.path = Path(checkpoint)
         ck = load_checkpoint(self.path)
@@ -559,6 +391,11 @@ class CheckpointRegressor(PoseRegressor):
             raise ValueError(f"expert_rule: expected one of {', '.join(EXPERT_RULES)}, got {expert_rule!r}")
         self.expert_rule = expert_rule
         self.dim_fallback = bool(dim_fallback)
+        if detection not in DETECTIONS:
+            raise ValueError(f"detection: expected one of {', '.join(DETECTIONS)}, got {detection!r}")
+        if detection == "auto":
+            detection = "network" if float(ck["config"].get("full_view", 0.0)) > 0 else "bright"
+        self.detection = detection
         self.max_depth_m = self._depth_limit(max_depth_m)
         self.expert_object = None  # the object whose view elevation gates the expert
         self.expert = self._load_expert(edge_on_expert, object)
@@ -787,7 +624,7 @@ class CheckpointRegressor(PoseRegressor):
         ``expert_below_deg`` of edge-on) the expert's instead (``expert_rule="replace"``) or the first
         and the expert's (the other rules); the first alone where the expert finds nothing;
         [] where nothing is found."""
-        seen = roi if roi is not None else detect_bright_object(image)
+        seen = roi if roi is not None else self._detect(image, cam)
         est = None if seen is None else self._estimate_in(image, cam, seen, sun_turn)
         if est is None and roi is None and self.dim_fallback:
             # nothing bright, or its box gave no plausible pose: the faintly lit object, if any
@@ -803,6 +640,30 @@ class CheckpointRegressor(PoseRegressor):
         if other is None:
             return [est]
         return [other] if self.expert_rule == "replace" else [est, other]
+
+    def _detect(self, image: np.ndarray, cam: Camera):
+        """Box (x, y, w, h) px where the object is, without a prior (``detection``), or None."""
+        if self.detection == "network":
+            box = self._network_box(image, cam)
+            if box is not None:
+                return box
+        return detect_bright_object(image)
+
+    def _network_box(self, image: np.ndarray, cam: Camera):
+        """Box of the keypoints' projection at the pose one network pass on the whole frame gives
+        (coarse: the object may be a few dozen pixels of the network's input), or None."""
+        whole = ((cam.width - 1) / 2, (cam.height - 1) / 2, float(max(cam.width, cam.height)))
+        res = self._keypoint_pass(image, cam.K, whole)[0]
+        if res is None:
+            return None
+        pts = res.pose @ self.keypoints_m
+        if np.any(pts[:, 2] <= 0.05):
+            return None
+        uv = cam.project(self.keypoints_m, res.pose)
+        (x0, y0), (x1, y1) = np.maximum(uv.min(0), 0.0), np.minimum(uv.max(0), [cam.width - 1.0, cam.height - 1.0])
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            return None
+        return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
 
     def _estimate_in(self, image: np.ndarray, cam: Camera, seen, sun_turn: float = 0.0):
         """:meth:`_keypoint_estimate` on a box ``seen`` (x, y, w, h, pixels) where the object was found."""

@@ -79,7 +79,7 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
         raise ValueError(f"crops: expected at least 1 calibration crop, got {crops}")
     checkpoint = Path(checkpoint)
     from .models import available_models, model_kind
-    from .train import load_checkpoint
+    from .checkpoints import load_checkpoint
 
     model = load_checkpoint(checkpoint).get("config", {}).get("model")
     if model in available_models() and model_kind(model) != "keypoints":

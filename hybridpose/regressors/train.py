@@ -25,7 +25,8 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from ..datasets.bop import dataset_object
 from ..datasets.torch_dataset import PoseDataset, single_threaded_worker, split_indices
 from ..geometry import Pose
-from ..io import atomic_write_json, atomic_write_text, atomic_write_with
+from ..io import atomic_write_json, atomic_write_text
+from .checkpoints import RESUME_ONLY_KEYS, load_checkpoint, save_checkpoint
 from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
 from .calibration import calibrate, keypoint_pnp_batch
 from .keypoint_net import keypoint_loss, widen_state_dict
@@ -89,6 +90,9 @@ class TrainConfig:
             2-core VM): on a GPU, where an epoch of 20 000 views takes tens of seconds, writing it
             every epoch would take about as long as the training; an interrupted run then resumes
             from the last written epoch.
+        full_view: keypoint models — the share of training crops that show the whole frame instead
+            of a crop around the object (:class:`PoseDataset`): > 0 for a regressor that finds the
+            object itself on any background (it then detects with ``detection="network"``).
     """
 
     model: str
@@ -116,6 +120,7 @@ class TrainConfig:
     time_limit_min: float | None = None
     checkpoint_every: int = 1
     cache_images: str | None = None
+    full_view: float = 0.0
     max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
 
     def __post_init__(self) -> None:
@@ -132,6 +137,8 @@ class TrainConfig:
             raise ValueError(f"lr: expected a positive learning rate, got {self.lr}")
         if not (self.twin_weight >= 0 and math.isfinite(self.twin_weight)):
             raise ValueError(f"twin_weight: expected a finite weight ≥ 0, got {self.twin_weight}")
+        if not 0.0 <= self.full_view <= 1.0:
+            raise ValueError(f"full_view: expected a share of the training crops in [0, 1], got {self.full_view}")
         if self.time_limit_min is not None and not self.time_limit_min > 0:
             raise ValueError(f"time_limit_min: expected a positive number of minutes, got {self.time_limit_min}")
 
@@ -162,7 +169,7 @@ def make_datasets(cfg: TrainConfig, keypoints_m=None) -> tuple[Dataset, Dataset]
     if keypoints_m is not None:
         if cfg.cache_images:
             log.warning("--cache-images: keypoint models train on random crops, which are never cached; ignored")
-        crops = PoseDataset(cfg.data, size=cfg.image_size, crop=True, keypoints_m=keypoints_m)
+        crops = PoseDataset(cfg.data, size=cfg.image_size, crop=True, keypoints_m=keypoints_m, full_view=cfg.full_view)
         train_idx, val_idx = split_indices(len(crops), cfg.val_fraction, cfg.seed)
         return crops.subset(train_idx, jitter=cfg.augment), crops.subset(val_idx)
     inputs = [PoseDataset(cfg.data, size=cfg.image_size)]
@@ -321,41 +328,6 @@ def _write_checkpoints(out: Path, best_payload: dict | None, payload: dict) -> N
     if best_payload is not None:
         save_checkpoint(out / "best.pt", best_payload)
     save_checkpoint(out / "last.pt", payload)
-
-
-def save_checkpoint(path: Path, payload: dict) -> None:
-    """Atomic ``torch.save`` (temp file + rename): an interrupted write never corrupts a checkpoint."""
-    atomic_write_with(path, lambda f: torch.save(payload, f))
-
-
-INFERENCE_KEYS = ("config", "model", "build", "dataset", "twins", "calibration", "epoch", "best")
-# In last.pt only: what --resume needs to continue the run exactly.
-RESUME_ONLY_KEYS = ("optimizer", "scheduler", "torch_rng", "loader_rng")
-
-
-def export_checkpoint(src, dst) -> dict:
-    """Inference-only copy of a training checkpoint (no optimizer/RNG state; the best validation
-    row kept as ``validation``), written atomically. Returns it."""
-    ck = load_checkpoint(src)
-    missing = [k for k in ("config", "model", "build") if k not in ck]
-    if missing:
-        raise ValueError(f"{src}: not a hybridpose training checkpoint (missing {', '.join(missing)})")
-    out = {k: ck[k] for k in INFERENCE_KEYS if k in ck}
-    history = ck.get("history") or []
-    if history:
-        out["validation"] = min(history, key=lambda r: r["val_loss"])
-    save_checkpoint(Path(dst), out)
-    return out
-
-
-def load_checkpoint(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
-    try:
-        return torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001
-        raise ValueError(f"{path}: corrupt or truncated checkpoint ({exc})") from exc
 
 
 def _distributed(device: torch.device) -> tuple[int, int, torch.device]:
@@ -576,6 +548,9 @@ def channels_last(model: torch.nn.Module) -> torch.nn.Module:
     return model.to(memory_format=torch.channels_last)
 
 
+OBJECT_BUFFERS = ("keypoints_m",)  # what a network holds of its object, never copied by --init-from
+
+
 def _init_from(model, path) -> None:
     """Copy the weights of ``path`` whose names and shapes match ``model``'s; log what was left out."""
     src = load_checkpoint(path)
@@ -596,7 +571,9 @@ def _init_from(model, path) -> None:
         # (one epoch 128 → 160 px cost the default network of the time 2.8° mean)
         log.warning("%s was trained on %d px crops, this run uses %d px (--image-size %d keeps its scale)",
                     path, src_size, model.image_size, src_size)
-    take = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
+    # the object's own keypoints stay: a start from another object's checkpoint (of as many keypoints)
+    # would otherwise carry its 3D points into every PnP
+    take = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape and k not in OBJECT_BUFFERS}
     if not take:
         raise ValueError(f"{path}: no weight matches the {type(model).__name__} being trained")
     model.load_state_dict(take, strict=False)
@@ -670,6 +647,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache-images", default=None, metavar="DIR",
                    help="VGG models: decode and resize every view once into DIR and memory-map it (reused by later "
                         "runs on the same views; ≈ 150 KB a view at 224 px)")
+    p.add_argument("--full-view", type=float, default=0.0, metavar="SHARE",
+                   help="keypoint models: share of training crops showing the whole frame, so that the network "
+                        "finds the object itself on any background (e.g. 0.3; default 0: found by detection)")
     p.add_argument("--checkpoint-every", type=int, default=1, metavar="N",
                    help="write last.pt (and a better best.pt) every N epochs and when the run stops (default 1: every "
                         "epoch; the VGG models' multi-GB checkpoints take as long to write as a GPU epoch takes)")
@@ -688,7 +668,8 @@ def config_from_args(args) -> TrainConfig:
                        twin_weight=args.twin_weight,
                        init_from=args.init_from, val_fraction=args.val_fraction, amp=args.amp,
                        time_limit_min=args.time_limit,
-                       checkpoint_every=args.checkpoint_every, cache_images=args.cache_images)
+                       checkpoint_every=args.checkpoint_every, cache_images=args.cache_images,
+                       full_view=args.full_view)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -36,7 +36,7 @@ from ..datasets.labels import read_labels
 from ..geometry import Pose, load_camera
 from ..metrics import rotation_error_deg
 from ..io import atomic_write_json, atomic_write_with, read_json
-from .train import save_checkpoint
+from .checkpoints import save_checkpoint
 from .twin_verifier import (CHECKPOINT_FORMAT, STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifierNet,
                             verifier_inputs)
 from .verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror

@@ -19,6 +19,7 @@ import numpy as np  # noqa: E402
 
 from ..geometry import Camera, Pose, as_unit_direction, matrix_to_quat_wxyz  # noqa: E402
 from ..objects import ObjectModel  # noqa: E402
+from .appearance import MAX_FILL_LIGHTS, Appearance  # noqa: E402
 from .lighting import SensorModel, SpaceLighting, earth_background  # noqa: E402
 from .occluder import ArmState  # noqa: E402
 
@@ -82,6 +83,10 @@ def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_
     f = np.arange(len(v)).reshape(-1, 3)
     # a directional light in MuJoCo projects its shadow map around its position; we move the
     # light with the object each frame (see Renderer.render), the clip box spans the arm too.
+    # lights besides the sun for scenes outside space (render(..., appearance=...)); dark unless asked
+    fill_lights = "\n".join(
+        f'    <light name="fill{i}" directional="true" castshadow="false" pos="0 0 -1" dir="0 0 1" '
+        'diffuse="0 0 0" specular="0 0 0" ambient="0 0 0"/>' for i in range(MAX_FILL_LIGHTS))
     arm_bodies = "\n".join(
         f'    <body name="{name}" mocap="true" pos="0 0 -10">\n'
         f'      <geom name="{name}" type="{kind}" size="{size}" material="{material}" contype="0" conaffinity="0" group="{_ARM_GROUP}"/>\n'
@@ -111,6 +116,7 @@ def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_
             focalpixel="{camera.fx:.9g} {camera.fy:.9g}" principalpixel="{-(camera.cx - (w / 2 - 0.5)):.9g} {-(camera.cy - (h / 2 - 0.5)):.9g}"/>
     <light name="sun" directional="true" castshadow="true" pos="0 0 -1" dir="{_fmt(lighting.sun_direction_cam)}"
            diffuse="1 1 1" specular="1 1 1" ambient="0 0 0"/>
+{fill_lights}
     <body name="object" mocap="true" pos="0 0 1">
       <geom name="object" type="mesh" mesh="object" material="object_metal" contype="0" conaffinity="0" group="0"/>
     </body>
@@ -218,6 +224,9 @@ class Renderer:
                        for n in ("object", *_ARM_NAMES)}
         self._geom = {n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in _ARM_NAMES}
         self._light = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, "sun")
+        self._fills = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, f"fill{i}") for i in range(MAX_FILL_LIGHTS)]
+        self._object_material = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MATERIAL, "object_metal")
+        self._object_rgba = m.mat_rgba[self._object_material].copy()
         self._opt_all = mujoco.MjvOption()
         self._opt_no_arm = mujoco.MjvOption()
         self._opt_no_arm.geomgroup[_ARM_GROUP] = 0
@@ -264,6 +273,21 @@ class Renderer:
         s = self.lighting.sun_specular * sun_scale
         self._model.light_specular[self._light] = (s, s, s)
 
+    def _set_appearance(self, look: Appearance | None) -> None:
+        """Ambient light, fill lights and the part's colour of ``look`` (None: space — none of them)."""
+        look = look or Appearance()
+        for i, light in enumerate(self._fills):
+            d, k = look.fill_lights[i] if i < len(look.fill_lights) else ((0.0, 0.0, 1.0), 0.0)
+            self._model.light_dir[light] = d
+            self._model.light_diffuse[light] = (k, k, k)
+            self._model.light_specular[light] = (0.3 * k,) * 3
+        # the ambient term rides on the first fill light: it lights every face whatever the sun does
+        self._model.light_ambient[self._fills[0]] = (look.ambient,) * 3
+        rgba = self._object_rgba.copy()
+        if look.object_rgb is not None:
+            rgba[:3] = look.object_rgb
+        self._model.mat_rgba[self._object_material] = rgba
+
     def _object_code(self) -> int:
         """ID colour of the object in the current scene (segment index + 1; 0 = background)."""
         scene = self._gl.scene
@@ -281,6 +305,7 @@ class Renderer:
         sun_scale: float = 1.0,
         rng: np.random.Generator | int | None = None,
         sun_direction_cam=None,
+        appearance: Appearance | None = None,
     ) -> RenderResult:
         """Render the object at ``T_cam_obj`` (object → camera, metres).
 
@@ -291,6 +316,8 @@ class Renderer:
             rng: seed for the background and sensor noise of this frame.
             sun_direction_cam: (3,) direction the sunlight travels in the camera frame for this
                 frame only (None = the lighting's); normalised here.
+            appearance: ambient and fill lights, the part's colour and the background of this frame
+                (:mod:`hybridpose.render.appearance`; None = space: none of them).
         """
         if not isinstance(T_cam_obj, Pose):
             raise TypeError(f"T_cam_obj: expected a hybridpose Pose, got {type(T_cam_obj).__name__}")
@@ -304,6 +331,7 @@ class Renderer:
         self._set_mocap("object", T_cam_obj.t, matrix_to_quat_wxyz(T_cam_obj.R))
         self._set_arm(arm)
         self._set_sun(T_cam_obj, sun_scale, sun_direction_cam)
+        self._set_appearance(appearance)
         mujoco.mj_forward(self._model, self._data)
 
         gl = self._gl
@@ -322,7 +350,13 @@ class Renderer:
 
         if self.lighting.exposure != 1.0:
             rgb = np.clip(rgb.astype(np.float32) * self.lighting.exposure, 0, 255).astype(np.uint8)
-        if self.lighting.background == "earth":
+        if appearance is not None and appearance.background is not None:
+            bg = appearance.background
+            if bg.shape[:2] != (self.camera.height, self.camera.width):
+                raise ValueError(f"appearance.background: expected {self.camera.height}×{self.camera.width} px, "
+                                 f"got {bg.shape[0]}×{bg.shape[1]}")
+            rgb = np.where(hit[..., None], rgb, bg)
+        elif self.lighting.background == "earth":
             bg = earth_background(self.camera.width, self.camera.height, rng)
             rgb = np.where(hit[..., None], rgb, bg)
         rgb = self.sensor.apply(rgb, rng)

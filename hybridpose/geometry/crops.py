@@ -1,0 +1,33 @@
+"""Square image crops and the intrinsics that go with them: where the CNN regressors and their
+training data cut the object out of a frame (pixel centres at integer coordinates)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+MIN_CROP_PX = 16  # no crop is smaller than this many pixels a side
+
+
+def crop_box(bbox_xywh, margin: float = 1.2) -> tuple[float, float, float]:
+    """Square crop ``(cx, cy, side)`` in pixels around a BOP bbox, ``side = margin · max(w, h)``."""
+    x, y, w, h = (float(v) for v in bbox_xywh)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"bbox: expected positive width and height, got {bbox_xywh}")
+    return x + (w - 1) / 2, y + (h - 1) / 2, max(MIN_CROP_PX, margin * max(w, h))
+
+
+def crop_affine(cx: float, cy: float, side: float, out_w: int, out_h: int) -> np.ndarray:
+    """(2, 3) affine mapping source pixels to crop pixels (pixel centres at integers)."""
+    sx, sy = out_w / side, out_h / side
+    return np.array([[sx, 0.0, (out_w - 1) / 2 - sx * cx], [0.0, sy, (out_h - 1) / 2 - sy * cy]])
+
+
+def crop_image(image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: float, size: tuple[int, int]):
+    """The square ``(cx, cy, side)`` (source pixels) of ``image`` resampled to ``size`` (W, H), and the
+    intrinsics of the crop; outside the frame is black (space). Training and inference share it so
+    the network sees the same resampling in both."""
+    w, h = size
+    A = crop_affine(cx, cy, side, w, h)
+    out = cv2.warpAffine(image, A, (w, h), flags=cv2.INTER_AREA if side > w else cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out, np.vstack([A, [0, 0, 1]]) @ K

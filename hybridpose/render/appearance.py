@@ -1,0 +1,189 @@
+"""Domain randomisation for the world outside space: what a training image may look like besides
+the pose — the background behind the object, ambient and extra lights, the part's colour.
+
+A CNN trained on one look (a grey part on black space) learns that look; one meant for a user's part on
+a bench, in a hand or against the Earth must see many. :func:`random_appearance` draws a seeded
+:class:`Appearance` per image; :func:`clutter_background` makes procedural clutter (gradients, noise,
+shapes, distractor edges) and :class:`PhotoBackgrounds` cuts random crops from the user's photos.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..geometry import as_unit_direction
+
+PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+MAX_FILL_LIGHTS = 2  # lights besides the sun (the renderer's scene holds this many, off unless asked)
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """How one image looks besides the pose.
+
+    Attributes:
+        ambient: grey ambient light, 0..1 (0: space, where nothing unlit is seen).
+        object_rgb: (3,) the part's diffuse colour, 0..1, or None (the model's material).
+        fill_lights: up to ``MAX_FILL_LIGHTS`` extra directional lights as ``(direction (3,) the light
+            travels in the camera frame, intensity 0..1.5)``.
+        background: (H, W, 3) uint8 RGB drawn behind the object, or None (the lighting's background).
+    """
+
+    ambient: float = 0.0
+    object_rgb: tuple[float, float, float] | None = None
+    fill_lights: tuple = ()
+    background: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.ambient <= 1.0:
+            raise ValueError(f"ambient: expected a grey level in [0, 1], got {self.ambient!r}")
+        if self.object_rgb is not None:
+            rgb = np.asarray(self.object_rgb, dtype=np.float64)
+            if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 1)):
+                raise ValueError(f"object_rgb: expected (3,) colours in [0, 1], got {self.object_rgb!r}")
+        if len(self.fill_lights) > MAX_FILL_LIGHTS:
+            raise ValueError(f"fill_lights: at most {MAX_FILL_LIGHTS} lights besides the sun, got {len(self.fill_lights)}")
+        for d, k in self.fill_lights:
+            as_unit_direction(d, "fill_lights direction")
+            if not 0.0 <= k <= 1.5:
+                raise ValueError(f"fill_lights: expected intensities in [0, 1.5], got {k!r}")
+        if self.background is not None and (self.background.ndim != 3 or self.background.shape[2] != 3
+                                            or self.background.dtype != np.uint8):
+            raise ValueError(f"background: expected an (H, W, 3) uint8 RGB image, got {self.background.shape} "
+                             f"{self.background.dtype}")
+
+
+def clutter_background(width: int, height: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB procedural clutter, seeded: a colour gradient, multi-octave noise, and
+    random rectangles, ellipses and lines — straight edges and corners a tracker or a CNN might
+    mistake for the part's, which is the point."""
+    rng = np.random.default_rng(rng)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    c0, c1 = rng.uniform(0, 255, 3), rng.uniform(0, 255, 3)
+    angle = rng.uniform(0, 2 * np.pi)
+    ramp = (np.cos(angle) * xx / width + np.sin(angle) * yy / height)
+    ramp = (ramp - ramp.min()) / max(float(np.ptp(ramp)), 1e-6)
+    img = c0 * (1 - ramp[..., None]) + c1 * ramp[..., None]
+    texture = np.zeros((height, width), np.float32)
+    for octave, weight in ((rng.integers(32, 128), 0.6), (rng.integers(8, 32), 0.3), (rng.integers(2, 8), 0.1)):
+        small = rng.random((max(2, height // int(octave)), max(2, width // int(octave)))).astype(np.float32)
+        texture += weight * cv2.resize(small, (width, height), interpolation=cv2.INTER_CUBIC)
+    img = img * (0.6 + 0.8 * texture[..., None] * rng.uniform(0.2, 1.0))
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    for _ in range(int(rng.integers(3, 15))):
+        colour = tuple(int(v) for v in rng.integers(0, 256, 3))
+        kind = rng.integers(0, 3)
+        x, y = int(rng.integers(0, width)), int(rng.integers(0, height))
+        if kind == 0:
+            w, h = int(rng.integers(10, width // 2)), int(rng.integers(10, height // 2))
+            cv2.rectangle(img, (x, y), (x + w, y + h), colour, -1 if rng.random() < 0.6 else int(rng.integers(1, 5)))
+        elif kind == 1:
+            axes = (int(rng.integers(5, width // 4)), int(rng.integers(5, height // 4)))
+            cv2.ellipse(img, (x, y), axes, float(rng.uniform(0, 180)), 0, 360, colour, -1 if rng.random() < 0.6 else 2)
+        else:
+            cv2.line(img, (x, y), (int(rng.integers(0, width)), int(rng.integers(0, height))), colour,
+                     int(rng.integers(1, 6)))
+    if rng.random() < 0.5:
+        img = cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.5, 3.0)))
+    return img
+
+
+class PhotoBackgrounds:
+    """Random crops of the photos in ``folder`` (any size; resized to cover the frame), seeded per draw.
+
+    Raises:
+        ValueError: ``folder`` is not a folder or holds no readable image.
+    """
+
+    def __init__(self, folder) -> None:
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise ValueError(f"backgrounds: {folder} is not a folder of photos")
+        self.files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in PHOTO_SUFFIXES)
+        if not self.files:
+            raise ValueError(f"backgrounds: no photos ({', '.join(PHOTO_SUFFIXES)}) under {folder}")
+        self.folder = folder
+
+    def draw(self, width: int, height: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
+        rng = np.random.default_rng(rng)
+        path = self.files[int(rng.integers(len(self.files)))]
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError(f"backgrounds: {path}: unreadable image")
+        h, w = bgr.shape[:2]
+        scale = max(width / w, height / h) * rng.uniform(1.0, 1.6)
+        bgr = cv2.resize(bgr, (max(width, int(np.ceil(w * scale))), max(height, int(np.ceil(h * scale)))),
+                         interpolation=cv2.INTER_AREA)
+        y = int(rng.integers(0, bgr.shape[0] - height + 1))
+        x = int(rng.integers(0, bgr.shape[1] - width + 1))
+        crop = bgr[y:y + height, x:x + width]
+        if rng.random() < 0.5:
+            crop = crop[:, ::-1]
+        return np.ascontiguousarray(crop[..., ::-1])
+
+
+def random_appearance(width: int, height: int, rng: np.random.Generator | int | None = None,
+                      photos: PhotoBackgrounds | None = None, ambient_range: tuple[float, float] = (0.1, 0.5),
+                      max_fill_lights: int = MAX_FILL_LIGHTS, colour: bool = True) -> Appearance:
+    """A seeded :class:`Appearance` for a ``width`` × ``height`` image: background from ``photos`` (half
+    the draws when given) or procedural clutter, ambient light in ``ambient_range``, 0 to
+    ``max_fill_lights`` extra lights from random directions, and (``colour``) a random part colour."""
+    rng = np.random.default_rng(rng)
+    lo, hi = ambient_range
+    if not 0 <= lo <= hi <= 1:
+        raise ValueError(f"ambient_range: expected 0 ≤ low ≤ high ≤ 1, got {ambient_range}")
+    if photos is not None and rng.random() < 0.5:
+        bg = photos.draw(width, height, rng)
+    else:
+        bg = clutter_background(width, height, rng)
+    fills = []
+    for _ in range(int(rng.integers(0, max_fill_lights + 1))):
+        d = rng.normal(size=3)
+        d[2] = abs(d[2]) + 0.2  # light travelling away from the camera: it lights the faces the camera sees
+        fills.append((tuple(float(v) for v in d / np.linalg.norm(d)), float(rng.uniform(0.2, 0.8))))
+    rgb = tuple(float(v) for v in rng.uniform(0.15, 1.0, 3)) if colour else None
+    return Appearance(ambient=float(rng.uniform(lo, hi)), object_rgb=rgb, fill_lights=tuple(fills), background=bg)
+
+
+APPEARANCES = ("space", "random")
+
+
+@dataclass(frozen=True)
+class AppearanceSpec:
+    """What a rendering job draws per image (picklable, recorded in the dataset's config).
+
+    Attributes:
+        kind: ``"space"`` (the lighting's look: black or Earth background, no ambient light) or
+            ``"random"`` (:func:`random_appearance` per image).
+        backgrounds: a folder of photos that ``"random"`` draws half its backgrounds from.
+    """
+
+    kind: str = "space"
+    backgrounds: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in APPEARANCES:
+            raise ValueError(f"appearance: expected one of {', '.join(APPEARANCES)}, got {self.kind!r}")
+        if self.backgrounds is not None:
+            if self.kind != "random":
+                raise ValueError("backgrounds: photos are drawn only with appearance 'random'")
+            _photos(self.backgrounds)  # refuse a bad folder before any work starts
+
+    def draw(self, width: int, height: int, seed: int, index: int) -> Appearance | None:
+        """Image ``index``'s appearance (None for space), seeded by ``(seed, index)`` alone."""
+        if self.kind == "space":
+            return None
+        photos = _photos(self.backgrounds) if self.backgrounds else None
+        return random_appearance(width, height, np.random.default_rng([seed, index, 13]), photos=photos)
+
+
+_PHOTO_FOLDERS: dict[str, PhotoBackgrounds] = {}
+
+
+def _photos(folder: str) -> PhotoBackgrounds:
+    if folder not in _PHOTO_FOLDERS:
+        _PHOTO_FOLDERS[folder] = PhotoBackgrounds(folder)
+    return _PHOTO_FOLDERS[folder]

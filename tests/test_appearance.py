@@ -1,0 +1,125 @@
+"""Randomised looks for the world outside space: backgrounds, ambient and fill lights, part colour."""
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from hybridpose.cli import main
+from hybridpose.datasets import BopScene, render_random_dataset
+from hybridpose.geometry import Camera, Pose
+from hybridpose.render import Appearance, AppearanceSpec, Renderer, clutter_background, random_appearance
+from hybridpose.render.appearance import PhotoBackgrounds
+
+CAM = Camera.default().scaled((160, 120))
+# the sun travels towards the camera: the faces the camera sees are unlit
+BACKLIT = (0.0, 0.0, -1.0)
+
+
+@pytest.fixture(scope="module")
+def renderer(truss):
+    with Renderer(truss, CAM) as r:
+        yield r
+
+
+def pose():
+    return Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.0, 0.0, 0.8])
+
+
+def test_space_is_what_it_was_without_an_appearance(renderer):
+    plain = renderer.render(pose(), rng=0)
+    space = renderer.render(pose(), rng=0, appearance=Appearance())
+    assert np.array_equal(plain.rgb, space.rgb)
+    # and a random look leaves nothing behind for the next space render
+    renderer.render(pose(), rng=0, appearance=random_appearance(CAM.width, CAM.height, 3))
+    assert np.array_equal(renderer.render(pose(), rng=0).rgb, plain.rgb)
+
+
+def test_background_colour_ambient_and_fill_lights_change_what_they_should(renderer):
+    base = renderer.render(pose(), rng=0, sun_direction_cam=BACKLIT)
+    obj = base.mask_visib
+    # background: away from the silhouette, whose anti-aliased rim belongs to neither
+    bg_px = cv2.dilate(obj.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
+    assert base.rgb[obj].mean() < 5 and base.rgb[bg_px].max() == 0  # back-lit in space: nothing to see
+
+    bg = clutter_background(CAM.width, CAM.height, 1)
+    with_bg = renderer.render(pose(), rng=0, sun_direction_cam=BACKLIT, appearance=Appearance(background=bg))
+    assert np.array_equal(with_bg.rgb[bg_px], bg[bg_px]) and np.array_equal(with_bg.rgb[obj], base.rgb[obj])
+
+    lit = renderer.render(pose(), rng=0, sun_direction_cam=BACKLIT, appearance=Appearance(ambient=0.4))
+    assert lit.rgb[obj].mean() > 40  # the ambient light shows the unlit faces
+
+    red = renderer.render(pose(), rng=0, sun_direction_cam=BACKLIT,
+                          appearance=Appearance(ambient=0.4, object_rgb=(1.0, 0.1, 0.1)))
+    r, g = red.rgb[obj][:, 0].mean(), red.rgb[obj][:, 1].mean()
+    assert r > 3 * g
+
+    fill = renderer.render(pose(), rng=0, sun_direction_cam=BACKLIT,
+                           appearance=Appearance(fill_lights=(((0.0, 0.0, 1.0), 1.0),)))
+    assert fill.rgb[obj].mean() > 40  # a light from behind the camera
+
+
+def test_appearance_draws_are_seeded_by_image_index():
+    spec = AppearanceSpec("random")
+    a, b, c = spec.draw(64, 48, seed=3, index=5), spec.draw(64, 48, seed=3, index=5), spec.draw(64, 48, seed=3, index=6)
+    assert np.array_equal(a.background, b.background) and a.ambient == b.ambient and a.object_rgb == b.object_rgb
+    assert not np.array_equal(a.background, c.background)
+    assert AppearanceSpec().draw(64, 48, 3, 5) is None
+
+
+def test_photo_backgrounds_cover_the_frame(tmp_path):
+    rng = np.random.default_rng(0)
+    for i, (h, w) in enumerate([(30, 40), (200, 90)]):
+        cv2.imwrite(str(tmp_path / f"p{i}.jpg"), rng.integers(0, 255, (h, w, 3), dtype=np.uint8))
+    (tmp_path / "notes.txt").write_text("not a photo")
+    photos = PhotoBackgrounds(tmp_path)
+    assert len(photos.files) == 2
+    for k in range(4):
+        img = photos.draw(64, 48, k)
+        assert img.shape == (48, 64, 3) and img.dtype == np.uint8
+    spec = AppearanceSpec("random", backgrounds=str(tmp_path))
+    assert spec.draw(64, 48, 0, 0).background.shape == (48, 64, 3)
+
+
+def test_bad_appearance_input_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="no photos"):
+        PhotoBackgrounds(tmp_path)
+    with pytest.raises(ValueError, match="not a folder"):
+        AppearanceSpec("random", backgrounds=str(tmp_path / "missing"))
+    with pytest.raises(ValueError, match="only with appearance 'random'"):
+        AppearanceSpec("space", backgrounds=str(tmp_path))
+    with pytest.raises(ValueError, match="appearance: expected one of"):
+        AppearanceSpec("studio")
+    with pytest.raises(ValueError, match="ambient"):
+        Appearance(ambient=2.0)
+    with pytest.raises(ValueError, match="object_rgb"):
+        Appearance(object_rgb=(1.0, 2.0, 0.0))
+    with pytest.raises(ValueError, match="background"):
+        Appearance(background=np.zeros((4, 4), np.uint8))
+
+
+def test_random_look_dataset_keeps_the_poses_and_resumes(truss, tmp_path):
+    space = render_random_dataset(tmp_path / "space", truss, CAM, 4, seed=2, in_view=True)
+    looks = AppearanceSpec("random")
+    scene = render_random_dataset(tmp_path / "rand", truss, CAM, 4, seed=2, in_view=True, appearance=looks)
+    a, b = BopScene(space), BopScene(scene)
+    for i in a.image_ids:
+        assert np.allclose(a.image(i).pose.matrix, b.image(i).pose.matrix)  # same poses for the seed
+        assert b.rgb(i).mean() > a.rgb(i).mean() + 10  # a background instead of black space
+    config = json.loads((tmp_path / "rand" / "hybridpose.json").read_text())
+    assert config["appearance"] == {"kind": "random", "backgrounds": None}
+    before = {p.name: p.read_bytes() for p in (scene / "rgb").iterdir()}
+    (scene / "rgb" / sorted(before)[-1]).unlink()
+    render_random_dataset(tmp_path / "rand", truss, CAM, 4, seed=2, in_view=True, appearance=looks)
+    assert {p.name: p.read_bytes() for p in (scene / "rgb").iterdir()} == before  # resumed, byte-identical
+
+
+def test_render_command_takes_the_appearance_options(tmp_path, capsys):
+    assert main(["render", "--kind", "random", "--count", "2", "--size", "96x72", "--appearance", "random",
+                 "--out", str(tmp_path / "r")]) == 0
+    assert main(["render", "--kind", "sequence", "--frames", "2", "--size", "96x72", "--appearance", "random",
+                 "--out", str(tmp_path / "s")]) == 2
+    assert "only for --kind random" in capsys.readouterr().err
+    assert main(["render", "--kind", "random", "--count", "2", "--size", "96x72", "--backgrounds", str(tmp_path),
+                 "--out", str(tmp_path / "b")]) == 2
+    assert "only with appearance 'random'" in capsys.readouterr().err

@@ -1,0 +1,105 @@
+"""``hybridpose fit``: budget and plan, input checks before long work, and a tiny fit end to end."""
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from hybridpose.cli import main
+from hybridpose.fit import FitPlan, check_inputs, fit, make_plan, parse_budget, working_distances
+from hybridpose.geometry import Camera
+from hybridpose.objects import load_object
+
+
+@pytest.fixture(scope="module")
+def box_mesh(tmp_path_factory):
+    """A 20 × 12 × 8 cm box, in millimetres as CAD exports often are."""
+    path = tmp_path_factory.mktemp("mesh") / "box_mm.obj"
+    trimesh.creation.box(extents=(200.0, 120.0, 80.0)).export(path)
+    return path
+
+
+def test_budgets_read_as_minutes():
+    assert parse_budget("60m") == 60 and parse_budget("1h") == 60 and parse_budget("1h30m") == 90
+    assert parse_budget("90s") == 1.5 and parse_budget(45) == 45 and parse_budget("2.5") == 2.5
+    for bad in ("", "soon", "10 parsecs", "m"):
+        with pytest.raises(ValueError, match="budget: expected a time"):
+            parse_budget(bad)
+
+
+def test_the_plan_grows_with_the_budget_and_fits_it():
+    small = make_plan(15, 0.05, 0.02, (0.3, 1.2))
+    large = make_plan(60, 0.05, 0.02, (0.3, 1.2))
+    assert large.train_views >= small.train_views and large.test_views >= small.test_views
+    for p in (small, large):
+        # the rendering fits its share, and at least two epochs over the views fit the training time
+        assert (p.train_views + p.test_views) * p.render_s_per_view <= 60 * p.budget_min * 0.25 + 1
+        assert 2 * p.train_views * p.train_s_per_view <= 60 * p.train_min + 1e-6
+        assert p.epochs * p.train_views * p.train_s_per_view <= 60 * p.train_min * 1.01
+
+
+def test_what_cannot_work_is_refused_before_long_work(box_mesh):
+    cam = Camera.default()
+    in_mm = load_object(str(box_mesh))
+    with pytest.raises(ValueError, match="millimetres.*--scale 0.001"):
+        check_inputs(in_mm, cam, 60)
+    box = load_object(str(box_mesh), scale=0.001)
+    near, far = check_inputs(box, cam, 60)
+    assert 0 < near < far and (near, far) == working_distances(box, cam)
+    with pytest.raises(ValueError, match="too little"):
+        check_inputs(box, cam, 2)
+    with pytest.raises(ValueError, match="px across"):
+        check_inputs(box, Camera.default().scaled((40, 30)), 60)
+
+
+def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tmp_path, capsys):
+    cam = Camera.default().scaled((320, 240))
+    box = load_object(str(box_mesh), scale=0.001)
+    plan = FitPlan(budget_min=2.0, train_views=32, test_views=44, epochs=1, train_min=1.0, render_s_per_view=0.05,
+                   train_s_per_view=0.05, distance_range_m=working_distances(box, cam))
+    out = tmp_path / "fit"
+    record = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None)
+    assert record["done"] == ["render", "train", "calibrate", "evaluate"]
+    assert (out / "best.pt").is_file() and (out / "eval" / "report.json").is_file()
+    acc = record["accuracy"]
+    assert acc["views"] == 44 and 0.0 <= acc["in_tracker_basin"] <= acc["in_tracker_basin_twin"] <= 1.0
+    assert np.isfinite(acc["rot_median_deg"]) and acc["rot_twin_median_deg"] <= acc["rot_median_deg"]
+    report = (out / "report.md").read_text()
+    assert "within a tracker's basin" in report and "32 training and 44 held-out views" in report
+    # the rendered views have random looks, not black space
+    cfg = json.loads((out / "data" / "train" / "hybridpose.json").read_text())
+    assert cfg["appearance"]["kind"] == "random"
+    # the checkpoint finds the part itself (trained with whole-frame crops)
+    from hybridpose.regressors.predictor import CheckpointRegressor
+
+    reg = CheckpointRegressor(out / "best.pt")
+    assert reg.detection == "network"
+    # started from the truss network's weights, but with the box's own keypoints
+    assert np.allclose(reg.keypoints_m, box.keypoints)
+    # a second run resumes: nothing is done again
+    stamp = (out / "best.pt").stat().st_mtime_ns
+    again = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None)
+    assert again["minutes"] == record["minutes"] and (out / "best.pt").stat().st_mtime_ns == stamp
+    with pytest.raises(ValueError, match="other settings.*seed"):
+        fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None)
+
+
+def test_fit_command_refuses_bad_input_with_a_message(box_mesh, tmp_path, capsys):
+    assert main(["fit", str(box_mesh), "--out", str(tmp_path / "a"), "--budget", "60m"]) == 2
+    assert "--scale 0.001" in capsys.readouterr().err
+    assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "b"), "--budget", "1m"]) == 2
+    assert "too little" in capsys.readouterr().err
+    assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--budget", "soon"]) == 2
+    assert "budget: expected a time" in capsys.readouterr().err
+
+
+def test_a_start_from_another_objects_network_keeps_this_objects_keypoints(truss):
+    """--init-from copies the features, never the 3D keypoints the network's PnP uses."""
+    from hybridpose.regressors.checkpoints import shipped_checkpoint
+    from hybridpose.regressors.models import build_model
+    from hybridpose.regressors.train import _init_from
+
+    other = 0.5 * truss.keypoints  # as many keypoints as the shipped truss network has, elsewhere
+    net = build_model("default", keypoints_m=other, image_size=128)
+    _init_from(net, shipped_checkpoint("default"))
+    assert np.allclose(net.keypoints_m.numpy(), other, atol=1e-6)

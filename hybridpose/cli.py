@@ -74,8 +74,6 @@ def cmd_render(args) -> int:
     lighting = SpaceLighting(sun_direction_cam=args.sun_dir, sun_intensity=args.sun, exposure=args.exposure,
                              background=args.background)
     sensor = SensorModel(blur_sigma_px=args.blur, noise_std=args.noise, gamma=args.gamma)
-    if args.kind != "random" and (args.appearance != "space" or args.backgrounds):
-        raise ValueError("--appearance/--backgrounds: only for --kind random")
     looks = AppearanceSpec(args.appearance, args.backgrounds)
     if args.kind == "random":
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
@@ -87,7 +85,7 @@ def cmd_render(args) -> int:
         spec = SequenceSpec(trajectory=args.trajectory, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                             lighting=args.lighting, seed=args.seed)
         scene = render_sequence_dataset(args.out, obj, camera, spec, lighting=lighting, sensor=sensor,
-                                        progress=_progress("render"), workers=args.workers)
+                                        progress=_progress("render"), workers=args.workers, appearance=looks)
     print(f"wrote {scene} ({camera.width}×{camera.height}, BOP format) and {Path(args.out) / 'labels.csv'}")
     return 0
 
@@ -435,9 +433,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="random: only views LOW..HIGH degrees from edge-on (0 edge-on, 90 face-on), "
                         "e.g. 0,20 for more of the hard views of a flat object")
     r.add_argument("--appearance", choices=("space", "random"), default="space",
-                   help="random: 'space' (black or Earth background, no ambient light) or 'random' (per image a "
-                        "cluttered or photo background, ambient and extra lights, a random part colour: "
-                        "for a part outside space)")
+                   help="'space' (black or Earth background, no ambient light) or 'random': a cluttered or photo "
+                        "background, ambient and extra lights, a random part colour — per image for --kind random, "
+                        "one look for a whole sequence (a part outside space)")
     r.add_argument("--backgrounds", default=None, metavar="DIR",
                    help="with --appearance random: a folder of photos, half the backgrounds are crops of them")
     r.add_argument("--sun-range", type=_float_pair, default=(1.0, 1.0),

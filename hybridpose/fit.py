@@ -121,7 +121,8 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 4) -> tuple[fl
     t0 = time.perf_counter()
     for _ in range(2):
         out = net(x)
-        loss = sum(v.float().mean() for v in (out.values() if isinstance(out, dict) else [out]))
+        outs = out.values() if isinstance(out, dict) else out if isinstance(out, (tuple, list)) else [out]
+        loss = sum(v.float().mean() for v in outs if isinstance(v, torch.Tensor))
         opt.zero_grad()
         loss.backward()
         opt.step()

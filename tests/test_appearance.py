@@ -107,7 +107,7 @@ def test_random_look_dataset_keeps_the_poses_and_resumes(truss, tmp_path):
         assert np.allclose(a.image(i).pose.matrix, b.image(i).pose.matrix)  # same poses for the seed
         assert b.rgb(i).mean() > a.rgb(i).mean() + 10  # a background instead of black space
     config = json.loads((tmp_path / "rand" / "hybridpose.json").read_text())
-    assert config["appearance"] == {"kind": "random", "backgrounds": None}
+    assert config["appearance"] == {"kind": "random", "backgrounds": None, "fixed": False}
     before = {p.name: p.read_bytes() for p in (scene / "rgb").iterdir()}
     (scene / "rgb" / sorted(before)[-1]).unlink()
     render_random_dataset(tmp_path / "rand", truss, CAM, 4, seed=2, in_view=True, appearance=looks)
@@ -117,9 +117,13 @@ def test_random_look_dataset_keeps_the_poses_and_resumes(truss, tmp_path):
 def test_render_command_takes_the_appearance_options(tmp_path, capsys):
     assert main(["render", "--kind", "random", "--count", "2", "--size", "96x72", "--appearance", "random",
                  "--out", str(tmp_path / "r")]) == 0
-    assert main(["render", "--kind", "sequence", "--frames", "2", "--size", "96x72", "--appearance", "random",
-                 "--out", str(tmp_path / "s")]) == 2
-    assert "only for --kind random" in capsys.readouterr().err
+    assert main(["render", "--kind", "sequence", "--frames", "3", "--size", "96x72", "--appearance", "random",
+                 "--out", str(tmp_path / "s")]) == 0
+    scene = BopScene(tmp_path / "s" / "test" / "000000")
+    masks = [np.asarray(cv2.imread(str(p), 0)) > 0 for p in sorted((scene.dir / "mask_visib").iterdir())]
+    behind = ~(masks[0] | masks[1] | masks[2])
+    assert behind.any() and np.array_equal(scene.rgb(0)[behind], scene.rgb(2)[behind])  # one background for the video
+    assert scene.rgb(0)[behind].mean() > 5
     assert main(["render", "--kind", "random", "--count", "2", "--size", "96x72", "--backgrounds", str(tmp_path),
                  "--out", str(tmp_path / "b")]) == 2
     assert "only with appearance 'random'" in capsys.readouterr().err

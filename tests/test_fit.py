@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from hybridpose.cli import main
-from hybridpose.fit import FitPlan, check_inputs, fit, make_plan, parse_budget, working_distances
+from hybridpose.fit import FitPlan, check_inputs, fit, make_plan, measure_speeds, parse_budget, working_distances
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
 
@@ -36,6 +36,14 @@ def test_the_plan_grows_with_the_budget_and_fits_it():
         assert (p.train_views + p.test_views) * p.render_s_per_view <= 60 * p.budget_min * 0.25 + 1
         assert 2 * p.train_views * p.train_s_per_view <= 60 * p.train_min + 1e-6
         assert p.epochs * p.train_views * p.train_s_per_view <= 60 * p.train_min * 1.01
+
+
+def test_this_machine_is_measured_before_planning(box_mesh):
+    box = load_object(str(box_mesh), scale=0.001)
+    render_s, train_s = measure_speeds(box, Camera.default().scaled((320, 240)), views=2)
+    assert 0 < render_s < 5 and 0 < train_s < 5
+    plan = make_plan(30, render_s, train_s, (0.3, 1.2))
+    assert plan.train_views >= 100 and plan.epochs >= 1
 
 
 def test_what_cannot_work_is_refused_before_long_work(box_mesh):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Callable
 
@@ -226,17 +226,22 @@ def render_sequence_dataset(
     sensor: SensorModel | None = None,
     progress: Callable[[int, int], None] | None = None,
     workers: int = 1,
+    appearance: AppearanceSpec | None = None,
 ) -> Path:
     """A rendered sequence (split ``test``) with timestamps and occlusion per frame; resumable.
 
     Per-frame extras (timestamp, occlusion state, sun factor and direction) go to ``<scene>/scene_meta.json``.
+    ``appearance`` ``AppearanceSpec("random", ...)`` gives the whole sequence one drawn look (background,
+    lights, part colour: a camera watching a part on a bench), whatever its ``fixed``.
     """
     out = Path(out)
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
-    _open_job(out, "sequence", obj, camera, lighting, sensor, spec=asdict(spec))
+    looks = replace(appearance, fixed=True) if appearance is not None else AppearanceSpec()
+    _open_job(out, "sequence", obj, camera, lighting, sensor, spec=asdict(spec),
+              **({} if looks == AppearanceSpec() else {"appearance": asdict(looks)}))
     frames = make_sequence(spec, obj, camera)
     items = [(f.pose, f.arm, f.sun_scale, None) for f in frames]
-    scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress, workers)
+    scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress, workers, looks)
     meta = {str(f.index): {"timestamp_s": f.timestamp, "occlusion": f.occlusion, "sun_scale": f.sun_scale,
                            "sun_direction_cam": list(lighting.sun_direction_cam)} for f in frames}
     atomic_write_json(scene_dir / "scene_meta.json", {"fps": spec.fps, "frames": meta})

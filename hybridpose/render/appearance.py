@@ -159,10 +159,13 @@ class AppearanceSpec:
         kind: ``"space"`` (the lighting's look: black or Earth background, no ambient light) or
             ``"random"`` (:func:`random_appearance` per image).
         backgrounds: a folder of photos that ``"random"`` draws half its backgrounds from.
+        fixed: one look for every image (drawn for index 0): a video, where the background and the
+            lights stay while the part moves; False: a new look per image (training data).
     """
 
     kind: str = "space"
     backgrounds: str | None = None
+    fixed: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in APPEARANCES:
@@ -177,7 +180,8 @@ class AppearanceSpec:
         if self.kind == "space":
             return None
         photos = _photos(self.backgrounds) if self.backgrounds else None
-        return random_appearance(width, height, np.random.default_rng([seed, index, 13]), photos=photos)
+        return random_appearance(width, height, np.random.default_rng([seed, 0 if self.fixed else index, 13]),
+                                 photos=photos)
 
 
 _PHOTO_FOLDERS: dict[str, PhotoBackgrounds] = {}

@@ -40,6 +40,15 @@ def rotation_error_deg(est, gt) -> float:
     return float(np.degrees(rotation_error_rad(est, gt)))
 
 
+def nearest_equivalent(est: Pose, gt: Pose, symmetries=()) -> Pose:
+    """Of ``gt`` and the poses ``gt @ S`` that look the same (``S`` in the object's ``symmetries``),
+    the one nearest ``est`` in rotation: what an estimate of a symmetric object is scored against
+    (BOP's errors over ``symmetries_discrete``). ``gt`` itself for an asymmetric object."""
+    if not symmetries:
+        return gt
+    return min((gt, *(gt @ S for S in symmetries)), key=lambda g: rotation_error_rad(est, g))
+
+
 def translation_error_m(est, gt) -> float:
     """‖t_est − t_gt‖ in metres (BOP's ``te``)."""
     return float(np.linalg.norm(_t(est, "est") - _t(gt, "gt")))

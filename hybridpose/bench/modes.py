@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core import Frame
 from ..geometry import Pose
-from ..metrics import add, adds, auc, rotation_error_deg, speed_score, translation_error_m
+from ..metrics import add, adds, auc, nearest_equivalent, rotation_error_deg, speed_score, translation_error_m
 
 HALF_VISIBLE = 0.5  # errors are reported on frames where at least this share of the object is visible
 COVERED = 0.05  # below this visible share the object counts as covered
@@ -114,10 +114,11 @@ def hybrid_record(e, cnn_calls: int) -> FrameRecord:
                        status=e.status, covariance=e.covariance, raw_pose=e.pose)
 
 
-def trusted_errors_deg(seq: list[SequenceFrame], records: list[FrameRecord]) -> list[float | None]:
-    """Rotation error (°) per frame where the mode gave a trusted pose, None elsewhere."""
-    return [rotation_error_deg(r.pose, s.truth) if r.trusted and r.pose is not None else None
-            for s, r in zip(seq, records)]
+def trusted_errors_deg(seq: list[SequenceFrame], records: list[FrameRecord], symmetries=()) -> list[float | None]:
+    """Rotation error (°) per frame where the mode gave a trusted pose, None elsewhere (to the nearest
+    of the truth's symmetric equivalents, ``symmetries`` of the object)."""
+    return [rotation_error_deg(r.pose, nearest_equivalent(r.pose, s.truth, symmetries))
+            if r.trusted and r.pose is not None else None for s, r in zip(seq, records)]
 
 
 ADD_AUC_MAX_M = 0.1  # the ADD(-S) AUC's largest threshold (PoseCNN / YCB-Video)
@@ -131,7 +132,8 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     trusted pose; ``coverage`` is the share of those frames that had one. ``add_recall``: share of
     those half-visible frames (a frame without a trusted pose counts as a miss) with ADD (ADD-S for a
     symmetric object) below 0.1 × the diameter; ``add_auc``: the ADD(-S) AUC up to 0.1 m, misses
-    counted as infinite errors.
+    counted as infinite errors. For a symmetric ``obj`` every error is to the nearest of the truth's
+    symmetric equivalents (:func:`~hybridpose.metrics.nearest_equivalent`).
     ``silent_failures``: frames (any visibility) with a trusted pose more than ``SILENT_DEG`` off.
     ``covered_tracking_10deg``: frames with the object < ``COVERED`` visible and a trusted pose more
     than 10° off. ``false_alarms``: frames at least ``CLEAR`` visible flagged lost although the pose
@@ -145,11 +147,14 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     considered = 0
     points = obj.sample_surface(500, rng=0) if obj is not None else None
     add_fn = adds if obj is not None and obj.symmetric else add
+    syms = obj.symmetries if obj is not None else ()
     for s, r in zip(seq, records):
-        err = rotation_error_deg(r.pose, s.truth) if r.pose is not None else None
+        truth = nearest_equivalent(r.pose, s.truth, syms) if r.pose is not None else s.truth
+        err = rotation_error_deg(r.pose, truth) if r.pose is not None else None
         if not r.trusted:
             lost += 1
-        if s.visible >= CLEAR and r.raw_pose is not None and rotation_error_deg(r.raw_pose, s.truth) < GOOD_DEG:
+        if (s.visible >= CLEAR and r.raw_pose is not None
+                and rotation_error_deg(r.raw_pose, nearest_equivalent(r.raw_pose, s.truth, syms)) < GOOD_DEG):
             clear_good += 1
             false_alarms += int(not r.trusted)
         if r.trusted and err is not None:
@@ -158,13 +163,13 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         if s.visible >= HALF_VISIBLE:
             considered += 1
             if r.trusted and err is not None:
-                te = translation_error_m(r.pose, s.truth)
+                te = translation_error_m(r.pose, truth)
                 rot.append(err)
                 trans.append(te)
                 pct.append(100 * te / s.truth.distance_m)
-                speed.append(speed_score(r.pose, s.truth))
+                speed.append(speed_score(r.pose, truth))
                 if r.covariance is not None:
-                    xi = r.pose.local(s.truth)
+                    xi = r.pose.local(truth)
                     try:
                         nees_in += int(float(xi @ np.linalg.solve(r.covariance, xi)) <= NEES_90)
                         nees_n += 1
@@ -175,7 +180,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
             elif points is not None:
                 add_err.append(np.inf)
     rot_a = np.array(rot) if rot else np.array([np.nan])
-    recover = _recovery(seq, records)
+    recover = _recovery(seq, records, syms)
     add_stats = {}
     if points is not None and add_err:
         add_stats = {"add_recall": float(np.mean(np.array(add_err) < 0.1 * obj.diameter)),
@@ -205,7 +210,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     }
 
 
-def _recovery(seq: list[SequenceFrame], records: list[FrameRecord]) -> list[int | None]:
+def _recovery(seq: list[SequenceFrame], records: list[FrameRecord], symmetries=()) -> list[int | None]:
     out, covered = [], False
     k = 0
     while k < len(seq):
@@ -216,7 +221,8 @@ def _recovery(seq: list[SequenceFrame], records: list[FrameRecord]) -> list[int 
             n = None
             for j in range(k, len(seq)):
                 r = records[j]
-                if r.trusted and r.pose is not None and rotation_error_deg(r.pose, seq[j].truth) <= RECOVERED_DEG:
+                if (r.trusted and r.pose is not None
+                        and rotation_error_deg(r.pose, nearest_equivalent(r.pose, seq[j].truth, symmetries)) <= RECOVERED_DEG):
                     n = j - k
                     break
             out.append(n)

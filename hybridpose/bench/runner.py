@@ -126,7 +126,7 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
                "fusion": spec.fusion if spec.mode == "hybrid" else "", **sequence_stats(seq, records, obj)}
         if per_frame:
             row["per_frame"] = {
-                "rot_err_deg": [None if e is None else round(e, 3) for e in trusted_errors_deg(seq, records)],
+                "rot_err_deg": [None if e is None else round(e, 3) for e in trusted_errors_deg(seq, records, obj.symmetries)],
                 "visible": [round(s.visible, 3) for s in seq],
                 "distance_m": [round(s.truth.distance_m, 4) for s in seq],
                 "timestamp_s": [round(s.frame.timestamp, 4) for s in seq],

@@ -62,6 +62,10 @@ def write_models(root, obj) -> None:
     lo, hi = obj.bbox_min * MM_PER_M, obj.bbox_max * MM_PER_M
     info = {str(OBJ_ID): {"diameter": obj.diameter * MM_PER_M, "min_x": lo[0], "min_y": lo[1], "min_z": lo[2],
                           "size_x": hi[0] - lo[0], "size_y": hi[1] - lo[1], "size_z": hi[2] - lo[2], "name": obj.name}}
+    if obj.symmetric:  # BOP's form: row-major 4×4, translation in mm
+        info[str(OBJ_ID)]["symmetries_discrete"] = [
+            np.r_[S.R.ravel()[:3], S.t[0] * MM_PER_M, S.R.ravel()[3:6], S.t[1] * MM_PER_M, S.R.ravel()[6:],
+                  S.t[2] * MM_PER_M, 0.0, 0.0, 0.0, 1.0].tolist() for S in obj.symmetries]
     atomic_write_json(Path(root) / "models" / "models_info.json", info)
 
 
@@ -268,6 +272,25 @@ def find_scenes(root) -> list[Path]:
     return scenes
 
 
+def read_symmetries(info_path, obj_id: int = OBJ_ID):
+    """The object's ``symmetries_discrete`` of a BOP ``models_info.json`` as poses (metres); None where
+    the file or the key is missing (then the mesh decides: :class:`~hybridpose.objects.ObjectModel`)."""
+    from ..geometry import Pose
+
+    info_path = Path(info_path)
+    if not info_path.is_file():
+        return None
+    entry = read_json(info_path).get(str(obj_id), {})
+    if "symmetries_discrete" not in entry:
+        return None
+    out = []
+    for flat in entry.get("symmetries_discrete", []):
+        T = np.asarray(flat, dtype=np.float64).reshape(4, 4)
+        T[:3, 3] /= MM_PER_M
+        out.append(Pose.from_matrix(T))
+    return tuple(out)
+
+
 def dataset_object(root, object_name: str | None = None):
     """The object a dataset was rendered with: ``object_name`` (built-in name or mesh path) when
     given, else the dataset's own BOP model ``models/obj_000001.ply`` (millimetres → metres).
@@ -286,5 +309,6 @@ def dataset_object(root, object_name: str | None = None):
         return builtin
     model_path = root / "models" / "obj_000001.ply"
     if model_path.is_file():
-        return load_object(model_path, scale=0.001, name="obj_000001")  # BOP models are in mm
+        return load_object(model_path, scale=0.001, name="obj_000001",  # BOP models are in mm
+                           symmetries=read_symmetries(root / "models" / "models_info.json"))
     raise ValueError(f"{root}: no models/obj_000001.ply; pass the object (name or mesh path) explicitly")

@@ -19,13 +19,16 @@ class ObjectModel:
         mesh: ``trimesh.Trimesh`` in metres, object frame (the frame ``T_cam_obj`` refers to).
         keypoints: (K, 3) float64 3D keypoints in metres (corners / extremal points), for keypoint
             CNNs and PnP. Computed by :func:`default_keypoints` when not given.
-        symmetric: True when some rotation maps the object onto itself (use ADD-S, not ADD).
+        symmetries: the rotations ``S`` (object frame, as poses) that map the object onto itself, so
+            that ``T_cam_obj @ S`` looks the same: metrics take the nearest (and ADD-S for ADD). None
+            (default): detected from the mesh (:func:`~hybridpose.objects.symmetry.discrete_symmetries`);
+            () declares an asymmetric object.
     """
 
     name: str
     mesh: trimesh.Trimesh
     keypoints: np.ndarray = field(default=None)
-    symmetric: bool = False
+    symmetries: tuple = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.mesh, trimesh.Trimesh) or len(self.mesh.faces) == 0:
@@ -36,6 +39,22 @@ class ObjectModel:
         kp = kp.copy()
         kp.flags.writeable = False
         object.__setattr__(self, "keypoints", kp)
+        if self.symmetries is None:
+            from .symmetry import discrete_symmetries
+
+            object.__setattr__(self, "symmetries", discrete_symmetries(self.mesh))
+        else:
+            from ..geometry import Pose
+
+            syms = tuple(self.symmetries)
+            if not all(isinstance(S, Pose) for S in syms):
+                raise ValueError("symmetries: expected a tuple of hybridpose Pose (object-frame rotations)")
+            object.__setattr__(self, "symmetries", syms)
+
+    @property
+    def symmetric(self) -> bool:
+        """True when some rotation maps the object onto itself (use ADD-S, not ADD)."""
+        return bool(self.symmetries)
 
     @property
     def vertices(self) -> np.ndarray:

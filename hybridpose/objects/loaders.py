@@ -25,12 +25,13 @@ def load_builtin(name) -> ObjectModel | None:
     return registry.create("object", name) if name in registry.available("object") else None
 
 
-def load_object(name_or_path, scale: float = 1.0, name: str | None = None) -> ObjectModel:
+def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symmetries=None) -> ObjectModel:
     """A built-in object (``"truss"``) or a mesh file (.obj, .ply, .stl, ...).
 
     Args:
         name_or_path: registered object name or path to a mesh file.
         scale: multiplies the file's coordinates to get metres (``0.001`` for a file in mm).
+        symmetries: a mesh file's symmetries (poses in metres) when known; None: detected from the mesh.
         name: model name; defaults to the registered name or the file stem.
     Raises:
         FileNotFoundError: neither a built-in name nor an existing file.
@@ -46,7 +47,7 @@ def load_object(name_or_path, scale: float = 1.0, name: str | None = None) -> Ob
         if scale != 1.0:
             mesh = model.mesh.copy()
             mesh.apply_scale(scale)
-            model = ObjectModel(name or model.name, mesh, symmetric=model.symmetric)
+            model = ObjectModel(name or model.name, mesh, symmetries=None if model.symmetries else ())
         return model
     path = Path(key)
     if not path.exists():
@@ -63,7 +64,7 @@ def load_object(name_or_path, scale: float = 1.0, name: str | None = None) -> Ob
     if not np.all(np.isfinite(mesh.vertices)):
         raise ValueError(f"{path}: vertices contain NaN or inf")
     mesh.apply_scale(scale)
-    model = ObjectModel(name or path.stem, mesh)
+    model = ObjectModel(name or path.stem, mesh, symmetries=symmetries)
     d = model.diameter
     if d > MAX_PLAUSIBLE_DIAMETER_M:
         warnings.warn(

@@ -64,4 +64,4 @@ def truss_mesh() -> trimesh.Trimesh:
 @register("object", "truss")
 def truss() -> ObjectModel:
     """The built-in truss as an :class:`ObjectModel` (asymmetric, metres)."""
-    return ObjectModel("truss", truss_mesh().copy(), symmetric=False)
+    return ObjectModel("truss", truss_mesh().copy(), symmetries=())

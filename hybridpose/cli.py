@@ -74,7 +74,7 @@ def cmd_render(args) -> int:
     lighting = SpaceLighting(sun_direction_cam=args.sun_dir, sun_intensity=args.sun, exposure=args.exposure,
                              background=args.background)
     sensor = SensorModel(blur_sigma_px=args.blur, noise_std=args.noise, gamma=args.gamma)
-    looks = AppearanceSpec(args.appearance, args.backgrounds)
+    looks = AppearanceSpec(args.appearance, args.backgrounds, photo_share=args.photo_share)
     if args.kind == "random":
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
@@ -437,7 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "background, ambient and extra lights, a random part colour — per image for --kind random, "
                         "one look for a whole sequence (a part outside space)")
     r.add_argument("--backgrounds", default=None, metavar="DIR",
-                   help="with --appearance random: a folder of photos, half the backgrounds are crops of them")
+                   help="with --appearance random: a folder of photos to cut backgrounds from")
+    r.add_argument("--photo-share", type=float, default=0.5,
+                   help="with --backgrounds: the share of backgrounds cut from the photos (the rest procedural clutter)")
     r.add_argument("--sun-range", type=_float_pair, default=(1.0, 1.0),
                    help="random: per-image sun intensity factor drawn from LOW,HIGH")
     r.add_argument("--exposure", type=float, default=1.0)

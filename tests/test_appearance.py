@@ -107,7 +107,7 @@ def test_random_look_dataset_keeps_the_poses_and_resumes(truss, tmp_path):
         assert np.allclose(a.image(i).pose.matrix, b.image(i).pose.matrix)  # same poses for the seed
         assert b.rgb(i).mean() > a.rgb(i).mean() + 10  # a background instead of black space
     config = json.loads((tmp_path / "rand" / "hybridpose.json").read_text())
-    assert config["appearance"] == {"kind": "random", "backgrounds": None, "fixed": False}
+    assert config["appearance"] == {"kind": "random", "backgrounds": None, "photo_share": 0.5, "fixed": False}
     before = {p.name: p.read_bytes() for p in (scene / "rgb").iterdir()}
     (scene / "rgb" / sorted(before)[-1]).unlink()
     render_random_dataset(tmp_path / "rand", truss, CAM, 4, seed=2, in_view=True, appearance=looks)

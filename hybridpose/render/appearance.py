@@ -127,15 +127,16 @@ class PhotoBackgrounds:
 
 def random_appearance(width: int, height: int, rng: np.random.Generator | int | None = None,
                       photos: PhotoBackgrounds | None = None, ambient_range: tuple[float, float] = (0.1, 0.5),
-                      max_fill_lights: int = MAX_FILL_LIGHTS, colour: bool = True) -> Appearance:
-    """A seeded :class:`Appearance` for a ``width`` × ``height`` image: background from ``photos`` (half
-    the draws when given) or procedural clutter, ambient light in ``ambient_range``, 0 to
-    ``max_fill_lights`` extra lights from random directions, and (``colour``) a random part colour."""
+                      max_fill_lights: int = MAX_FILL_LIGHTS, colour: bool = True,
+                      photo_share: float = 0.5) -> Appearance:
+    """A seeded :class:`Appearance` for a ``width`` × ``height`` image: background from ``photos``
+    (``photo_share`` of the draws when given) or procedural clutter, ambient light in ``ambient_range``,
+    0 to ``max_fill_lights`` extra lights from random directions, and (``colour``) a random part colour."""
     rng = np.random.default_rng(rng)
     lo, hi = ambient_range
     if not 0 <= lo <= hi <= 1:
         raise ValueError(f"ambient_range: expected 0 ≤ low ≤ high ≤ 1, got {ambient_range}")
-    if photos is not None and rng.random() < 0.5:
+    if photos is not None and rng.random() < photo_share:
         bg = photos.draw(width, height, rng)
     else:
         bg = clutter_background(width, height, rng)
@@ -158,13 +159,15 @@ class AppearanceSpec:
     Attributes:
         kind: ``"space"`` (the lighting's look: black or Earth background, no ambient light) or
             ``"random"`` (:func:`random_appearance` per image).
-        backgrounds: a folder of photos that ``"random"`` draws half its backgrounds from.
+        backgrounds: a folder of photos that ``"random"`` draws ``photo_share`` of its backgrounds from.
+        photo_share: the share of backgrounds cut from ``backgrounds`` (the rest procedural clutter).
         fixed: one look for every image (drawn for index 0): a video, where the background and the
             lights stay while the part moves; False: a new look per image (training data).
     """
 
     kind: str = "space"
     backgrounds: str | None = None
+    photo_share: float = 0.5
     fixed: bool = False
 
     def __post_init__(self) -> None:
@@ -174,6 +177,8 @@ class AppearanceSpec:
             if self.kind != "random":
                 raise ValueError("backgrounds: photos are drawn only with appearance 'random'")
             _photos(self.backgrounds)  # refuse a bad folder before any work starts
+        if not 0.0 <= self.photo_share <= 1.0:
+            raise ValueError(f"photo_share: expected a share in [0, 1], got {self.photo_share!r}")
 
     def draw(self, width: int, height: int, seed: int, index: int) -> Appearance | None:
         """Image ``index``'s appearance (None for space), seeded by ``(seed, index)`` alone."""
@@ -181,7 +186,7 @@ class AppearanceSpec:
             return None
         photos = _photos(self.backgrounds) if self.backgrounds else None
         return random_appearance(width, height, np.random.default_rng([seed, 0 if self.fixed else index, 13]),
-                                 photos=photos)
+                                 photos=photos, photo_share=self.photo_share)
 
 
 _PHOTO_FOLDERS: dict[str, PhotoBackgrounds] = {}

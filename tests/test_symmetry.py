@@ -68,5 +68,9 @@ def test_metrics_score_a_symmetric_estimate_against_the_nearest_equivalent():
     records = [FrameRecord(twin, True, 1.0, raw_pose=twin) for _ in seq]
     sym, plain = sequence_stats(seq, records, box), sequence_stats(seq, records)
     assert sym["rot_mean_deg"] < 1e-6 and sym["silent_failures"] == 0 and sym["add_recall"] == 1.0
+    assert sym["in_basin"] == 1.0 and sym["edge_px_median"] < 1e-6
     assert plain["rot_mean_deg"] == pytest.approx(180.0) and plain["silent_failures"] == 5
+    off = [FrameRecord(truth.retract([0.0, 0.0, 0.0, 0.004, 0.0, 0.0]), True, 1.0) for _ in seq]  # 4 mm aside
+    px = sequence_stats(seq, off, box)["edge_px_median"]
+    assert px == pytest.approx(cam.fx * 0.004 / 0.8, rel=0.2)  # ≈ f · Δx / z
     assert max(trusted_errors_deg(seq, records, box.symmetries)) < 1e-6

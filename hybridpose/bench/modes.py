@@ -26,6 +26,7 @@ SILENT_DEG = 5.0  # a frame with a larger error that is not flagged lost is a si
 RECOVERED_DEG = 2.0  # recovery: rotation error back below this (and a trusted pose)
 CLEAR = 0.9  # a frame this visible is clear: flagging it lost at a good pose is a false alarm
 GOOD_DEG = 2.0
+BASIN_DEG, BASIN_PCT = 10.0, 5.0  # a pose this close starts a tracker that converges (its basin)
 NEES_90 = 10.645  # 90 % point of χ²₆: a calibrated covariance holds 90 % of the errors inside it
 
 
@@ -134,6 +135,10 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     symmetric object) below 0.1 × the diameter; ``add_auc``: the ADD(-S) AUC up to 0.1 m, misses
     counted as infinite errors. For a symmetric ``obj`` every error is to the nearest of the truth's
     symmetric equivalents (:func:`~hybridpose.metrics.nearest_equivalent`).
+    ``in_basin``: share of the half-visible frames with a trusted pose a tracker can start from
+    (within ``BASIN_DEG`` and ``BASIN_PCT`` % of the distance). ``edge_px_median``: the median over
+    those frames of the mean image distance (px) between the model's sharp-edge points at the pose
+    and at the truth.
     ``silent_failures``: frames (any visibility) with a trusted pose more than ``SILENT_DEG`` off.
     ``covered_tracking_10deg``: frames with the object < ``COVERED`` visible and a trusted pose more
     than 10° off. ``false_alarms``: frames at least ``CLEAR`` visible flagged lost although the pose
@@ -143,6 +148,8 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     object is half visible again until a trusted pose within ``RECOVERED_DEG`` (None: never).
     """
     rot, trans, pct, speed, add_err, silent, covered_bad, lost = [], [], [], [], [], 0, 0, 0
+    in_basin, edge_px = 0, []
+    edge_pts = _edge_points(obj) if obj is not None else None
     clear_good, false_alarms, nees_in, nees_n = 0, 0, 0, 0
     considered = 0
     points = obj.sample_surface(500, rng=0) if obj is not None else None
@@ -167,7 +174,12 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
                 rot.append(err)
                 trans.append(te)
                 pct.append(100 * te / s.truth.distance_m)
+                in_basin += int(err <= BASIN_DEG and pct[-1] <= BASIN_PCT)
                 speed.append(speed_score(r.pose, truth))
+                if edge_pts is not None:
+                    cam = s.frame.camera
+                    edge_px.append(float(np.linalg.norm(cam.project(edge_pts, r.pose) - cam.project(edge_pts, truth),
+                                                        axis=1).mean()))
                 if r.covariance is not None:
                     xi = r.pose.local(truth)
                     try:
@@ -196,6 +208,8 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         "trans_mean_m": float(np.mean(trans)) if trans else float("nan"),
         "trans_mean_pct": float(np.mean(pct)) if pct else float("nan"),
         "speed_mean": float(np.mean(speed)) if speed else float("nan"),
+        "in_basin": in_basin / max(considered, 1),
+        "edge_px_median": float(np.median(edge_px)) if edge_px else float("nan"),
         **add_stats,
         "silent_failures": silent,
         "false_alarms": false_alarms,
@@ -208,6 +222,12 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         "ms_per_frame": float(np.mean([r.ms for r in records])),
         "cnn_calls_per_100": 100.0 * sum(r.cnn_calls for r in records) / len(records),
     }
+
+
+def _edge_points(obj) -> np.ndarray:
+    """(N, 3) points along the object's sharp edges (ends and midpoints), metres."""
+    seg = obj.sharp_edges
+    return np.concatenate([seg[:, 0], seg[:, 1], 0.5 * (seg[:, 0] + seg[:, 1])])
 
 
 def _recovery(seq: list[SequenceFrame], records: list[FrameRecord], symmetries=()) -> list[int | None]:

@@ -21,9 +21,9 @@ TARGETS = {
 }
 
 COLUMNS = ("| run | seq. | rot. mean ° | per-seq. mean °: median / p90 / worst | trans. % dist. | ADD-0.1d | ADD AUC "
-           "| silent failures | false alarms | covered, > 10° | lost | recovery (worst, never) | NEES ≤ χ²₀.₉ "
-           "| ms/frame | CNN / 100 fr. |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+           "| in basin | edge px | silent failures | false alarms | covered, > 10° | lost | recovery (worst, never) "
+           "| NEES ≤ χ²₀.₉ | ms/frame | CNN / 100 fr. |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def _f(x, fmt="{:.2f}") -> str:
@@ -38,6 +38,7 @@ def table(summary: dict[str, dict]) -> str:
         lines.append(f"| {name} | {s['sequences']} | {_f(s['rot_mean_deg'])} | {_f(s['seq_rot_mean_median_deg'])} / "
                      f"{_f(s['seq_rot_mean_p90_deg'])} / {_f(s['seq_rot_mean_worst_deg'])} | {_f(s['trans_mean_pct'])} "
                      f"| {_f(s['add_recall'], '{:.3f}')} | {_f(s['add_auc'], '{:.3f}')} "
+                     f"| {_f(s.get('in_basin'), '{:.3f}')} | {_f(s.get('edge_px_median'), '{:.2f}')} "
                      f"| {s['silent_failures']} of {s['frames']} | {_f(s['false_alarm_pct'], '{:.1f} %')} "
                      f"| {s['covered_tracking_10deg']} | {s['frames_lost']} | {rec} | {_f(s['nees_coverage90'], '{:.2f}')} "
                      f"| {_f(s['ms_per_frame'], '{:.1f}')} | {_f(s['cnn_calls_per_100'], '{:.0f}')} |")
@@ -115,7 +116,10 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
         what + f", commit `{result['commit']}`, "
         f"{cfg['workers']} worker(s), {result['seconds']:.0f} s. Tracker-only starts from the true first pose and is "
         "never re-initialised; CNN-only runs on every frame with no prior; the hybrid gets no ground truth. "
-        "Errors over the frames where the object is ≥ 50 % visible and the run gave a trusted pose; silent "
+        "Errors over the frames where the object is ≥ 50 % visible and the run gave a trusted pose (for a "
+        "symmetric object, to the nearest equivalent of the truth); in basin: share of those half-visible frames "
+        "with a trusted pose within 10° and 5 % of the distance (where a tracker can start); edge px: median image "
+        "distance of the model's edges from where they truly are; silent "
         "failures: frames with a trusted pose > 5° off; false alarms: share of clear frames (≥ 90 % visible) "
         "flagged lost at a pose within 2°; covered, > 10°: frames < 5 % visible with a trusted pose > 10° off; "
         "recovery: frames after a full occlusion until ≤ 2°; NEES: share of errors inside the reported "

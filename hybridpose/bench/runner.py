@@ -264,6 +264,9 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "trans_mean_m": nan_if_empty(np.array([r["trans_mean_m"] for r in rs])),
             "trans_mean_pct": nan_if_empty(np.array([r["trans_mean_pct"] for r in rs])),
             "speed_mean": nan_if_empty(np.array([r["speed_mean"] for r in rs])),
+            "in_basin": nan_if_empty(np.array([r.get("in_basin", np.nan) for r in rs])),
+            "edge_px_median": (float(np.nanmedian([r.get("edge_px_median", np.nan) for r in rs]))
+                               if np.any(np.isfinite([r.get("edge_px_median", np.nan) for r in rs])) else float("nan")),
             "add_recall": nan_if_empty(np.array([r.get("add_recall", np.nan) for r in rs])),
             "add_auc": nan_if_empty(np.array([r.get("add_auc", np.nan) for r in rs])),
             "coverage": float(np.mean([r["coverage"] for r in rs])),

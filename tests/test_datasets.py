@@ -280,3 +280,14 @@ def test_atomic_write_keeps_the_old_file_when_the_writer_fails(tmp_path):
     assert target.read_bytes() == b"old" and sorted(p.name for p in target.parent.iterdir()) == ["ck.pt"]
     atomic_write_with(target, lambda f: f.write(b"new"))
     assert target.read_bytes() == b"new" and oct(target.stat().st_mode & 0o777) == "0o644"
+
+
+def test_find_scenes_reads_a_folder_of_rendered_datasets(random_ds, tmp_path):
+    """Several ``hybridpose render`` outputs side by side (dataset/split/scene): every scene, sorted."""
+    import shutil
+
+    for name in ("b_seq", "a_seq"):
+        shutil.copytree(random_ds, tmp_path / "many" / name)
+    found = find_scenes(tmp_path / "many")
+    assert [p.relative_to(tmp_path / "many").parts[0] for p in found] == ["a_seq", "b_seq"]
+    assert find_scenes(tmp_path / "many" / "a_seq") == [found[0]]

@@ -260,13 +260,19 @@ class BopScene:
 
 
 def find_scenes(root) -> list[Path]:
-    """All BOP scene directories under ``root`` (a dataset root, a split or a scene), sorted."""
+    """All BOP scene directories under ``root`` (a scene, a split, a dataset root, or a folder of
+    dataset roots such as several ``hybridpose render`` outputs), sorted: the shallowest level that
+    holds any."""
     root = Path(root)
     if not root.exists():
         raise FileNotFoundError(f"{root}: dataset not found")
     if (root / "scene_gt.json").is_file():
         return [root]
-    scenes = sorted(p.parent for p in root.glob("*/scene_gt.json")) or sorted(p.parent for p in root.glob("*/*/scene_gt.json"))
+    scenes = []
+    for pattern in ("*/scene_gt.json", "*/*/scene_gt.json", "*/*/*/scene_gt.json"):
+        scenes = sorted(p.parent for p in root.glob(pattern))
+        if scenes:
+            break
     if not scenes:
         raise FileNotFoundError(f"{root}: no BOP scene (no scene_gt.json under it)")
     return scenes

@@ -243,7 +243,7 @@ def cmd_fit(args) -> int:
     camera = load_camera(args.camera) if args.camera else None
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
         backgrounds=args.backgrounds, workers=args.workers,
-        init_from=None if args.init_from == "none" else args.init_from)
+        init_from=None if args.init_from == "none" else args.init_from, bar=_progress)
     return 0
 
 

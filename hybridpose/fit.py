@@ -156,7 +156,7 @@ def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: flo
 
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
         backgrounds=None, workers: int = 1, init_from="default", progress=print,
-        plan: FitPlan | None = None) -> dict:
+        plan: FitPlan | None = None, bar=None) -> dict:
     """Render, train, calibrate and evaluate a ``default`` keypoint regressor for ``mesh``.
 
     Args:
@@ -171,6 +171,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
             (the shipped truss network's features), a path, or None (from scratch).
         plan: views and epochs fixed by the caller instead of measured for ``budget`` (its
             ``budget_min`` is then not checked against the minimum: for tests and small trials).
+        progress: called with one line per stage. bar: ``bar(description)`` → a ``(done, total)``
+            callback for the long stages (rendering, calibration, evaluation); None: silent.
     Returns:
         The fit record (``fit.json``): plan, minutes per stage, paths, held-out accuracy.
     """
@@ -220,9 +222,12 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     looks = AppearanceSpec("random", None if backgrounds is None else str(backgrounds))
     common = dict(distance_range_m=plan.distance_range_m, in_view=True, workers=workers, appearance=looks,
                   sun_cone_deg=85.0, sun_scale_range=(0.6, 1.3))
+    tick = bar or (lambda _desc: None)
     stage("render", lambda: (
-        render_random_dataset(out / "data" / "train", obj, camera, plan.train_views, seed=seed, **common),
-        render_random_dataset(out / "data" / "test", obj, camera, plan.test_views, seed=seed + 1, **common)))
+        render_random_dataset(out / "data" / "train", obj, camera, plan.train_views, seed=seed,
+                              progress=tick("render training views"), **common),
+        render_random_dataset(out / "data" / "test", obj, camera, plan.test_views, seed=seed + 1,
+                              progress=tick("render held-out views"), **common)))
 
     def run_training():
         start = None if init_from is None else str(checkpoint_or_shipped(init_from))
@@ -230,7 +235,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                           epochs=plan.epochs, batch=32, lr=3e-4 if start is None else 1.5e-4, image_size=IMAGE_SIZE,
                           val_fraction=0.05, seed=seed, patience=0, schedule="cosine", init_from=start,
                           time_limit_min=plan.train_min, full_view=FULL_VIEW)
-        train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=False)
+        train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
 
     stage("train", run_training)
@@ -238,7 +243,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
 
     def run_calibration():
         try:
-            calibrate_checkpoint(out / "best.pt", out / "data" / "test", out / "best.pt", limit=half)
+            calibrate_checkpoint(out / "best.pt", out / "data" / "test", out / "best.pt", limit=half,
+                                 progress=tick("calibrate"))
         except ValueError as exc:  # too few poses: the model is not usable yet; the report says so
             record["calibration_skipped"] = str(exc)
             progress(f"fit: covariance not re-calibrated ({exc})")
@@ -248,7 +254,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
 
     def run_eval():
         res = evaluate_checkpoint(out / "best.pt", out / "data" / "test", out / "eval", gradcam_count=2,
-                                  timing_images=20)
+                                  timing_images=20, progress=tick("evaluate"))
         summary.update(res.get("summary", res))
 
     stage("evaluate", run_eval)

@@ -9,7 +9,8 @@ renders and evaluates it there. Every stage resumes: run the same command again 
 Layout of ``out``::
 
     fit.json          the plan (views, epochs, minutes per stage) and what is done
-    data/train/       rendered training views (BOP)      data/test/   held-out views
+    data/train/       rendered training views (BOP)      data/calib/, data/test/   held-out views
+                      (half calibrate the covariance, the other half measure the model)
     run/              the training run (last.pt, best.pt, metrics.csv)
     best.pt           the exported, calibrated checkpoint (``--regressor out/best.pt``)
     calibration/      the covariance check     eval/   the held-out evaluation (report.md, plots)
@@ -223,10 +224,13 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     common = dict(distance_range_m=plan.distance_range_m, in_view=True, workers=workers, appearance=looks,
                   sun_cone_deg=85.0, sun_scale_range=(0.6, 1.3))
     tick = bar or (lambda _desc: None)
+    half = max(1, plan.test_views // 2)
     stage("render", lambda: (
         render_random_dataset(out / "data" / "train", obj, camera, plan.train_views, seed=seed,
                               progress=tick("render training views"), **common),
-        render_random_dataset(out / "data" / "test", obj, camera, plan.test_views, seed=seed + 1,
+        render_random_dataset(out / "data" / "calib", obj, camera, half, seed=seed + 2,
+                              progress=tick("render calibration views"), **common),
+        render_random_dataset(out / "data" / "test", obj, camera, plan.test_views - half, seed=seed + 1,
                               progress=tick("render held-out views"), **common)))
 
     def run_training():
@@ -239,12 +243,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
 
     stage("train", run_training)
-    half = max(1, plan.test_views // 2)
-
     def run_calibration():
         try:
-            calibrate_checkpoint(out / "best.pt", out / "data" / "test", out / "best.pt", limit=half,
-                                 progress=tick("calibrate"))
+            calibrate_checkpoint(out / "best.pt", out / "data" / "calib", out / "best.pt", progress=tick("calibrate"))
         except ValueError as exc:  # too few poses: the model is not usable yet; the report says so
             record["calibration_skipped"] = str(exc)
             progress(f"fit: covariance not re-calibrated ({exc})")
@@ -271,8 +272,9 @@ def held_out_accuracy(report: dict, obj: ObjectModel) -> dict:
     distance), and the share of views a tracker can start from (≤ 10° and ≤ 5 % of the distance) —
     each also up to the part's box twins (``*_twin``: what a box-symmetric part cannot tell apart)."""
     rows = report["per_image"]
-    rot = np.array([r["rot_deg"] for r in rows], float)
     rot_twin = np.array([r.get("rot_twin_deg", r["rot_deg"]) for r in rows], float)
+    # a symmetric part's box twins are its equivalent poses: score the nearest
+    rot = rot_twin if obj.symmetric else np.array([r["rot_deg"] for r in rows], float)
     pct = np.array([100 * r["trans_m"] / max(r["distance_m"], 1e-9) for r in rows], float)
     return {"views": len(rows), "rot_median_deg": float(np.median(rot)), "rot_mean_deg": float(np.mean(rot)),
             "rot_twin_median_deg": float(np.median(rot_twin)), "trans_median_pct": float(np.median(pct)),
@@ -293,12 +295,14 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"- Trained the `default` network ({IMAGE_SIZE} px, {FULL_VIEW:.0%} whole-frame crops) for up to "
         f"{p['epochs']} epochs within {p['train_min']:.0f} min, from `{req['init_from']}`.",
         f"- Minutes per stage: {minutes}.", "",
-        f"Held-out views ({a['views']}, half of them calibrated the covariance): rotation error median "
+        f"Held-out views ({a['views']}, not those that calibrated the covariance): rotation error median "
         f"{a['rot_median_deg']:.2f}°, mean {a['rot_mean_deg']:.2f}°; translation median {a['trans_median_pct']:.2f} % "
         f"of the distance; **{100 * a['in_tracker_basin']:.0f} % within a tracker's basin** (≤ 10° and ≤ 5 % of the "
-        f"distance); {a['lost']} found nothing. Up to the part's box twins (the poses a box-symmetric part "
-        f"cannot tell apart): median {a['rot_twin_median_deg']:.2f}°, {100 * a['in_tracker_basin_twin']:.0f} % "
-        "within the basin.", "",
+        f"distance); {a['lost']} found nothing"
+        + (f" — errors to the nearest of the part's {len(obj.symmetries) + 1} equivalent poses (it is symmetric)."
+           if obj.symmetric else
+           f". Up to the part's box twins (end-for-end turns a near-symmetric part invites): median "
+           f"{a['rot_twin_median_deg']:.2f}°, {100 * a['in_tracker_basin_twin']:.0f} % within the basin."), "",
         *([f"**The covariance was not re-calibrated**: {record['calibration_skipped']} — the model needs a larger "
            "budget (or `--backgrounds` closer to the real scenes) before it is usable.", ""]
           if record.get("calibration_skipped") else []),

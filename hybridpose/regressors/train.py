@@ -269,10 +269,11 @@ def nearest_twin(t_pred, q_pred, t_true, q_true, twins) -> tuple[torch.Tensor, t
     return best_t, best_q
 
 
-def evaluate(model, loader, device, beta: float, twins=()) -> dict:
+def evaluate(model, loader, device, beta: float, twins=(), symmetries=()) -> dict:
     """Paper loss of the predicted poses, mean/median rotation error (°) and mean translation error
     (m) over ``loader`` (the same numbers for direct and keypoint models); with ``twins`` the error
-    is to the nearest twin of the ground truth."""
+    is to the nearest twin of the ground truth where the model has no twin head to choose one; with
+    the object's ``symmetries`` always to the nearest equivalent pose (no image tells those apart)."""
     model.eval()
     losses, rot, trans = [], [], []
     with torch.no_grad():
@@ -281,6 +282,8 @@ def evaluate(model, loader, device, beta: float, twins=()) -> dict:
             t_true, q_true = batch["t"].to(device), batch["q"].to(device)
             if twins and getattr(_unwrap(model), "twin_head", None) is None:
                 t_true, q_true = nearest_twin(t, q, t_true, q_true, twins)
+            if symmetries:
+                t_true, q_true = nearest_twin(t, q, t_true, q_true, symmetries)
             losses.append(pose_loss(t, q, t_true, q_true, beta).item() * len(t))
             rot.append(torch.rad2deg(quat_geodesic_angle(q, q_true)).cpu())
             trans.append((t - t_true).norm(dim=1).cpu())
@@ -482,7 +485,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
             if _stop_signal(None):
                 break
             continue
-        row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta, twins),
+        row = {"epoch": epoch, "train_loss": total / max(n, 1), **evaluate(model, val_loader, device, cfg.beta, twins,
+                                                                           obj.symmetries if obj is not None else ()),
                "lr": lr_used, "epoch_s": time.perf_counter() - t0, "train_images": n, "train_s": train_s,
                "loader_wait_s": loader_wait_s}
         history.append(row)

@@ -6,7 +6,7 @@ import torch
 from torch import nn
 
 from hybridpose.datasets import render_random_dataset
-from hybridpose.geometry import Camera
+from hybridpose.geometry import Camera, Pose
 from hybridpose.regressors import models
 from hybridpose.regressors.losses import normalize_quat
 from hybridpose.regressors.train import run_summary, train, TrainConfig
@@ -300,3 +300,27 @@ def test_cli_options_reach_the_config():
     assert old.vgg_init == "torch-default"
     with pytest.raises(ValueError, match="vgg_init: expected one of torchvision, torch-default"):
         TrainConfig(model="vgg16", data="d", out="o", vgg_init="kaiming")
+
+
+def test_validation_errors_of_a_symmetric_part_go_to_the_nearest_equivalent_pose():
+    """What no image can tell apart is not an error: the truth is replaced by the equivalent pose
+    nearest the prediction (a box's half-turns), and left alone for an asymmetric part."""
+    import trimesh
+    import torch
+
+    from hybridpose.objects import ObjectModel
+    from hybridpose.regressors.losses import quat_geodesic_angle
+    from hybridpose.regressors.train import nearest_twin
+
+    box = ObjectModel("box", trimesh.creation.box(extents=(0.2, 0.12, 0.08)))
+    truth = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.05, 0.0, 0.8])
+    turned = truth @ box.symmetries[0]
+    t_true = torch.tensor([truth.t], dtype=torch.float32)
+    q_true = torch.tensor([truth.quat_wxyz], dtype=torch.float32)
+    t_pred = torch.tensor([turned.t], dtype=torch.float32)
+    q_pred = torch.tensor([turned.quat_wxyz], dtype=torch.float32)
+    assert float(quat_geodesic_angle(q_pred, q_true)) > 3.0
+    t_eq, q_eq = nearest_twin(t_pred, q_pred, t_true, q_true, box.symmetries)
+    assert float(quat_geodesic_angle(q_pred, q_eq)) < 1e-3 and float((t_pred - t_eq).norm()) < 1e-5
+    t_same, q_same = nearest_twin(t_pred, q_pred, t_true, q_true, ())
+    assert torch.equal(q_same, q_true)

@@ -12,8 +12,9 @@ Layout of ``out``::
     data/train/       rendered training views (BOP)      data/calib/, data/test/   held-out views
                       (half calibrate the covariance, the other half measure the model)
     run/              the training run (last.pt, best.pt, metrics.csv)
-    best.pt           the exported, calibrated checkpoint (``--regressor out/best.pt``)
-    calibration/      the covariance check     eval/   the held-out evaluation (report.md, plots)
+    best.pt           the exported checkpoint, its covariance calibrated on data/calib
+                      (``--regressor out/best.pt``)
+    eval/             the held-out evaluation (report.md, plots)
     report.md         what was made, how long it took, how accurate it is
 """
 from __future__ import annotations
@@ -41,7 +42,6 @@ FIT_LR = 1e-3
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
-DISTANCES_M = (0.3, 1.2)  # default working range; scaled to the part's size where it is far from the truss's
 
 
 @dataclass(frozen=True)

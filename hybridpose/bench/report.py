@@ -79,8 +79,10 @@ def targets(summary: dict[str, dict]) -> str:
     checks.append(("silent failures = 0", h["silent_failures"], TARGETS["silent_failures"], silent))
     if h["recoveries"]:
         checks.append(("every loss recovered within 5 frames", (h["recover_frames_max"] or 0) + 1000 * h["recover_never"],
-                       TARGETS["recover_frames"], f"{h['recoveries']} full occlusions: worst {h['recover_frames_max']} "
-                       f"frames, {h['recover_never']} never"))
+                       TARGETS["recover_frames"],
+                       f"{h['recoveries']} full occlusions: " + (f"worst {h['recover_frames_max']} frames, "
+                                                                  if h["recover_frames_max"] is not None else "")
+                       + f"{h['recover_never']} never"))
     checks += [
                ("mean rotation ≤ 1°", h["rot_mean_deg"], TARGETS["rot_mean_deg"], "{:.2f}°"),
                ("translation ≤ 1 % of distance", h["trans_mean_pct"], TARGETS["trans_mean_pct"], "{:.2f} %"),

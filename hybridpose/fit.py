@@ -168,7 +168,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         out: the fit's folder (layout: module docstring); an interrupted fit resumes there.
         camera: the camera the part will be seen with (default 640×480, f = 600 px).
         budget: the time for the whole fit (``"60m"``, ``"1h"``, minutes as a number).
-        seed: seeds of the training (``seed``) and held-out (``seed + 1``) renders and of the run.
+        seed: seeds of the training (``seed``), held-out (``seed + 1``) and calibration (``seed + 2``)
+            renders and of the training run.
         backgrounds: a folder of photos; half the training backgrounds are crops of them.
         workers: render processes.
         init_from: the checkpoint the training starts from (its matching weights): ``"default"``
@@ -246,6 +247,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
 
     stage("train", run_training)
+
     def run_calibration():
         try:
             calibrate_checkpoint(out / "best.pt", out / "data" / "calib", out / "best.pt", progress=tick("calibrate"))
@@ -254,14 +256,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
             progress(f"fit: covariance not re-calibrated ({exc})")
 
     stage("calibrate", run_calibration)
-    summary = {}
-
-    def run_eval():
-        res = evaluate_checkpoint(out / "best.pt", out / "data" / "test", out / "eval", gradcam_count=2,
-                                  timing_images=20, progress=tick("evaluate"))
-        summary.update(res.get("summary", res))
-
-    stage("evaluate", run_eval)
+    stage("evaluate", lambda: evaluate_checkpoint(out / "best.pt", out / "data" / "test", out / "eval", gradcam_count=2,
+                                                  timing_images=20, progress=tick("evaluate")))
     report = read_json(out / "eval" / "report.json")
     record["accuracy"] = held_out_accuracy(report, obj)
     atomic_write_json(record_path, record)

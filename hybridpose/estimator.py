@@ -16,8 +16,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   when the CNN pose is far from the fused one (``disagreement_chi2`` with both covariances) or when
   the fit from the CNN pose lands elsewhere and matches the image better than the current track
   (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
-  at once) restart everything from that fit — the drift the tracker did not flag. A CNN pose that
-  agrees is fused. A tracker measurement the gate refuses calls a check at once; where the CNN and the
+  at once) restart everything from that fit — the drift the tracker did not flag. A check whose CNN
+  pose the edges cannot fit at all (typically its end-for-end twin) while the track fits well
+  (``check_below_quality`` or better) does not count. A CNN pose that agrees is fused. A tracker measurement the gate refuses calls a check at once; where the CNN and the
   edges from its pose vouch for it, the fusion (not the tracker) was wrong and starts over there.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
@@ -284,12 +285,16 @@ class HybridEstimator:
                 better = (fit.pose is not None and fit.quality > m.quality + self.config.switch_quality_margin
                           and _mahalanobis2(fused.pose, fused.covariance, fit.pose, fit.covariance)
                           > self.config.disagreement_chi2)
-                if far or better:
+                stayed = fit.pose is not None and _mahalanobis2(
+                    c.pose, c.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2
+                if (far or better) and fit.lost and not m.lost and m.quality >= self.config.check_below_quality:
+                    # the model's edges find nothing to hold at the CNN pose (typically its end-for-end
+                    # twin) while the track fits well: the image backs the track, the check is an outlier
+                    self._n.disagreements = 0
+                elif far or better:
                     self._n.disagreements += 1
                     if self._n.disagreements >= self.config.confirm_checks:
                         # restart from the edge fit where it stayed with the CNN, else from the CNN itself
-                        stayed = fit.pose is not None and _mahalanobis2(
-                            c.pose, c.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2
                         start = fit if stayed else c
                         self._restart(frame, start, timings)
                         return self._estimate("reinit", (c.source, fit.source) if stayed else (c.source,))

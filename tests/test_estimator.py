@@ -126,6 +126,24 @@ def test_a_single_cnn_outlier_is_ignored():
     assert max(rotation_error_deg(e.pose, truth(k)) for k, e in enumerate(out)) < 0.3
 
 
+class EdgesOnlyAtTheTruth(ScriptedTracker):
+    """Fits the truth from anywhere within 90° of it and finds nothing to hold further off (an
+    end-for-end twin)."""
+
+    def track(self, frame, prior=None):
+        if prior is not None and rotation_error_deg(prior, truth(frame.index)) > 90:
+            return Measurement(None, np.eye(6), 0.0, "tracker:scripted", frame.timestamp)
+        return super().track(frame, prior)
+
+
+def test_repeated_cnn_twins_that_the_edges_cannot_fit_do_not_restart_a_good_track():
+    est = HybridEstimator(EdgesOnlyAtTheTruth(), OracleRegressor(outliers={10, 11, 12}), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=10, confirm_checks=2, probation_frames=0))
+    out = run(est, 30)
+    assert all(e.status == "tracking" for e in out[1:]), [e.status for e in out]
+    assert max(rotation_error_deg(e.pose, truth(k)) for k, e in enumerate(out)) < 0.3
+
+
 def test_loss_then_reacquisition_by_two_agreeing_cnn_answers():
     trk = ScriptedTracker(lost_frames=range(15, 25))
     reg = OracleRegressor(blind=range(15, 24))

@@ -336,3 +336,18 @@ def test_shipped_8bit_models_belong_to_the_shipped_checkpoints():
     for name in ("default", "edge_on_expert"):
         ck = shipped_checkpoint(name)
         assert read_record(int8_path(ck))["checkpoint_sha256"] == file_sha256(ck), name
+
+
+def test_a_camera_far_from_the_trained_field_of_view_gets_a_warning(regressor):
+    trained = Camera.default()
+    black = np.zeros((trained.height, trained.width, 3), np.uint8)
+    wide = Camera.from_fov(trained.width, trained.height, 130.0)  # f = 149 px: 0.25× the trained focal
+    with pytest.warns(UserWarning, match="measured from 0.5× to 2.7× only"):
+        regressor.predict(Frame(black, wide, 0.0, 0))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        regressor.predict(Frame(black, trained, 0.0, 0))  # the trained camera: no warning
+        small = trained.scaled((320, 240))  # the same field of view at half the size
+        regressor.predict(Frame(black[::2, ::2].copy(), small, 0.0, 0))

@@ -1,7 +1,7 @@
 """Model edges against image edges, below both the trackers and the regressors (roles never import
 each other): which model edges are visible at a pose (:class:`ModelView`), the search for image edges
 along their normals, the moving-edge fit (:func:`fit_edges`) and how much of the image it explains
-(:func:`explained_edge_share`). The edge trackers follow the object with it; the CNN regressor
+(:func:`explained_edge_share`, and of its lit pixels: :func:`explained_lit_share`). The edge trackers follow the object with it; the CNN regressor
 refines its pose and chooses between end-for-end twins with it.
 """
 from .fit import (
@@ -14,6 +14,7 @@ from .fit import (
     to_gray,
 )
 from .model_view import EdgeSamples, ModelView
+from .silhouette import explained_lit_share
 
-__all__ = ["EdgeFit", "EdgeSamples", "ModelView", "explained_edge_share", "fit_edges", "fit_from_proposals",
+__all__ = ["EdgeFit", "EdgeSamples", "ModelView", "explained_edge_share", "explained_lit_share", "fit_edges", "fit_from_proposals",
            "honest_quality", "search_edges", "to_gray"]

@@ -10,7 +10,8 @@ silhouette contour and its pose step uses point-to-point distances.
 Quality = inliers (within ``inlier_px`` after the last iteration) / (matched samples + samples
 whose search line is lit but shows no edge) × min(1, inliers / 40), capped by how much of the
 image's edges around the object the model explains (:func:`honest_quality`: a fit that found an
-edge for every model sample on the wrong beams still leaves the real ones unexplained). Samples on dark search lines
+edge for every model sample on the wrong beams still leaves the real ones unexplained) and, on a
+dark background, how much of the lit pixels its silhouette covers. Samples on dark search lines
 with no edge are left out: edges between a face in shadow and black space have almost no
 contrast, and counting them made the quality swing 0.2–0.6 with the lighting on a clean tumble.
 When the arm covers the truss, its tool plate is a lit surface without the model's edges, and
@@ -27,6 +28,7 @@ from ..core import Frame
 from ..geometry import Pose, line_jacobian
 from . import _kernels
 from .model_view import EdgeSamples, ModelView
+from .silhouette import explained_lit_share
 
 MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
@@ -199,15 +201,25 @@ def background_edge_density(gray: np.ndarray, box, ring_px: int = CLUTTER_RING_P
     return float(edges[ring].mean()) if ring.any() else 0.0
 
 
+# the lit-share term of honest_quality: 1 − LIT_SLOPE · (1 − share), 0.5 at 98 % explained
+LIT_SLOPE = 25.0
+
+
 def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None) -> float:
-    """A tracker's quality from its final ``fit`` in ``frame``: ``min(fit quality, 2·explained − 1)``
-    with ``explained`` = :func:`explained_edge_share` at the fitted pose — where a quarter of the
-    image's edges go unexplained the quality is 0.5 (the edge trackers' ``lost_quality``), and it never
-    rises above the fit's own; no image edge at all (NaN) leaves the fit's quality."""
+    """A tracker's quality from its final ``fit`` in ``frame``, never above the fit's own:
+    ``min(fit quality, 2·edges − 1, 1 − LIT_SLOPE·(1 − lit))`` with ``edges`` =
+    :func:`explained_edge_share` and ``lit`` = :func:`~hybridpose.edges.silhouette.explained_lit_share`
+    at the fitted pose. Either term alone brings the quality to 0.5 (the edge trackers'
+    ``lost_quality``): a quarter of the image's edges unexplained, or 2 % of the lit pixels around
+    the silhouette outside it. A term without a verdict (NaN) is left out."""
+    quality = fit.quality
     explained = explained_edge_share(view, frame, fit.pose, gray)
-    if not np.isfinite(explained):
-        return fit.quality
-    return float(min(fit.quality, max(0.0, 2.0 * explained - 1.0)))
+    if np.isfinite(explained):
+        quality = min(quality, 2.0 * explained - 1.0)
+    lit = explained_lit_share(view, frame, fit.pose, gray)
+    if np.isfinite(lit):
+        quality = min(quality, 1.0 - LIT_SLOPE * (1.0 - lit))
+    return float(max(0.0, quality))
 
 
 def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray | None = None,

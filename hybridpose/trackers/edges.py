@@ -1,8 +1,9 @@
 """``edges``: the moving-edge tracker (RAPID / ViSP-style) on the model's visible sharp edges.
 
 Each frame is one edge fit (:func:`hybridpose.edges.fit_edges`) from the caller's prior; the quality
-is the fit's, capped by how much of the image's edges the model explains
-(:func:`hybridpose.edges.honest_quality`). Below ``lost_quality`` (default 0.5) → ``lost``.
+is the fit's, capped by how much of the image's edges and, on a dark background, of its lit pixels
+the model explains (:func:`hybridpose.edges.honest_quality`). Below ``lost_quality`` (default 0.5) →
+``lost``.
 """
 from __future__ import annotations
 
@@ -24,8 +25,8 @@ class EdgeTracker(Tracker):
         max_samples: edge samples per iteration (cost ∝ samples). lost_quality: see module doc.
         covariance_scale: inflation of the Gauss–Newton covariance (correlated samples); the
             default is measured by ``hybridpose bench`` (NEES coverage on rendered sequences).
-        explain: the quality also asks how much of the image's edges around the object the model
-            explains (:func:`honest_quality`); False: the fit's quality alone.
+        explain: the quality also asks how much of the image's edges and lit pixels around the
+            object the model explains (:func:`honest_quality`); False: the fit's quality alone.
     """
 
     name = "edges"

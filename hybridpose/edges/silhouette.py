@@ -1,0 +1,63 @@
+"""How much of the lit image around the object its projected silhouette explains: a dense cue beside
+the sparse edges, for a tracker's quality.
+
+On a dark background (space, or the shadowed side of a scene) every lit pixel near the object must
+be the object. At a wrong pose that the edges still fit (parallel beams, a face slid along its own
+edge), slivers of the real, lit object stick out of the projected silhouette. OpenCV has the pieces
+(morphology, masks) but no such measure; the silhouette comes from the facet-id raster that the
+edge visibility already uses.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..core import Frame
+from ..geometry import Pose
+from .model_view import ID_SCALE, ModelView
+
+LIT_GREY = 12.0  # a pixel brighter than this grey level is lit (black space renders at 0–3)
+SLACK_PX = 2  # lit pixels this close to the projected silhouette count as explained (frame pixels)
+BAND_PX = 10  # lit pixels this close to it must be explained (frame pixels)
+RING_PX = 12  # the ring beyond the band whose lit share tells a dark background from a lit one
+DARK_RING_SHARE = 0.1  # a ring more lit than this is a lit background or an occluder: no verdict
+MIN_SILHOUETTE_PX = 20  # silhouettes smaller than this (at the raster's scale) give no verdict
+
+
+def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> float:
+    """Share (0..1) of the lit pixels within ``BAND_PX`` of the object's projected silhouette at
+    ``pose`` that lie within ``SLACK_PX`` of it; NaN where there is no verdict: no lit pixel near
+    it, a silhouette under ``MIN_SILHOUETTE_PX``, or a lit ring around the band (the Earth, a
+    photo, the arm beside the object).
+
+    Args:
+        view: the object's :class:`ModelView`. frame: the image and its camera. pose: T_cam_obj.
+        gray: (H, W) float32 grey image of ``frame`` (made here when None).
+    """
+    cam = frame.camera
+    ids = view.facet_ids(pose, cam)  # at ID_SCALE of the frame
+    mask = (ids > 0).astype(np.uint8)
+    if int(mask.sum()) < MIN_SILHOUETTE_PX:
+        return float("nan")
+    reach = int(np.ceil((BAND_PX + RING_PX) * ID_SCALE))
+    x, y, w, h = cv2.boundingRect(mask)
+    H, W = mask.shape
+    x0, y0, x1, y1 = max(x - reach, 0), max(y - reach, 0), min(x + w + reach, W), min(y + h + reach, H)
+    mask = mask[y0:y1, x0:x1]
+    full = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY) if gray is None else gray
+    s = 1.0 / ID_SCALE
+    box = full[int(y0 * s):int(np.ceil(y1 * s)), int(x0 * s):int(np.ceil(x1 * s))]
+    lit = cv2.resize(np.asarray(box, np.float32), (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA) > LIT_GREY
+
+    def grown(px: float) -> np.ndarray:
+        k = 2 * max(1, int(round(px * ID_SCALE))) + 1
+        return cv2.dilate(mask, np.ones((k, k), np.uint8)) > 0
+
+    explained, band, outer = grown(SLACK_PX), grown(BAND_PX), grown(BAND_PX + RING_PX)
+    ring = outer & ~band
+    if ring.any() and float(lit[ring].mean()) > DARK_RING_SHARE:
+        return float("nan")
+    n = int((lit & band).sum())
+    if n == 0:
+        return float("nan")
+    return float((lit & explained).sum()) / n

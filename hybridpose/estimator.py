@@ -107,7 +107,7 @@ class HybridConfig:
     lost_check_period: int = 1
     check_roi_margin: float = 0.15
     switch_quality_margin: float = 0.1
-    check_below_quality: float = 0.65
+    check_below_quality: float = 0.7
     probation_frames: int = 1
     check_on_rejection: bool = True
 

@@ -141,7 +141,7 @@ def test_turned_passes_use_their_own_outlier_strategy(tiny_checkpoint, truss, ca
     seen.clear()
     reg = CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, edge_on_expert=tiny_checkpoint,
                               expert_below_deg=90.0)
-    assert reg.expert.turn_pnp_outliers == "drop-worst-only"
+    assert reg.expert.options.turn_pnp_outliers == "drop-worst-only"
     reg.predict(frame)
     assert seen and len(seen) % 5 == 0 and seen == (["drop-worst"] + ["drop-worst-only"] * 4) * (len(seen) // 5)
 
@@ -740,15 +740,15 @@ def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_chec
     from hybridpose.regressors.predictor import SECOND_PASS_BELOW
 
     reg = CheckpointRegressor(tiny_checkpoint)
-    assert reg.passes == "auto" and CheckpointRegressor(tiny_checkpoint, passes="2").passes == 2
+    assert reg.options.passes == "auto" and CheckpointRegressor(tiny_checkpoint, passes="2").options.passes == 2
     res = object()  # any PnP result
     sure, unsure = np.array([SECOND_PASS_BELOW + 0.05, 0.0]), np.array([SECOND_PASS_BELOW - 0.05, 0.1])
     assert not reg._second_pass(res, sure) and reg._second_pass(res, unsure)
     assert reg._second_pass(None, sure), "a failed first PnP gets a second chance"
     assert reg._second_pass(res, None), "no twin head: no belief to trust, two passes"
-    reg.passes = 1
+    reg.configure(passes=1)
     assert not reg._second_pass(None, unsure)
-    reg.passes = 2
+    reg.configure(passes=2)
     assert reg._second_pass(res, sure)
 
 
@@ -758,13 +758,13 @@ def test_auto_turns_only_where_the_first_pnp_drops_keypoints(tiny_checkpoint):
     from hybridpose.regressors.predictor import TURNS_BELOW_INLIERS
 
     reg = CheckpointRegressor(tiny_checkpoint)
-    assert reg.turns == "auto"
+    assert reg.options.turns == "auto"
     consistent = SimpleNamespace(inlier_ratio=1.0)
     split = SimpleNamespace(inlier_ratio=TURNS_BELOW_INLIERS - 0.05)
     assert not reg._turn_crop(consistent) and reg._turn_crop(split) and reg._turn_crop(None)
-    reg.turns = "off"
+    reg.configure(turns="off")
     assert not reg._turn_crop(None)
-    reg.turns = "always"
+    reg.configure(turns="always")
     assert reg._turn_crop(consistent)
 
 
@@ -1204,7 +1204,7 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
 
     reg.expert._estimate_in = expert
     for gate, runs in ((elevation + 1.0, True), (elevation - 1.0, False)):
-        reg.expert_below_deg = gate
+        reg.configure(expert_below_deg=gate)
         m = reg.predict(frame, roi=(200, 150, 240, 180))
         assert bool(calls) == runs
         want = expert_pose if runs else near
@@ -1213,7 +1213,7 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
             assert calls[-1] == (200, 150, 240, 180), "the expert sees the same detection"
         calls.clear()
     reg.expert._estimate_in = lambda *a, **k: None              # the expert finds nothing: the first estimate
-    reg.expert_below_deg = 90.0
+    reg.configure(expert_below_deg=90.0)
     m = reg.predict(frame)
     assert rotation_error_deg(m.pose, near) < 1e-9
 
@@ -1263,7 +1263,7 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
     other = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
     reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, check_twins=False, refine_edges=False,
                               expert_below_deg=90.0, expert_rule="quality")
-    assert CheckpointRegressor(tiny_checkpoint).expert_rule == "pooled-unsure"   # the default
+    assert CheckpointRegressor(tiny_checkpoint).options.expert_rule == "pooled-unsure"   # the default
     assert res.inlier_ratio == 1.0
     first = replace(res, pose=near, rms_px=2.0)
     reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (first, order, prob, 64)
@@ -1365,3 +1365,28 @@ def test_pooled_unsure_pools_only_where_a_twin_head_is_unsure(tiny_checkpoint, t
         same = out["pooled" if pooled else "quality"]
         assert out["pooled-unsure"].pose.allclose(same.pose, atol=1e-12)
         assert out["pooled-unsure"].quality == same.quality
+
+
+def test_options_are_one_checked_frozen_object(tiny_checkpoint):
+    import dataclasses
+
+    from hybridpose.regressors.options import KeypointOptions
+
+    opts = KeypointOptions(passes="2", turn_pnp_outliers=None, pnp_outliers="ransac")
+    assert opts.passes == 2 and opts.turn_pnp_outliers == "ransac"  # normalised once
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.passes = 1
+    for bad, match in ((dict(passes=3), "passes"), (dict(turns="sometimes"), "turns"),
+                       (dict(expert_below_deg=120), "expert_below_deg"), (dict(max_depth_m=-1.0), "max_depth_m"),
+                       (dict(detection="sonar"), "detection")):
+        with pytest.raises(ValueError, match=match):
+            KeypointOptions(**bad)
+    # the regressor takes the object, keyword overrides of it, or both
+    reg = CheckpointRegressor(tiny_checkpoint, options=opts, turns="off")
+    assert reg.options == dataclasses.replace(opts, turns="off")
+    with pytest.raises(TypeError, match="pases: not an option"):
+        CheckpointRegressor(tiny_checkpoint, pases=2)
+    with pytest.raises(ValueError, match="verifier: decided when the checkpoint is loaded"):
+        reg.configure(verifier=None)
+    reg.configure(max_depth_m="auto")
+    assert reg.options.max_depth_m == "auto" and reg.max_depth_m is not None  # resolved on the checkpoint

@@ -70,13 +70,13 @@ def test_checkpoint_arguments_take_a_file_or_a_shipped_name(tmp_path, monkeypatc
                                           ("auto", "always")])
 def test_shipped_default_finds_the_truss_without_a_prior(regressor, held_out, passes, turns):
     rot, trans = [], []
-    regressor.passes, regressor.turns = passes, turns
+    regressor.configure(passes=passes, turns=turns)
     for frame, truth in held_out:
         m = regressor.predict(frame)
         assert m.source == "regressor:default"
         rot.append(rotation_error_deg(m.pose, truth) if m.pose is not None else 180.0)
         trans.append(translation_error_m(m.pose, truth) if m.pose is not None else 1.0)
-    regressor.passes, regressor.turns = "auto", "auto"
+    regressor.configure(passes="auto", turns="auto")
     assert np.median(rot) < MEDIAN_ROT_DEG, f"median rotation error {np.median(rot):.2f}°"
     assert np.median(trans) < MEDIAN_TRANS_M, f"median translation error {np.median(trans):.3f} m"
 
@@ -89,14 +89,14 @@ def test_a_faintly_lit_truss_is_found_by_the_dim_fallback(regressor, held_out):
     assert all(detect_bright_object(f.image) is None for f, _ in dimmed)
     try:
         for fallback in (False, True):
-            regressor.dim_fallback = fallback
+            regressor.configure(dim_fallback=fallback)
             ms = [regressor.predict(f) for f, _ in dimmed]
             if not fallback:
                 assert all(m.lost for m in ms)
         assert not any(m.lost for m in ms)
         rot = [rotation_error_deg(m.pose, p) for m, (_, p) in zip(ms, dimmed)]
     finally:
-        regressor.dim_fallback = True
+        regressor.configure(dim_fallback=True)
     assert np.median(rot) < 20.0   # chance ≈ 120°
 
 
@@ -251,13 +251,13 @@ def test_the_edge_on_expert_ships_and_measures_near_edge_on_views(regressor, tru
 
     from hybridpose.geometry import Pose
     from hybridpose.objects import view_elevation_deg
-    from hybridpose.regressors.predictor import EXPERT_BELOW_DEG
+    from hybridpose.regressors.options import EXPERT_BELOW_DEG
     from hybridpose.regressors.checkpoints import WEIGHTS_DIR
 
     path = WEIGHTS_DIR / "edge_on_expert.pt"
     assert path.stat().st_size < 12 * 2**20
     assert regressor.expert is not None and regressor.expert.path == path
-    assert regressor.expert_rule == "pooled-unsure" and regressor.expert_below_deg == EXPERT_BELOW_DEG
+    assert regressor.options.expert_rule == "pooled-unsure" and regressor.options.expert_below_deg == EXPERT_BELOW_DEG
     assert create("regressor", "default", object=truss, edge_on_expert=None).expert is None
     camera = Camera.default()
     R = Rotation.from_euler("x", 86, degrees=True).as_matrix() @ Rotation.from_euler("z", 25, degrees=True).as_matrix()

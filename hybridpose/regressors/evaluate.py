@@ -133,11 +133,11 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     trans = np.array([r["trans_m"] for r in rows])
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
-        "refine_edges": reg.refine_edges and reg.twin_check is not None, "passes": reg.passes, "turns": reg.turns,
-        "pnp_outliers": reg.pnp_outliers, "turn_pnp_outliers": reg.turn_pnp_outliers, "sun_known": bool(sun_known), "roi": roi,
+        "refine_edges": reg.options.refine_edges and reg.twin_check is not None, "passes": reg.options.passes, "turns": reg.options.turns,
+        "pnp_outliers": reg.options.pnp_outliers, "turn_pnp_outliers": reg.options.turn_pnp_outliers, "sun_known": bool(sun_known), "roi": roi,
         "mirror_check": reg.mirror_verifier is not None,
         "edge_on_expert": None if reg.expert is None else str(reg.expert.path),
-        "expert_rule": None if reg.expert is None else reg.expert_rule, "dim_fallback": reg.dim_fallback,
+        "expert_rule": None if reg.expert is None else reg.options.expert_rule, "dim_fallback": reg.options.dim_fallback,
         "max_depth_m": reg.max_depth_m if reg.kind == "keypoints" else None,
         "device": str(reg.device), "engine": reg.engine.name if reg.engine is not None else "torch",
         "machine": describe_cpu(),

@@ -34,7 +34,8 @@ from .base import PoseRegressor, check_roi
 from .checkpoints import WEIGHTS_DIR, load_checkpoint, shipped_checkpoint
 from .detection import CROP_MARGIN, detect_bright_object, detect_dim_object, detected_crop, translation_crop
 from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, UNCALIBRATED_SCALE, uncalibrated_record, pnp_covariance, quality_factor
-from .keypoint_pnp import OUTLIER_STRATEGIES, solve_pnp
+from .keypoint_pnp import solve_pnp
+from .options import KeypointOptions
 from .verify import MIRROR_BELOW_DEG, edge_on_mirror
 from .engines import ENGINES, keypoint_engine
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
@@ -83,7 +84,6 @@ SIZE_RATIO_MAX = 3.0
 # cut the mean translation error 0.22 → 0.14 m but lost 28 more views (one of them within 30°), +0.84°
 # mean rotation as a lost view counts 180° (docs/decisions.md)
 DEPTH_BEYOND_TRAINED = 3.0
-PASSES = (1, 2, "auto")
 # turns="auto": where the first pass's PnP keeps fewer than TURNS_BELOW_INLIERS of the keypoints, the
 # network also sees its crop turned in-plane by TURNS_DEG (one batch) and the pass whose PnP keeps the
 # most keypoints (then the lowest RMS) wins. The failures are keypoints in near edge-on views that a
@@ -93,7 +93,6 @@ PASSES = (1, 2, "auto")
 # and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (a test written before those views were rendered).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
 TURNS_BELOW_INLIERS = 0.8
-TURNS = ("auto", "always", "off")
 # Sun turn: a network trained with the sun on one side of its images (the shipped default: within 40°
 # of (0.6, 0.4, 0.7), light from the upper left) errs three times as often when the light crosses the
 # image from elsewhere. Where the caller knows the sun (sun sensor, or ephemeris and attitude), the
@@ -107,13 +106,6 @@ SUN_TURN_BEYOND_DEG = 60.0
 # (chosen on test seeds 128–131 for the mirror verifier that was tried; lower ones broke more views than
 # they fixed, and even this one did not pay on fresh sets, so none is shipped: docs/decisions.md)
 MIRROR_SWITCH_P = 0.95
-# Edge-on expert (edge_on_expert): where the first estimate is within EXPERT_BELOW_DEG of edge-on (the
-# views that hold most of the gross errors), the
-# network passes and PnP are made again by a second keypoint network trained on near edge-on views
-# only; both estimates are measured and the one of higher quality is returned (expert_rule "quality").
-# Its estimate alone ("replace") fixed as many views as it broke; gate and rule chosen on test seeds
-# 128–131 among 8–25° (docs/decisions.md).
-EXPERT_BELOW_DEG = 8.0
 # expert_rule "pooled": the weight of log q_pnp (each estimate's PnP quality) added to the twin score
 # when the twins of both estimates are pooled (chosen on test seeds 128–141, where 0–2 measured alike:
 # 4.56° → 4.23° mean; with the first expert it did not pay on fresh seeds 146–149, 4.55° → 4.58°; with
@@ -125,8 +117,6 @@ POOLED_PNP_WEIGHT = 1.0
 # rule's verifier batch is the cost that put it over 20 ms, and it changes little there. Shipped on a test written
 # before its 8000 fresh views were rendered (commit 16da16f): 10.69° → 10.27° mean (CI −0.69…−0.15; 40° cone 5.46° → 4.78°), 24.1 →
 # 23.6 ms a view; seed 100 3.30° → 3.05° at 17.9 ms (docs/decisions.md)
-EXPERT_RULES = ("pooled", "pooled-unsure", "quality", "replace")
-DETECTIONS = ("auto", "bright", "network")
 
 
 def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_prob=None,
@@ -226,72 +216,12 @@ class CheckpointRegressor(PoseRegressor):
             checkpoint was trained on (diameter differs by more than 1 %).
         threads: torch intra-op threads for inference (None = leave torch's setting).
         expect_model: refuse a checkpoint of another architecture (used by the named backends).
-        check_twins: keypoint models — compare the PnP pose with its box-symmetric twins on the
-            image edges and keep the best supported (:mod:`hybridpose.regressors.verify`); needs
-            the object's mesh: ``object``, or the built-in object the checkpoint names.
-        refine_edges: keypoint models — finish with the moving-edge fit of the trackers
-            (:func:`~hybridpose.edges.fit_edges`) from the CNN pose: CNN + model-based
-            refinement, as pose refiners do. With a twin head the other box twins are fitted too
-            when the head is unsure (p < ``TWIN_SURE``), and the head's belief is weighed against
-            each fit's edge support; without one, the best-supported fit of all twins wins. A fit
-            of quality < 0.5 is not used. The covariance stays the calibrated PnP one
-            (conservative for a refined pose).
-        passes: keypoint models — network passes: 1, 2 (the second on the crop re-centred on the
-            first pose; the one whose PnP keeps more inliers wins) or ``"auto"`` (default: the
-            second pass only where the first one's twin head is below ``SECOND_PASS_BELOW``, or
-            its PnP failed; models without a twin head then always make two).
-        turns: keypoint models — test-time in-plane turns of the first crop (``TURNS_DEG``, one
-            batch; the pass whose PnP keeps the most keypoints wins): ``"auto"`` (default) only
-            where the first pass's PnP keeps fewer than ``TURNS_BELOW_INLIERS`` of them or fails,
-            ``"always"``, or ``"off"``.
-        pnp_outliers: keypoint models — how PnP sets outlying keypoints aside (:func:`solve_pnp`'s
-            ``outliers``): ``"drop-worst"`` (default) or ``"ransac"`` (the older path).
-        turn_pnp_outliers: keypoint models — the same for the passes on the turned crops (``turns``):
-            ``"drop-worst-only"`` (default): no RANSAC there, a turned pass
-            that no majority of its keypoints agrees with gives no pose (on 6000 fresh views −0.19° mean
-            rotation, 95 % CI −0.45…+0.04, and 2.2 ms/view less than RANSAC there); None: ``pnp_outliers``.
         device: where the network runs: ``"cpu"`` (default; the small models are fastest there,
             one image at a time) or ``"cuda"`` / ``"cuda:N"`` (the VGG models). Detection, PnP and
             the edge fit always run on the CPU.
-        verifier: keypoint models with a twin head and ``check_twins`` — a twin-verifier checkpoint
-            (``hybridpose train-verifier``, :mod:`hybridpose.regressors.twin_verifier`) whose belief
-            joins the twin choice where the head is unsure (``log p + TWIN_EDGE_WEIGHT · log quality
-            + VERIFIER_WEIGHT · log p_verifier``); ``"auto"`` (default): the one shipped in the
-            package when it was trained on this object; None: none.
-        mirror_verifier: keypoint models with a twin head and ``refine_edges`` — a verifier trained
-            with ``hybridpose train-verifier --mirrors`` that, where the returned pose is within
-            ``MIRROR_BELOW_DEG`` of edge-on, scores it against its box twins and the twins of its
-            edge-on mirror (:func:`~hybridpose.regressors.verify.edge_on_mirror`) and replaces it
-            by one it believes with p ≥ ``MIRROR_SWITCH_P``; ``"auto"`` (default): the one shipped
-            in the package (``weights/mirror_verifier.pt``) when there is one for this object;
-            None: none.
-        edge_on_expert: keypoint models — a second keypoint checkpoint for the same object and
-            keypoints, trained on near edge-on views (``hybridpose render --elevation 0,25``), that
-            re-estimates the pose where the first estimate is within ``expert_below_deg`` of edge-on
-            (:func:`~hybridpose.objects.view_elevation_deg`), on the same detection. ``"auto"``: the
-            one shipped in the package (``weights/edge_on_expert.pt``, default) when there is one for
-            this object; None: none. The covariance stays this checkpoint's calibrated one.
-        expert_below_deg: the view elevation (°, estimated) below which the expert runs.
-        expert_rule: ``"pooled-unsure"`` (default): ``"pooled"`` where either twin head
-            is below ``VERIFIER_SURE`` (``TWIN_SURE`` without a verifier), ``"quality"`` elsewhere;
-            ``"quality"``: both estimates go through the twin choice and the edge fit, and the
-            measurement of higher quality is returned; ``"pooled"``: the best-scored of every box
-            twin of both estimates (:meth:`_pooled_measure`; falls back to ``"quality"`` without edge
-            fits or a twin head); ``"replace"``: the expert's estimate replaces the first one.
-        detection: keypoint models without a ``roi`` — how the object is found: ``"bright"`` (the
-            sunlit pixels on black space, :mod:`.detection`), ``"network"`` (one network pass on the
-            whole frame, then the crop around the pose it gives: for a checkpoint trained with
-            ``--full-view`` on cluttered backgrounds; the bright detection where it finds nothing),
-            ``"auto"`` (default): ``"network"`` for such a checkpoint, else ``"bright"``.
-        dim_fallback: keypoint models without a ``roi`` — where :func:`detect_bright_object` finds
-            nothing, or its box gives no plausible pose, look for a faintly lit object
-            (:func:`detect_dim_object`) and estimate on its box (default True).
-        max_depth_m: keypoint models — an estimate whose object origin lies deeper than this (metres
-            along the optical axis) is no plausible pose (like one whose size does not fit the box):
-            None (default): no limit; ``"auto"``: ``DEPTH_BEYOND_TRAINED`` × the far end of the depths
-            the checkpoint was trained on, where it records them (``dataset["distance_range_m"]``;
-            checkpoints record them), else no limit. The edge-on expert uses the same
-            limit. Trades translation outliers for lost views: see ``DEPTH_BEYOND_TRAINED``.
+        options: a :class:`~hybridpose.regressors.options.KeypointOptions` (keypoint models: every
+            stage after the network; direct models ignore it); None: the defaults.
+        **overrides: fields of ``options`` to change (``passes=2``, ``edge_on_expert=None`` ...).
         engine: keypoint models — what runs the network (:mod:`hybridpose.regressors.engines`):
             ``"auto"`` (default): ONNX Runtime on the CPU — on the 8-bit model ``hybridpose quantize``
             wrote beside the checkpoint where it was made from this very file (shipped for the ``default``
@@ -305,12 +235,14 @@ class CheckpointRegressor(PoseRegressor):
     """
 
     def __init__(self, checkpoint, object=None, threads: int | None = None, expect_model: str | None = None,
-                 check_twins: bool = True, refine_edges: bool = True, passes: int | str = "auto",
-                 device="cpu", verifier="auto", turns: str = "auto", pnp_outliers: str = "drop-worst",
-                 turn_pnp_outliers: str | None = "drop-worst-only", mirror_verifier="auto", edge_on_expert="auto", expert_below_deg: float = EXPERT_BELOW_DEG,
-                 expert_rule: str = "pooled-unsure", dim_fallback: bool = True, max_depth_m=None,
-                 engine: str = "auto", detection: str = "auto") -> None:
-
+                 device="cpu", engine: str = "auto", options: KeypointOptions | None = None, **overrides) -> None:
+        if options is not None and not isinstance(options, KeypointOptions):
+            raise TypeError(f"options: expected a KeypointOptions, got {type(options).__name__}")
+        unknown = sorted(set(overrides) - set(KeypointOptions.names()))
+        if unknown:
+            raise TypeError(f"{', '.join(unknown)}: not an option of a checkpoint regressor (KeypointOptions fields: "
+                            f"{', '.join(KeypointOptions.names())})")
+        opts = replace(options or KeypointOptions(), **overrides)
         self.path = Path(checkpoint)
         ck = load_checkpoint(self.path)
         for key in ("config", "model", "build"):
@@ -351,6 +283,7 @@ class CheckpointRegressor(PoseRegressor):
         self.keypoints_m = (self.net.keypoints_m.cpu().numpy().astype(np.float64)
                             if hasattr(self.net, "keypoints_m") else None)
         self.image_size = int(ck["config"]["image_size"])
+        self.full_view = float(ck["config"].get("full_view", 0.0))  # share of whole-frame training crops
         self.dataset = ck.get("dataset", {})
         # the image azimuth of the training sun (None: lit from every side, or not recorded)
         self.trained_light_azimuth_deg = trained_light_azimuth_deg(self.dataset.get("lighting"))
@@ -362,8 +295,7 @@ class CheckpointRegressor(PoseRegressor):
         if object is not None:
             self._check_object(object)
         self.twin_check = None
-        self.refine_edges = bool(refine_edges)
-        if (check_twins or refine_edges) and self.kind == "keypoints":
+        if (opts.check_twins or opts.refine_edges) and self.kind == "keypoints":
             from ..objects import load_builtin
 
             obj = object if object is not None else load_builtin(self.dataset.get("object"))
@@ -371,55 +303,38 @@ class CheckpointRegressor(PoseRegressor):
                 from .verify import TwinCheck
 
                 self.twin_check = TwinCheck(obj)
-        self.check_twins = bool(check_twins)
-        self.verifier = self._load_verifier(verifier)
-        self.mirror_verifier = (self._load_verifier(mirror_verifier, "mirror_verifier.pt") if self.refine_edges
+        self._set_options(opts)
+        self.verifier = self._load_verifier(opts.verifier)
+        self.mirror_verifier = (self._load_verifier(opts.mirror_verifier, "mirror_verifier.pt") if opts.refine_edges
                                 else None)
-        if isinstance(passes, str) and passes.isdigit():
-            passes = int(passes)
-        if passes not in PASSES or isinstance(passes, bool):
-            raise ValueError(f"passes: expected 1 or 2 network passes, or 'auto', got {passes!r}")
-        self.passes = passes
-        if turns not in TURNS:
-            raise ValueError(f"turns: expected one of {', '.join(TURNS)}, got {turns!r}")
-        self.turns = turns
-        if pnp_outliers not in OUTLIER_STRATEGIES:
-            raise ValueError(f"pnp_outliers: expected one of {', '.join(OUTLIER_STRATEGIES)}, got {pnp_outliers!r}")
-        self.pnp_outliers = pnp_outliers
-        if turn_pnp_outliers is not None and turn_pnp_outliers not in OUTLIER_STRATEGIES:
-            raise ValueError(f"turn_pnp_outliers: expected None or one of {', '.join(OUTLIER_STRATEGIES)}, "
-                             f"got {turn_pnp_outliers!r}")
-        self.turn_pnp_outliers = pnp_outliers if turn_pnp_outliers is None else turn_pnp_outliers
-        self.expert_below_deg = float(expert_below_deg)
-        if not 0.0 <= self.expert_below_deg <= 90.0:
-            raise ValueError(f"expert_below_deg: expected a view elevation in [0, 90] degrees, got {expert_below_deg!r}")
-        if expert_rule not in EXPERT_RULES:
-            raise ValueError(f"expert_rule: expected one of {', '.join(EXPERT_RULES)}, got {expert_rule!r}")
-        self.expert_rule = expert_rule
-        self.dim_fallback = bool(dim_fallback)
-        if detection not in DETECTIONS:
-            raise ValueError(f"detection: expected one of {', '.join(DETECTIONS)}, got {detection!r}")
-        if detection == "auto":
-            detection = "network" if float(ck["config"].get("full_view", 0.0)) > 0 else "bright"
-        self.detection = detection
-        self.max_depth_m = self._depth_limit(max_depth_m)
         self.expert_object = None  # the object whose view elevation gates the expert
-        self.expert = self._load_expert(edge_on_expert, object)
+        self.expert = self._load_expert(opts.edge_on_expert, object)
+
+    def configure(self, **changes) -> None:
+        """Change run-time options (:meth:`KeypointOptions.run_time`: passes, turns, ...) of this loaded
+        regressor; those that decide what is loaded with the checkpoint (twin check, edge fit,
+        verifiers, expert) need a new regressor. The edge-on expert keeps the options it was loaded with."""
+        loaded = sorted(set(changes) - set(KeypointOptions.run_time()))
+        if loaded:
+            raise ValueError(f"{', '.join(loaded)}: decided when the checkpoint is loaded; make a new regressor "
+                             f"(configure changes {', '.join(KeypointOptions.run_time())})")
+        self._set_options(replace(self.options, **changes))
+
+    def _set_options(self, opts: KeypointOptions) -> None:
+        """Keep ``opts`` and resolve what depends on the checkpoint: the detection and the depth gate."""
+        self.options = opts
+        detection = opts.detection
+        if detection == "auto":
+            detection = "network" if self.full_view > 0 else "bright"
+        self.detection = detection
+        self.max_depth_m = self._depth_limit(opts.max_depth_m)
 
     def _depth_limit(self, max_depth_m) -> float | None:
-        """The depth gate in metres (None: none) from the ``max_depth_m`` argument (checked)."""
-        if max_depth_m is None:
-            return None
-        if isinstance(max_depth_m, str) and max_depth_m == "auto":
+        """The depth gate in metres (None: none) from the (checked) ``max_depth_m`` option."""
+        if isinstance(max_depth_m, str):  # "auto"
             trained = self.dataset.get("distance_range_m")
             return None if not trained else DEPTH_BEYOND_TRAINED * float(max(trained))
-        try:
-            limit = float(max_depth_m)
-        except (TypeError, ValueError):
-            limit = float("nan")
-        if not np.isfinite(limit) or limit <= 0 or isinstance(max_depth_m, bool):
-            raise ValueError(f"max_depth_m: expected a positive depth in metres, 'auto' or None, got {max_depth_m!r}")
-        return limit
+        return max_depth_m
 
     def _load_expert(self, expert, obj) -> "CheckpointRegressor | None":
         """The edge-on expert as a bare keypoint estimator (no twin check, edge fit or verifiers of its
@@ -437,10 +352,9 @@ class CheckpointRegressor(PoseRegressor):
                 log.info("shipped edge_on_expert.pt not used: %s", exc)
                 return None
         path = Path(expert)
-        reg = CheckpointRegressor(path, object=obj, check_twins=False, refine_edges=False, passes=self.passes,
-                                  device=self.device, verifier=None, turns=self.turns, pnp_outliers=self.pnp_outliers,
-                                  turn_pnp_outliers=self.turn_pnp_outliers, mirror_verifier=None, edge_on_expert=None, max_depth_m=self.max_depth_m,
-                                  engine=self.engine_request)
+        bare = replace(self.options, check_twins=False, refine_edges=False, verifier=None, mirror_verifier=None,
+                       edge_on_expert=None, max_depth_m=self.max_depth_m)
+        reg = CheckpointRegressor(path, object=obj, device=self.device, engine=self.engine_request, options=bare)
         same = (reg.kind == "keypoints" and reg.keypoints_m is not None and self.keypoints_m is not None
                 and reg.keypoints_m.shape == self.keypoints_m.shape and np.allclose(reg.keypoints_m, self.keypoints_m)
                 and len(reg.twins) == len(self.twins)
@@ -570,22 +484,22 @@ class CheckpointRegressor(PoseRegressor):
         crop, K_crop = self._crop(image, K, *box)
         best = self._solve_turned(crop, K_crop, (sun_turn,))[0]
         if turns and self._turn_crop(best[0]):
-            turned = self._solve_turned(crop, K_crop, [sun_turn + a for a in TURNS_DEG], self.turn_pnp_outliers)
+            turned = self._solve_turned(crop, K_crop, [sun_turn + a for a in TURNS_DEG], self.options.turn_pnp_outliers)
             best = min([best, *turned], key=_pass_rank)
         res, uv, order, prob = best
         return res, uv, K_crop, order, prob
 
     def _turn_crop(self, res) -> bool:
-        if self.turns == "auto":
+        if self.options.turns == "auto":
             return res is None or res.inlier_ratio < TURNS_BELOW_INLIERS
-        return self.turns == "always"
+        return self.options.turns == "always"
 
     def _solve_turned(self, crop: np.ndarray, K_crop: np.ndarray, angles_deg, outliers: str | None = None) -> list:
         """Network passes on ``crop`` turned in-plane by each of ``angles_deg`` (about its centre, one
         batch), keypoints mapped back to the unturned crop, then PnP (``outliers``: :func:`solve_pnp`'s,
         default ``pnp_outliers``): [(result or None, keypoints (N, 2) in crop pixels, twin order, twin
         probabilities)] per angle."""
-        outliers = self.pnp_outliers if outliers is None else outliers
+        outliers = self.options.pnp_outliers if outliers is None else outliers
         centre = ((self.image_size - 1) / 2.0,) * 2
         turns = [np.vstack([cv2.getRotationMatrix2D(centre, float(a), 1.0), [0.0, 0.0, 1.0]]) for a in angles_deg]
         crops = [crop if a == 0 else cv2.warpAffine(crop, A[:2], crop.shape[1::-1], flags=cv2.INTER_LINEAR,
@@ -608,9 +522,9 @@ class CheckpointRegressor(PoseRegressor):
         return out
 
     def _second_pass(self, res, prob) -> bool:
-        if self.passes == "auto":
+        if self.options.passes == "auto":
             return res is None or prob is None or float(prob.max()) < SECOND_PASS_BELOW
-        return self.passes == 2
+        return self.options.passes == 2
 
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
         """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""
@@ -643,20 +557,20 @@ class CheckpointRegressor(PoseRegressor):
         [] where nothing is found."""
         seen = roi if roi is not None else self._detect(image, cam)
         est = None if seen is None else self._estimate_in(image, cam, seen, sun_turn)
-        if est is None and roi is None and self.dim_fallback:
+        if est is None and roi is None and self.options.dim_fallback:
             # nothing bright, or its box gave no plausible pose: the faintly lit object, if any
             dim = detect_dim_object(image)
             if dim is not None and dim != seen:
                 seen, est = dim, self._estimate_in(image, cam, dim, sun_turn)
         if est is None:
             return []
-        if self.expert is None or view_elevation_deg(est[0].pose, self.expert_object) >= self.expert_below_deg:
+        if self.expert is None or view_elevation_deg(est[0].pose, self.expert_object) >= self.options.expert_below_deg:
             return [est]
         # near edge-on: the expert's passes on the same detection
         other = self.expert._estimate_in(image, cam, seen, sun_turn)
         if other is None:
             return [est]
-        return [other] if self.expert_rule == "replace" else [est, other]
+        return [other] if self.options.expert_rule == "replace" else [est, other]
 
     def _detect(self, image: np.ndarray, cam: Camera):
         """Box (x, y, w, h) px where the object is, without a prior (``detection``), or None."""
@@ -753,14 +667,14 @@ class CheckpointRegressor(PoseRegressor):
 
     def _pools(self, ests) -> bool:
         """Whether ``expert_rule`` pools these two estimates' twins (see ``EXPERT_RULES``)."""
-        if self.expert_rule == "pooled-unsure":
+        if self.options.expert_rule == "pooled-unsure":
             sure = TWIN_SURE if self.verifier is None else VERIFIER_SURE
             return self._can_pool(ests) and any(float(np.max(est[2])) < sure for est in ests)
-        return self.expert_rule == "pooled" and self._can_pool(ests)
+        return self.options.expert_rule == "pooled" and self._can_pool(ests)
 
     def _can_pool(self, ests) -> bool:
         """Whether the pooled twin choice applies: edge fits and a twin head on every estimate."""
-        return self.twin_check is not None and self.refine_edges and self.check_twins and all(
+        return self.twin_check is not None and self.options.refine_edges and self.options.check_twins and all(
             est[2] is not None for est in ests)
 
     def _pooled_measure(self, frame: Frame, image: np.ndarray, cam: Camera, ests) -> Measurement:
@@ -835,12 +749,12 @@ class CheckpointRegressor(PoseRegressor):
         belief = None
         if self.twin_check is not None:
             undistorted = Frame(image, cam, frame.timestamp, frame.index)
-            if self.refine_edges:
+            if self.options.refine_edges:
                 pose, twin = self._refine(undistorted, pose, order, prob)
                 checked = self._mirror_check(undistorted, pose)
                 if checked is not None and checked[2] > 0:
                     pose, belief, _ = checked
-            elif self.check_twins and not self.has_twin_head:
+            elif self.options.check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
                     quality *= 0.5
@@ -868,7 +782,7 @@ class CheckpointRegressor(PoseRegressor):
 
         view = self.twin_check.view
         gray = to_gray(frame.image)
-        if not self.check_twins:
+        if not self.options.check_twins:
             starts = [pose]
         else:
             starts = self._twin_starts(pose, order)

@@ -269,11 +269,11 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
 def held_out_accuracy(report: dict, obj: ObjectModel) -> dict:
     """The held-out figures a user asks first: median / mean rotation (°) and translation (% of the
     distance), and the share of views a tracker can start from (≤ 10° and ≤ 5 % of the distance) —
-    each also up to the part's box twins (``*_twin``: what a box-symmetric part cannot tell apart)."""
+    each also up to the part's box twins (``*_twin``: what a box-symmetric part cannot tell apart).
+    The evaluation already scores a symmetric part against the nearest of its equivalent poses."""
     rows = report["per_image"]
     rot_twin = np.array([r.get("rot_twin_deg", r["rot_deg"]) for r in rows], float)
-    # a symmetric part's box twins are its equivalent poses: score the nearest
-    rot = rot_twin if obj.symmetric else np.array([r["rot_deg"] for r in rows], float)
+    rot = np.array([r["rot_deg"] for r in rows], float)
     pct = np.array([100 * r["trans_m"] / max(r["distance_m"], 1e-9) for r in rows], float)
     return {"views": len(rows), "rot_median_deg": float(np.median(rot)), "rot_mean_deg": float(np.mean(rot)),
             "rot_twin_median_deg": float(np.median(rot_twin)), "trans_median_pct": float(np.median(pct)),

@@ -1390,3 +1390,28 @@ def test_options_are_one_checked_frozen_object(tiny_checkpoint):
         reg.configure(verifier=None)
     reg.configure(max_depth_m="auto")
     assert reg.options.max_depth_m == "auto" and reg.max_depth_m is not None  # resolved on the checkpoint
+
+
+def test_eval_scores_a_symmetric_part_against_its_nearest_equivalent_pose(tmp_path, truss):
+    import trimesh
+
+    from hybridpose.metrics import add, adds
+    from hybridpose.objects import load_object
+    from hybridpose.regressors.evaluate import pose_errors
+
+    path = tmp_path / "box.obj"
+    trimesh.creation.box(extents=(0.2, 0.12, 0.08)).export(path)
+    box = load_object(path)
+    assert box.symmetric
+    truth = Pose.from_rotvec_t([0.3, -0.2, 0.5], [0.02, -0.01, 0.8])
+    half_turn = box.symmetries[0]
+    est = (truth @ half_turn).retract(np.r_[np.radians(2.0), 0, 0, 0.001, 0, 0])
+    pts = box.sample_surface(300, rng=0)
+    e = pose_errors(est, truth, box, pts)
+    assert e["rot_deg"] == pytest.approx(2.0, abs=0.01) and e["trans_m"] < 0.002   # the look-alike, not 180° off
+    assert e["add_m"] == pytest.approx(adds(est, truth, pts)) and e["add_m"] < 0.01
+    # an asymmetric object is scored against the truth itself, with ADD
+    far = pose_errors(truth @ Pose.from_rotvec_t([0, 0, np.pi], [0, 0, 0]), truth, truss, truss.sample_surface(300, rng=0))
+    assert far["rot_deg"] == pytest.approx(180.0, abs=1e-6)
+    assert far["add_m"] == pytest.approx(add(truth @ Pose.from_rotvec_t([0, 0, np.pi], [0, 0, 0]), truth,
+                                             truss.sample_surface(300, rng=0)))

@@ -24,13 +24,14 @@ from ..datasets.bop import BopScene, find_scenes
 from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text
 from ..machine import cpu_label, describe_cpu
-from ..metrics import add, add_recall, rotation_error_deg, speed_score, translation_error_m
+from ..metrics import add, add_recall, adds, nearest_equivalent, rotation_error_deg, speed_score, translation_error_m
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .calibration import MIN_BAND_POSES, nees, quality_scale
 from .engines import call_ms, keypoint_engine
 from .calibration import uncalibrated_record
 from .gradcam import write_gradcam_sheet
+from .options import KeypointOptions
 from .predictor import CheckpointRegressor
 
 log = logging.getLogger(__name__)
@@ -53,29 +54,26 @@ AZIMUTH_BINS_DEG = np.arange(0.0, 361.0, 45.0)
 
 
 def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_images: int = 100,
-                        gradcam_count: int = 4, progress=None, refine_edges: bool = True, passes="auto",
-                        device="cpu", verifier="auto", turns="auto", pnp_outliers="drop-worst",
-                        turn_pnp_outliers="drop-worst-only", sun_known: bool = False, mirror_verifier="auto",
-                        edge_on_expert="auto", expert_rule: str = "pooled-unsure", dim_fallback: bool = True,
-                        max_depth_m=None, engine: str = "auto", roi: str = "none") -> dict:
+                        gradcam_count: int = 4, progress=None, device="cpu", engine: str = "auto",
+                        sun_known: bool = False, roi: str = "none", options: KeypointOptions | None = None,
+                        **overrides) -> dict:
     """Run the full inference path (:class:`CheckpointRegressor`) on every image of ``data``.
 
-    ``gross_error_share`` in the summary is the share of images more than ``GROSS_ERROR_DEG`` off in
-    rotation (failures included): for a near-symmetric object, mostly the object turned end for end.
-    ``device`` is where the network runs (``"cuda"`` for the VGG models on a GPU machine); the
-    ms/image timings are then those of that device with 1 and 2 CPU threads beside it. ``verifier``:
-    the twin verifier (:class:`CheckpointRegressor`'s argument: ``"auto"``, a path or None);
-    ``turns``: the test-time crop turns (its argument too: ``"auto"``, ``"always"``, ``"off"``);
-    ``pnp_outliers``: ``"drop-worst"`` or ``"ransac"`` (ditto); ``turn_pnp_outliers``: the turned crops' (ditto). ``sun_known``: give the regressor each
+    Errors are to the nearest of the truth's equivalent poses where the dataset's object is
+    symmetric (its BOP ``symmetries_discrete``; :func:`~hybridpose.metrics.nearest_equivalent`), with
+    ADD-S for ADD; ``rot_twin_deg`` is also up to the checkpoint's box twins (what a near-symmetric
+    part invites). ``gross_error_share`` in the summary is the share of images more than
+    ``GROSS_ERROR_DEG`` off in rotation (failures included). ``device`` is where the network runs
+    (``"cuda"`` for the VGG models on a GPU machine); the ms/image timings are then those of that
+    device with 1 and 2 CPU threads beside it; ``engine``: :class:`CheckpointRegressor`'s, the
+    summary's ``engine`` names the one that ran the network. ``sun_known``: give the regressor each
     image's sun as the dataset records it (``predict(..., sun_direction_cam=...)``: what a caller
-    with a sun sensor can do). ``mirror_verifier``: the edge-on mirror check (``"auto"``, a path or
-    None, as ``verifier``); ``edge_on_expert``: the edge-on expert (``"auto"``, a path or None, ditto);
-    ``expert_rule``, ``dim_fallback``, ``max_depth_m`` and ``engine``: :class:`CheckpointRegressor`'s
-    arguments; the summary's ``engine`` names the one that ran the network. ``roi``: ``"none"`` (the
-    default: no prior, the object found by detection; the parallel model crops around its own
-    translation where nothing is detected) or
+    with a sun sensor can do). ``roi``: ``"none"`` (the default: no prior, the object found by
+    detection; the parallel model crops around its own translation where nothing is detected) or
     ``"truth"`` (each view's true object box, ``bbox_obj`` of ``scene_gt_info.json``: what a tracker on
     the object passes in the hybrid, and the paper's "bounded image"); the timings run without it.
+    ``options`` / ``overrides``: the keypoint stages
+    (:class:`~hybridpose.regressors.options.KeypointOptions`, or its fields as keywords).
     """
     if roi not in ROI_SOURCES:
         raise ValueError(f"roi: expected one of {', '.join(ROI_SOURCES)}, got {roi!r}")
@@ -83,11 +81,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
         raise ValueError(f"timing_images: expected a whole number of images ≥ 0 (0: no timing), got {timing_images!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    reg = CheckpointRegressor(checkpoint, refine_edges=refine_edges, passes=passes, device=device, verifier=verifier,
-                              turns=turns, pnp_outliers=pnp_outliers, turn_pnp_outliers=turn_pnp_outliers,
-                              mirror_verifier=mirror_verifier,
-                              edge_on_expert=edge_on_expert, expert_rule=expert_rule, dim_fallback=dim_fallback,
-                              max_depth_m=max_depth_m, engine=engine)
+    reg = CheckpointRegressor(checkpoint, device=device, engine=engine, options=options, **overrides)
     scenes = [BopScene(p) for p in find_scenes(data)]
     items = [(s, i) for s in scenes for i in s.image_ids]
     if not items:
@@ -120,12 +114,8 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
             row.update(rot_deg=FAILED_ROT_DEG, rot_twin_deg=FAILED_ROT_DEG, trans_m=FAILED_TRANS_M, speed=np.pi + FAILED_TRANS_M / np.linalg.norm(gt.pose.t),
                        add_m=float("inf"))
         else:
-            row.update(rot_deg=rotation_error_deg(m.pose, gt.pose),
-                       # to the nearest box twin: the error a truly box-symmetric part cannot avoid
-                       rot_twin_deg=min(rotation_error_deg(m.pose, gt.pose @ S) for S in (Pose.identity(), *reg.twins)),
-                       trans_m=translation_error_m(m.pose, gt.pose),
-                       speed=speed_score(m.pose, gt.pose), add_m=add(m.pose, gt.pose, points),
-                       **covariance_nees(m, gt.pose, reg.twins))
+            row.update(pose_errors(m.pose, gt.pose, obj, points, reg.twins), **covariance_nees(
+                m, nearest_equivalent(m.pose, gt.pose, obj.symmetries), reg.twins))
         rows.append(row)
         if progress:
             progress(k + 1, len(items))
@@ -133,6 +123,7 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     trans = np.array([r["trans_m"] for r in rows])
     summary = {
         "checkpoint": str(checkpoint), "model": reg.model_name, "data": str(data), "images": len(rows),
+        "symmetries": len(obj.symmetries),
         "refine_edges": reg.options.refine_edges and reg.twin_check is not None, "passes": reg.options.passes, "turns": reg.options.turns,
         "pnp_outliers": reg.options.pnp_outliers, "turn_pnp_outliers": reg.options.turn_pnp_outliers, "sun_known": bool(sun_known), "roi": roi,
         "mirror_check": reg.mirror_verifier is not None,
@@ -168,6 +159,19 @@ def evaluate_checkpoint(checkpoint, data, out, limit: int | None = None, timing_
     atomic_write_json(out / "report.json", {"summary": summary, "per_image": rows})
     atomic_write_text(out / "report.md", report_markdown(summary))
     return summary
+
+
+def pose_errors(est: Pose, truth: Pose, obj, points, twins=()) -> dict:
+    """One estimate's errors against ``truth`` (T_cam_obj, metres): rotation (°) and translation (m)
+    to the nearest of the truth's equivalent poses under ``obj``'s symmetries, the rotation also up to
+    the checkpoint's box ``twins`` (``rot_twin_deg``), the SPEED score, and ADD (ADD-S for a symmetric
+    object) over ``points`` (N, 3) object points, metres."""
+    near = nearest_equivalent(est, truth, obj.symmetries)
+    return {"rot_deg": rotation_error_deg(est, near),
+            # to the nearest box twin: the error a truly box-symmetric part cannot avoid
+            "rot_twin_deg": min(rotation_error_deg(est, near @ S) for S in (Pose.identity(), *twins)),
+            "trans_m": translation_error_m(est, near), "speed": speed_score(est, near),
+            "add_m": (adds if obj.symmetric else add)(est, truth, points)}
 
 
 def covariance_nees(m, truth: Pose, twins=()) -> dict:

@@ -18,6 +18,7 @@ from .model_view import ID_SCALE, ModelView
 
 LIT_GREY = 12.0  # a pixel brighter than this grey level is lit (black space renders at 0–3)
 SLACK_PX = 2  # lit pixels this close to the projected silhouette count as explained (frame pixels)
+SLACK_SHARE = 0.005  # ... or this share of the silhouette's diagonal (frame pixels), where more
 BAND_PX = 10  # lit pixels this close to it must be explained (frame pixels)
 RING_PX = 12  # the ring beyond the band whose lit share tells a dark background from a lit one
 DARK_RING_SHARE = 0.1  # a ring more lit than this is a lit background or an occluder: no verdict
@@ -25,8 +26,9 @@ MIN_SILHOUETTE_PX = 20  # silhouettes smaller than this (at the raster's scale) 
 
 
 def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> float:
-    """Share (0..1) of the lit pixels within ``BAND_PX`` of the object's projected silhouette at
-    ``pose`` that lie within ``SLACK_PX`` of it; NaN where there is no verdict: no lit pixel near
+    """Share (0..1) of the lit pixels within ``BAND_PX`` beyond the slack of the object's projected
+    silhouette at ``pose`` that lie within the slack (``SLACK_PX``, or ``SLACK_SHARE`` of the
+    silhouette's diagonal where more); NaN where there is no verdict: no lit pixel near
     it, a silhouette under ``MIN_SILHOUETTE_PX``, or a lit ring around the band (the Earth, a
     photo, the arm beside the object).
 
@@ -39,8 +41,10 @@ def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndar
     mask = (ids > 0).astype(np.uint8)
     if int(mask.sum()) < MIN_SILHOUETTE_PX:
         return float("nan")
-    reach = int(np.ceil((BAND_PX + RING_PX) * ID_SCALE))
     x, y, w, h = cv2.boundingRect(mask)
+    # a pose a degree off moves the silhouette's far end by more pixels the larger it appears
+    slack = max(SLACK_PX, SLACK_SHARE * float(np.hypot(w, h)) / ID_SCALE)
+    reach = int(np.ceil((BAND_PX + RING_PX + slack) * ID_SCALE))
     H, W = mask.shape
     x0, y0, x1, y1 = max(x - reach, 0), max(y - reach, 0), min(x + w + reach, W), min(y + h + reach, H)
     mask = mask[y0:y1, x0:x1]
@@ -53,7 +57,7 @@ def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndar
         k = 2 * max(1, int(round(px * ID_SCALE))) + 1
         return cv2.dilate(mask, np.ones((k, k), np.uint8)) > 0
 
-    explained, band, outer = grown(SLACK_PX), grown(BAND_PX), grown(BAND_PX + RING_PX)
+    explained, band, outer = grown(slack), grown(BAND_PX + slack), grown(BAND_PX + slack + RING_PX)
     ring = outer & ~band
     if ring.any() and float(lit[ring].mean()) > DARK_RING_SHARE:
         return float("nan")

@@ -119,15 +119,13 @@ class KeypointOptions:
         if passes not in PASSES or isinstance(passes, bool):
             raise ValueError(f"passes: expected 1 or 2 network passes, or 'auto', got {self.passes!r}")
         set_("passes", passes)
-        if self.turns not in TURNS:
-            raise ValueError(f"turns: expected one of {', '.join(TURNS)}, got {self.turns!r}")
-        if self.pnp_outliers not in OUTLIER_STRATEGIES:
-            raise ValueError(f"pnp_outliers: expected one of {', '.join(OUTLIER_STRATEGIES)}, got {self.pnp_outliers!r}")
         if self.turn_pnp_outliers is None:
             set_("turn_pnp_outliers", self.pnp_outliers)
-        elif self.turn_pnp_outliers not in OUTLIER_STRATEGIES:
-            raise ValueError(f"turn_pnp_outliers: expected None or one of {', '.join(OUTLIER_STRATEGIES)}, "
-                             f"got {self.turn_pnp_outliers!r}")
+        for name, choices, expected in (("turns", TURNS, "one of"), ("pnp_outliers", OUTLIER_STRATEGIES, "one of"),
+                                        ("turn_pnp_outliers", OUTLIER_STRATEGIES, "None or one of"),
+                                        ("expert_rule", EXPERT_RULES, "one of"), ("detection", DETECTIONS, "one of")):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"{name}: expected {expected} {', '.join(choices)}, got {getattr(self, name)!r}")
         try:
             below = float(self.expert_below_deg)
         except (TypeError, ValueError):
@@ -135,10 +133,6 @@ class KeypointOptions:
         if not 0.0 <= below <= 90.0:
             raise ValueError(f"expert_below_deg: expected a view elevation in [0, 90] degrees, got {self.expert_below_deg!r}")
         set_("expert_below_deg", below)
-        if self.expert_rule not in EXPERT_RULES:
-            raise ValueError(f"expert_rule: expected one of {', '.join(EXPERT_RULES)}, got {self.expert_rule!r}")
-        if self.detection not in DETECTIONS:
-            raise ValueError(f"detection: expected one of {', '.join(DETECTIONS)}, got {self.detection!r}")
         depth = self.max_depth_m
         if depth is not None and not (isinstance(depth, str) and depth == "auto"):
             try:

@@ -268,7 +268,7 @@ def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path, caplog):
 def test_twin_weight_scales_the_twin_cross_entropy(data, tmp_path):
     """loss(w) = keypoint loss + w · CE(twin logits, best labelling); checked against the two terms."""
     from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss
-    from hybridpose.regressors.train import _batch_loss
+    from hybridpose.regressors.train_steps import batch_loss
 
     torch.manual_seed(0)
     net = KeypointNet(torch.rand(6, 3).numpy(), width=8, image_size=64, twin_classes=3).eval()
@@ -278,7 +278,7 @@ def test_twin_weight_scales_the_twin_cross_entropy(data, tmp_path):
         kp, best = keypoint_loss(uv, spread, batch["kp2d"], 64, return_best=True)
         ce = torch.nn.functional.cross_entropy(twin, best)
         for w in (0.0, 0.1, 2.5):
-            torch.testing.assert_close(_batch_loss(net, batch, "cpu", 10.0, w), kp + w * ce)
+            torch.testing.assert_close(batch_loss(net, batch, "cpu", 10.0, w), kp + w * ce)
     with pytest.raises(ValueError, match="twin_weight: expected a finite weight ≥ 0, got -1"):
         TrainConfig(model="default", data=str(data), out=str(tmp_path), twin_weight=-1)
 
@@ -310,7 +310,7 @@ def test_validation_errors_of_a_symmetric_part_go_to_the_nearest_equivalent_pose
 
     from hybridpose.objects import ObjectModel
     from hybridpose.regressors.losses import quat_geodesic_angle
-    from hybridpose.regressors.train import nearest_twin
+    from hybridpose.regressors.train_steps import nearest_twin
 
     box = ObjectModel("box", trimesh.creation.box(extents=(0.2, 0.12, 0.08)))
     truth = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.05, 0.0, 0.8])

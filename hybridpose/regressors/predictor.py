@@ -145,7 +145,7 @@ def twin_scores(prob, quality, edge_weight: float = TWIN_EDGE_WEIGHT, verifier_p
 
 def trained_light_azimuth_deg(lighting: dict | None) -> float | None:
     """The image azimuth (°, :func:`~hybridpose.objects.light_azimuth_deg`) of a training set's sun
-    (``{"sun_direction_cam", "sun_cone_deg"}`` as :func:`~hybridpose.regressors.train.dataset_info`
+    (``{"sun_direction_cam", "sun_cone_deg"}`` as :func:`~hybridpose.regressors.train_data.dataset_info`
     records it), or None when the set had light from every side (its sun cone holds the optical axis)
     or no record."""
     if not lighting or lighting.get("sun_direction_cam") is None:

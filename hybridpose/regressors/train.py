@@ -1,5 +1,6 @@
 """Training of the CNN pose regressors: seeded 80/20 split, space-imagery augmentations, atomic
-checkpoints every epoch, ``--resume``, early stop on validation, metrics to CSV/JSON.
+checkpoints every epoch, ``--resume``, early stop on validation, metrics to CSV/JSON. What the run
+learns from lives in :mod:`.train_data`, one batch's loss and the validation pass in :mod:`.train_steps`.
 
 ``python -m hybridpose.regressors.train --model vgg19 --data data/truss_random --out runs/vgg19``
 (the ``hybridpose train`` command calls :func:`train`).
@@ -20,18 +21,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, Subset
+from torch.utils.data import DataLoader
 
 from ..datasets.bop import dataset_object
-from ..datasets.torch_dataset import PoseDataset, single_threaded_worker, split_indices
-from ..geometry import Pose
+from ..datasets.torch_dataset import single_threaded_worker
 from ..io import atomic_write_json, atomic_write_text
 from .checkpoints import RESUME_ONLY_KEYS, load_checkpoint, save_checkpoint
-from .losses import DEFAULT_BETA, pose_loss, quat_geodesic_angle
-from .calibration import calibrate, keypoint_pnp_batch
-from .keypoint_net import keypoint_loss, widen_state_dict
+from .losses import DEFAULT_BETA
+from .calibration import calibrate
+from .keypoint_net import widen_state_dict
 from .verify import box_half_turns
 from .models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
+from .train_data import dataset_info, make_augment, make_datasets
+from .train_steps import batch_loss, evaluate, forward
 from .vgg import VGG_INITS, load_imagenet_weights
 
 log = logging.getLogger(__name__)
@@ -143,178 +145,9 @@ class TrainConfig:
             raise ValueError(f"time_limit_min: expected a positive number of minutes, got {self.time_limit_min}")
 
 
-class _Paired(Dataset):
-    """Full image and object-centred crop of the same sample (the parallel model's two inputs)."""
-
-    def __init__(self, full: PoseDataset, crop: PoseDataset) -> None:
-        self.full, self.crop = full, crop
-
-    def __len__(self) -> int:
-        return len(self.full)
-
-    def __getitem__(self, k: int) -> dict:
-        image = None if self.full.cached and self.crop.cached else self.full.rgb(k)  # decoded once for both inputs
-        item = self.full.item(k, image)
-        item["crop_image"] = self.crop.item(k, image)["image"]
-        return item
-
-
-def make_datasets(cfg: TrainConfig, keypoints_m=None) -> tuple[Dataset, Dataset]:
-    """Seeded (train, val) subsets; for the parallel model each item also carries the crop.
-
-    Keypoint models (``keypoints_m`` given) train on random label-consistent crops (the in-plane
-    shift and scale augmentation; see :class:`PoseDataset` ``jitter``) and validate on the
-    deterministic object-centred crop.
-    """
-    if keypoints_m is not None:
-        if cfg.cache_images:
-            log.warning("--cache-images: keypoint models train on random crops, which are never cached; ignored")
-        crops = PoseDataset(cfg.data, size=cfg.image_size, crop=True, keypoints_m=keypoints_m, full_view=cfg.full_view)
-        train_idx, val_idx = split_indices(len(crops), cfg.val_fraction, cfg.seed)
-        return crops.subset(train_idx, jitter=cfg.augment), crops.subset(val_idx)
-    inputs = [PoseDataset(cfg.data, size=cfg.image_size)]
-    if cfg.model == "parallel-vgg19":
-        inputs.append(PoseDataset(cfg.data, size=cfg.image_size, crop=True))
-    if cfg.cache_images:
-        for ds in inputs:
-            ds.cache_images(cfg.cache_images, workers=max(1, cfg.workers))
-    data: Dataset = _Paired(*inputs) if len(inputs) == 2 else inputs[0]
-    train_idx, val_idx = split_indices(len(data), cfg.val_fraction, cfg.seed)
-    return Subset(data, train_idx.tolist()), Subset(data, val_idx.tolist())
-
-
-def make_augment():
-    """Photometric augmentations that matter in space imagery (kornia, on (B, 3, H, W) in [0, 1]).
-
-    Geometric ones are left out: a shift or rotation of the image changes the pose label.
-    """
-    import kornia.augmentation as K
-
-    return torch.nn.Sequential(
-        K.ColorJitter(brightness=0.3, contrast=0.3, p=0.8),
-        K.RandomGamma(gamma=(0.6, 1.6), p=0.5),
-        K.RandomGaussianBlur((5, 5), (0.1, 1.5), p=0.3),
-        K.RandomGaussianNoise(mean=0.0, std=0.03, p=0.5),
-    )
-
-
-def _unwrap(model):
-    """The network inside a DistributedDataParallel wrapper (or the network itself)."""
-    return getattr(model, "module", model)
-
-
-def is_keypoint_model(model) -> bool:
-    return getattr(_unwrap(model), "kind", "direct") == "keypoints"
-
-
-def _forward(model, batch, device):
-    x = batch["image"].to(device, non_blocking=True)
-    if "crop_image" in batch:
-        return model(x, batch["crop_image"].to(device, non_blocking=True))
-    return model(x)
-
-
-def _batch_loss(model, batch, device, beta: float, twin_weight: float) -> torch.Tensor:
-    if is_keypoint_model(model):
-        net = _unwrap(model)
-        labels = batch["kp2d"].to(device)
-        if net.twin_head is not None and labels.ndim == 4:
-            pred, spread, twin = model(batch["image"].to(device, non_blocking=True), with_twin=True)
-            loss, best = keypoint_loss(pred, spread, labels, net.image_size, return_best=True)
-            return loss + twin_weight * torch.nn.functional.cross_entropy(twin, best)
-        pred, spread = model(batch["image"].to(device, non_blocking=True))
-        return keypoint_loss(pred, spread, labels, net.image_size)
-    t, q = _forward(model, batch, device)
-    return pose_loss(t, q, batch["t"].to(device), batch["q"].to(device), beta)
-
-
-def predict_batch(model, batch, device, twins=()) -> tuple[torch.Tensor, torch.Tensor]:
-    """(t (B, 3) m, q (B, 4)) for a batch; keypoint models go through PnP with the batch's ``K``.
-
-    A keypoint prediction PnP cannot explain gets the pose at the crop centre, 1 m away, identity
-    rotation — a counted failure, not a skipped sample. A model with a twin head has its
-    predicted twin undone (``pose @ S``, the half-turns are their own inverses).
-    """
-    if not is_keypoint_model(model):
-        return _forward(model, batch, device)
-    results, twin = keypoint_pnp_batch(model, batch, device)
-    which = twin.argmax(1).cpu().numpy() if twin is not None and twins else np.zeros(len(results), int)
-    ts, qs = [], []
-    for res, K, k in zip(results, batch["K"].numpy().astype(np.float64), which):
-        pose = res.pose if res is not None else Pose.from_quat_t([1, 0, 0, 0], np.linalg.solve(K, [model.image_size / 2, model.image_size / 2, 1.0]))
-        if k > 0:
-            pose = pose @ twins[k - 1]
-        ts.append(pose.t)
-        qs.append(pose.quat_wxyz)
-    return (torch.tensor(np.array(ts), dtype=torch.float32, device=device),
-            torch.tensor(np.array(qs), dtype=torch.float32, device=device))
-
-
-def nearest_twin(t_pred, q_pred, t_true, q_true, twins) -> tuple[torch.Tensor, torch.Tensor]:
-    """Ground truth replaced, per sample, by the twin pose (``gt @ S``) closest to the prediction."""
-    best_t, best_q = t_true.clone(), q_true.clone()
-    best = quat_geodesic_angle(q_pred, q_true) + (t_pred - t_true).norm(dim=1)
-    for S in twins:
-        tt, qq = [], []
-        for t, q in zip(t_true.cpu().numpy(), q_true.cpu().numpy()):
-            g = Pose.from_quat_t(q / np.linalg.norm(q), t) @ S
-            tt.append(g.t)
-            qq.append(g.quat_wxyz)
-        tt = torch.tensor(np.array(tt), dtype=t_true.dtype, device=t_true.device)
-        qq = torch.tensor(np.array(qq), dtype=q_true.dtype, device=q_true.device)
-        score = quat_geodesic_angle(q_pred, qq) + (t_pred - tt).norm(dim=1)
-        closer = score < best
-        best = torch.where(closer, score, best)
-        best_t[closer], best_q[closer] = tt[closer], qq[closer]
-    return best_t, best_q
-
-
-def evaluate(model, loader, device, beta: float, twins=(), symmetries=()) -> dict:
-    """Paper loss of the predicted poses, mean/median rotation error (°) and mean translation error
-    (m) over ``loader`` (the same numbers for direct and keypoint models); with ``twins`` the error
-    is to the nearest twin of the ground truth where the model has no twin head to choose one; with
-    the object's ``symmetries`` always to the nearest equivalent pose (no image tells those apart)."""
-    model.eval()
-    losses, rot, trans = [], [], []
-    with torch.no_grad():
-        for batch in loader:
-            t, q = predict_batch(model, batch, device, twins)
-            t_true, q_true = batch["t"].to(device), batch["q"].to(device)
-            if twins and getattr(_unwrap(model), "twin_head", None) is None:
-                t_true, q_true = nearest_twin(t, q, t_true, q_true, twins)
-            if symmetries:
-                t_true, q_true = nearest_twin(t, q, t_true, q_true, symmetries)
-            losses.append(pose_loss(t, q, t_true, q_true, beta).item() * len(t))
-            rot.append(torch.rad2deg(quat_geodesic_angle(q, q_true)).cpu())
-            trans.append((t - t_true).norm(dim=1).cpu())
-    rot_all, trans_all = torch.cat(rot).numpy(), torch.cat(trans).numpy()
-    return {"val_loss": float(np.sum(losses) / len(rot_all)), "rot_mean_deg": float(rot_all.mean()),
-            "rot_median_deg": float(np.median(rot_all)), "trans_mean_m": float(trans_all.mean())}
-
-
 def kw_for_checkpoint(kw: dict) -> dict:
     """The :func:`build_model` arguments, as plain lists (a checkpoint rebuilds its own network)."""
     return {k: (np.asarray(v).tolist() if k == "keypoints_m" else v) for k, v in kw.items()}
-
-
-def dataset_info(root, obj=None) -> dict:
-    """What the training data was: object name/diameter and camera (checked again at inference), its
-    sun (``lighting``: the direction the light travels, camera frame, and the cone each image's sun
-    was drawn in; what a keypoint model's sun turn aligns to) and its depths (``distance_range_m``:
-    near, far metres along the optical axis; what the predictor's depth gate scales)."""
-    from ..io import read_json
-
-    config = Path(root) / "hybridpose.json"
-    info = read_json(config) if config.is_file() else {}
-    out = {"object": info.get("object"), "camera": info.get("camera")}
-    sun = (info.get("lighting") or {}).get("sun_direction_cam")
-    if sun is not None:
-        out["lighting"] = {"sun_direction_cam": [float(x) for x in sun], "sun_cone_deg": float(info.get("sun_cone_deg", 0.0))}
-    if info.get("distance_range_m") is not None:
-        out["distance_range_m"] = [float(x) for x in info["distance_range_m"]]
-    if obj is not None:
-        out["diameter_m"] = float(obj.diameter)
-    return out
 
 
 def _snapshot(payload: dict) -> dict:
@@ -463,7 +296,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
                 if "crop_image" in batch:
                     batch["crop_image"] = augment(batch["crop_image"].to(device))
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.amp):
-                loss = _batch_loss(net, batch, device, cfg.beta, cfg.twin_weight)
+                loss = batch_loss(net, batch, device, cfg.beta, cfg.twin_weight)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"epoch {epoch} batch {b}: loss is {loss.item()}; lower --lr")
             optim.zero_grad(set_to_none=True)
@@ -599,7 +432,7 @@ def _calibrate_checkpoint(path: Path, model, val_loader, device, twins=()) -> No
     ck = load_checkpoint(path)
     model.load_state_dict(ck["model"])
     try:
-        ck["calibration"] = calibrate(model, val_loader, lambda m, b: _forward(m, b, device), twins, device)
+        ck["calibration"] = calibrate(model, val_loader, lambda m, b: forward(m, b, device), twins, device)
     except ValueError as exc:
         log.warning("%s: not calibrated (%s); its covariances will be conservative defaults", path, exc)
         return

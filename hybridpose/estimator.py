@@ -18,8 +18,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
   at once) restart everything from that fit — the drift the tracker did not flag. A check whose CNN
   pose the edges cannot fit at all (typically its end-for-end twin) while the track fits well
-  (``check_below_quality`` or better) does not count. A CNN pose that agrees is fused. A tracker measurement the gate refuses calls a check at once; where the CNN and the
-  edges from its pose vouch for it, the fusion (not the tracker) was wrong and starts over there.
+  (``check_below_quality`` or better) does not count. A CNN pose that agrees is fused. A tracker
+  measurement the gate refuses calls a check at once; where the CNN and the edges from its pose
+  vouch for it, the fusion (not the tracker) was wrong and starts over there.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
   consecutive answers agree (``reacquire_chi2``) and the tracker, started from the latest, confirms it

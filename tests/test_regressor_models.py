@@ -211,8 +211,11 @@ def test_parallel_model_crops_around_the_detected_object_or_else_its_translation
     save_checkpoint(tmp_path / "ck.pt", {"config": {"model": "parallel-vgg19", "image_size": 64}, "build": {"image_size": 64},
                                          "model": build_model("parallel-vgg19", image_size=64).state_dict()})
     reg = CheckpointRegressor(tmp_path / "ck.pt")
-    crops, crop = [], reg._crop
-    monkeypatch.setattr(reg, "_crop", lambda image, K, cx, cy, side: crops.append((cx, cy, side)) or crop(image, K, cx, cy, side))
+    import hybridpose.regressors.direct as direct
+
+    crops, crop = [], direct.crop_image
+    monkeypatch.setattr(direct, "crop_image", lambda image, K, cx, cy, side, size:
+                        crops.append((cx, cy, side)) or crop(image, K, cx, cy, side, size))
     t = np.array([0.05, -0.02, 0.8])  # the translation stream's estimate, fixed (an untrained one may point anywhere)
     monkeypatch.setattr(reg.net.translation, "forward", lambda x: torch.tensor(t, dtype=x.dtype)[None])
     cam = Camera.default().scaled("128x96")

@@ -39,7 +39,7 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
             img, _ = reg._crop(frame.image, frame.camera.K, *box)
         elif parallel:  # the crop predict gives the rotation stream without a roi
             with torch.no_grad():
-                img = reg._translation_and_bounded_image(*reg._undistorted(frame))[1]
+                img = reg.bounded_image(frame)
         else:
             img = cv2.resize(frame.image, (S, S), interpolation=cv2.INTER_AREA)
         x = reg._tensor(img).requires_grad_(True)

@@ -32,7 +32,8 @@ from ..objects import view_elevation_deg
 from ..registry import register
 from .base import PoseRegressor, check_roi
 from .checkpoints import WEIGHTS_DIR, load_checkpoint, shipped_checkpoint
-from .detection import CROP_MARGIN, detect_bright_object, detect_dim_object, detected_crop, translation_crop
+from .detection import CROP_MARGIN, detect_bright_object, detect_dim_object
+from .direct import bounded_image, direct_pose
 from .calibration import PNP_THRESHOLD, SIGMA_FLOOR_PX, UNCALIBRATED_SCALE, uncalibrated_record, pnp_covariance, quality_factor
 from .keypoint_pnp import solve_pnp
 from .options import KeypointOptions
@@ -868,43 +869,21 @@ class CheckpointRegressor(PoseRegressor):
 
     def _predict_direct(self, frame: Frame, roi) -> Measurement:
         image, cam = self._undistorted(frame)
-        S = self.image_size
-        x = self._tensor(cv2.resize(image, (S, S), interpolation=cv2.INTER_AREA))
-        if self.model_name == "parallel-vgg19":
-            t, crop = self._translation_and_bounded_image(image, cam, roi, x)
-            q = self.net.rotation(self._tensor(crop))[0].float().cpu().numpy().astype(np.float64)
-        else:
-            t_, q_ = self.net(x)
-            t, q = t_[0].float().cpu().numpy().astype(np.float64), q_[0].float().cpu().numpy().astype(np.float64)
-        q_norm = np.linalg.norm(q)
-        # a raw quaternion of (near) zero length names no rotation: a network with zero biases gives it
-        # on a black frame (every ReLU off), so it is a lost view, not a NaN pose
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or t[2] <= 0 or q_norm < 1e-12:
+        out = direct_pose(self.net, self.model_name, image, cam, self.image_size, self._tensor, roi,
+                          float(self.dataset.get("diameter_m") or 0.5))
+        if out is None:
             return self._lost(frame)
-        pose = Pose.from_quat_t(q / q_norm, t)
+        t, q = out
         cal = self.calibration
         cov = np.asarray((cal if cal and "covariance" in cal else uncalibrated_record(self.kind))["covariance"])
-        # a direct regressor has no per-image residual: a centre outside the image is no pose at all
-        uv = cam.K @ (t / t[2])
-        if not (0 <= uv[0] < cam.width and 0 <= uv[1] < cam.height):
-            return self._lost(frame)
-        return Measurement(pose=pose, covariance=cov, quality=1.0, source=f"regressor:{self.name}",
+        return Measurement(pose=Pose.from_quat_t(q, t), covariance=cov, quality=1.0, source=f"regressor:{self.name}",
                            timestamp=frame.timestamp)
 
-    def _translation_and_bounded_image(self, image: np.ndarray, cam: Camera, roi=None, x: torch.Tensor | None = None):
-        """The parallel model's translation stream on the undistorted ``image`` (``x``: its resized tensor, when
-        the caller has it) and the crop its rotation stream sees: (t (3,) m, (S, S, 3) uint8 "bounded image"
-        around ``roi`` or, without one, :meth:`_bounded_box`)."""
-        if x is None:
-            x = self._tensor(cv2.resize(image, (self.image_size,) * 2, interpolation=cv2.INTER_AREA))
-        t = self.net.translation(x)[0].float().cpu().numpy().astype(np.float64)
-        box = crop_box(roi, CROP_MARGIN) if roi is not None else self._bounded_box(image, cam, t)
-        return t, self._crop(image, cam.K, *box)[0]
-
-    def _bounded_box(self, image: np.ndarray, cam: Camera, t: np.ndarray) -> tuple[float, float, float]:
-        """The parallel model's "bounded image" without a ``roi``: :func:`detected_crop`, else
-        :func:`translation_crop` of its own translation ``t`` (3,) m."""
-        return detected_crop(image) or translation_crop(t, cam.K, float(self.dataset.get("diameter_m") or 0.5))
+    def bounded_image(self, frame: Frame) -> np.ndarray:
+        """The crop a parallel VGG-19's rotation stream sees in ``frame`` without a roi ((S, S, 3) uint8)."""
+        image, cam = self._undistorted(frame)
+        return bounded_image(self.net, image, cam, self.image_size, self._tensor, None,
+                             float(self.dataset.get("diameter_m") or 0.5))[1]
 
     def _lost(self, frame: Frame) -> Measurement:
         return Measurement(pose=None, covariance=LOST_COVARIANCE, quality=0.0, source=f"regressor:{self.name}",

@@ -737,35 +737,31 @@ def test_sun_phase_angle_and_light_azimuth(truss):
 
 
 def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_checkpoint):
-    from hybridpose.regressors.predictor import SECOND_PASS_BELOW
+    from hybridpose.regressors.predictor import SECOND_PASS_BELOW, wants_second_pass
 
     reg = CheckpointRegressor(tiny_checkpoint)
     assert reg.options.passes == "auto" and CheckpointRegressor(tiny_checkpoint, passes="2").options.passes == 2
     res = object()  # any PnP result
     sure, unsure = np.array([SECOND_PASS_BELOW + 0.05, 0.0]), np.array([SECOND_PASS_BELOW - 0.05, 0.1])
-    assert not reg._second_pass(res, sure) and reg._second_pass(res, unsure)
-    assert reg._second_pass(None, sure), "a failed first PnP gets a second chance"
-    assert reg._second_pass(res, None), "no twin head: no belief to trust, two passes"
-    reg.configure(passes=1)
-    assert not reg._second_pass(None, unsure)
-    reg.configure(passes=2)
-    assert reg._second_pass(res, sure)
+    assert not wants_second_pass("auto", res, sure) and wants_second_pass("auto", res, unsure)
+    assert wants_second_pass("auto", None, sure), "a failed first PnP gets a second chance"
+    assert wants_second_pass("auto", res, None), "no twin head: no belief to trust, two passes"
+    assert not wants_second_pass(1, None, unsure)
+    assert wants_second_pass(2, res, sure)
 
 
 def test_auto_turns_only_where_the_first_pnp_drops_keypoints(tiny_checkpoint):
     from types import SimpleNamespace
 
-    from hybridpose.regressors.predictor import TURNS_BELOW_INLIERS
+    from hybridpose.regressors.predictor import TURNS_BELOW_INLIERS, wants_turns
 
     reg = CheckpointRegressor(tiny_checkpoint)
     assert reg.options.turns == "auto"
     consistent = SimpleNamespace(inlier_ratio=1.0)
     split = SimpleNamespace(inlier_ratio=TURNS_BELOW_INLIERS - 0.05)
-    assert not reg._turn_crop(consistent) and reg._turn_crop(split) and reg._turn_crop(None)
-    reg.configure(turns="off")
-    assert not reg._turn_crop(None)
-    reg.configure(turns="always")
-    assert reg._turn_crop(consistent)
+    assert not wants_turns("auto", consistent) and wants_turns("auto", split) and wants_turns("auto", None)
+    assert not wants_turns("off", None)
+    assert wants_turns("always", consistent)
 
 
 class _BrightestPixelNet(torch.nn.Module):

@@ -196,6 +196,22 @@ def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:
     return max(d / d_box, d_box / d)
 
 
+def wants_turns(turns: str, res) -> bool:
+    """Whether the first crop is also tried turned (``TURNS_DEG``) after a pass with PnP result ``res``
+    (None: PnP failed), under the ``turns`` option (:class:`~hybridpose.regressors.options.KeypointOptions`)."""
+    if turns == "auto":
+        return res is None or res.inlier_ratio < TURNS_BELOW_INLIERS
+    return turns == "always"
+
+
+def wants_second_pass(passes, res, prob) -> bool:
+    """Whether a second, re-centred network pass follows a first one with PnP result ``res`` (None:
+    failed) and twin-head probabilities ``prob`` (None: no head), under the ``passes`` option."""
+    if passes == "auto":
+        return res is None or prob is None or float(prob.max()) < SECOND_PASS_BELOW
+    return passes == 2
+
+
 def _to_tensor(img: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float().div_(255.0)[None]
 
@@ -479,21 +495,16 @@ class CheckpointRegressor(PoseRegressor):
         indices (0 = the keypoints' own pose, k = ``twins[k-1]``) most likely first by the twin head
         (fixed 0, 1, 2, 3 without one); the result's pose is already turned to the first. The
         probabilities (T,), indexed like the symmetries, are the head's softmax (None without one).
-        With ``turns`` the crop turned by ``TURNS_DEG`` is tried too where :meth:`_turn_crop` says
+        With ``turns`` the crop turned by ``TURNS_DEG`` is tried too where :func:`wants_turns` says
         so, and the pass whose PnP keeps the most keypoints (then the lowest RMS) is returned. Every
         turn starts from ``sun_turn`` (°, :func:`sun_turn_deg`)."""
         crop, K_crop = self._crop(image, K, *box)
         best = self._solve_turned(crop, K_crop, (sun_turn,))[0]
-        if turns and self._turn_crop(best[0]):
+        if turns and wants_turns(self.options.turns, best[0]):
             turned = self._solve_turned(crop, K_crop, [sun_turn + a for a in TURNS_DEG], self.options.turn_pnp_outliers)
             best = min([best, *turned], key=_pass_rank)
         res, uv, order, prob = best
         return res, uv, K_crop, order, prob
-
-    def _turn_crop(self, res) -> bool:
-        if self.options.turns == "auto":
-            return res is None or res.inlier_ratio < TURNS_BELOW_INLIERS
-        return self.options.turns == "always"
 
     def _solve_turned(self, crop: np.ndarray, K_crop: np.ndarray, angles_deg, outliers: str | None = None) -> list:
         """Network passes on ``crop`` turned in-plane by each of ``angles_deg`` (about its centre, one
@@ -521,11 +532,6 @@ class CheckpointRegressor(PoseRegressor):
                     res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
             out.append((res, uv, order, prob))
         return out
-
-    def _second_pass(self, res, prob) -> bool:
-        if self.options.passes == "auto":
-            return res is None or prob is None or float(prob.max()) < SECOND_PASS_BELOW
-        return self.options.passes == 2
 
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
         """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""
@@ -604,7 +610,7 @@ class CheckpointRegressor(PoseRegressor):
         res, uv, K_crop, order, prob = self._keypoint_pass(image, K, box, turns=True, sun_turn=sun_turn)
         # second pass on the crop centred on the first pose (the crop the network knows best)
         again = (self._box_around(res.pose if res is not None else None, uv, K_crop, K)
-                 if self._second_pass(res, prob) else None)
+                 if wants_second_pass(self.options.passes, res, prob) else None)
         if again is not None:
             res2, _, _, order2, prob2 = self._keypoint_pass(image, K, again, sun_turn=sun_turn)
             if res2 is not None and (res is None or res2.inlier_ratio >= res.inlier_ratio):

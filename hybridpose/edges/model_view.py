@@ -149,14 +149,16 @@ class ModelView:
         return self.samples_at(pose, camera, self.visible_index(pose, camera, margin_px, max_samples))
 
     def visible_index(self, pose: Pose, camera: Camera, margin_px: float = 0.0,
-                      max_samples: int | None = None) -> np.ndarray:
-        """Indices (S,) into :attr:`points` of the samples :meth:`visible_samples` returns."""
+                      max_samples: int | None = None, ids: np.ndarray | None = None) -> np.ndarray:
+        """Indices (S,) into :attr:`points` of the samples :meth:`visible_samples` returns; ``ids``: the
+        :meth:`facet_ids` of ``pose`` where the caller has them (rendered here otherwise)."""
         idx, uv, facing = _kernels.facing_samples(
             self.points, self._normal_dot_point, self.face_normals, self.faces, pose.R, pose.t, camera.K,
             camera.width, camera.height, float(margin_px))
         if len(idx):
             own = self.facet_of[self.faces[idx]] * facing                 # (S, 2): 0 where back-facing
-            idx = idx[_kernels.shows_own_facet(self.facet_ids(pose, camera), uv, own, ID_SCALE)]
+            ids = self.facet_ids(pose, camera) if ids is None else ids
+            idx = idx[_kernels.shows_own_facet(ids, uv, own, ID_SCALE)]
         if max_samples is not None and len(idx) > max_samples:
             idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
         return idx

@@ -16,7 +16,7 @@ from ..core import Frame
 from ..geometry import Pose
 from .model_view import ID_SCALE, ModelView
 
-LIT_GREY = 12.0  # a pixel brighter than this grey level is lit (black space renders at 0–3)
+LIT_PIXEL_GREY = 12.0  # a pixel brighter than this grey level is lit (black space renders at 0–3)
 SLACK_PX = 2  # lit pixels this close to the projected silhouette count as explained (frame pixels)
 SLACK_SHARE = 0.005  # ... or this share of the silhouette's diagonal (frame pixels), where more
 BAND_PX = 10  # lit pixels this close to it must be explained (frame pixels)
@@ -25,7 +25,8 @@ DARK_RING_SHARE = 0.1  # a ring more lit than this is a lit background or an occ
 MIN_SILHOUETTE_PX = 20  # silhouettes smaller than this (at the raster's scale) give no verdict
 
 
-def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> float:
+def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
+                        ids: np.ndarray | None = None) -> float:
     """Share (0..1) of the lit pixels within ``BAND_PX`` beyond the slack of the object's projected
     silhouette at ``pose`` that lie within the slack (``SLACK_PX``, or ``SLACK_SHARE`` of the
     silhouette's diagonal where more); NaN where there is no verdict: no lit pixel near
@@ -34,10 +35,11 @@ def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndar
 
     Args:
         view: the object's :class:`ModelView`. frame: the image and its camera. pose: T_cam_obj.
-        gray: (H, W) float32 grey image of ``frame`` (made here when None).
+        gray: (H, W) float32 grey image of ``frame`` (made here when None). ids: the view's
+            :meth:`~ModelView.facet_ids` of ``pose`` (rendered here when None).
     """
     cam = frame.camera
-    ids = view.facet_ids(pose, cam)  # at ID_SCALE of the frame
+    ids = view.facet_ids(pose, cam) if ids is None else ids  # at ID_SCALE of the frame
     mask = (ids > 0).astype(np.uint8)
     if int(mask.sum()) < MIN_SILHOUETTE_PX:
         return float("nan")
@@ -51,7 +53,7 @@ def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndar
     full = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY) if gray is None else gray
     s = 1.0 / ID_SCALE
     box = full[int(y0 * s):int(np.ceil(y1 * s)), int(x0 * s):int(np.ceil(x1 * s))]
-    lit = cv2.resize(np.asarray(box, np.float32), (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA) > LIT_GREY
+    lit = cv2.resize(np.asarray(box, np.float32), (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA) > LIT_PIXEL_GREY
 
     def grown(px: float) -> np.ndarray:
         k = 2 * max(1, int(round(px * ID_SCALE))) + 1

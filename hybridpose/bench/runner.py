@@ -253,6 +253,7 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
         rec = [n for r in rs for n in r["recover_frames"]]
         finite = mean_rot[np.isfinite(mean_rot)]
         nan_if_empty = (lambda xs: float(np.nanmean(xs)) if np.any(np.isfinite(xs)) else float("nan"))
+        edge_px = np.array([r.get("edge_px_median", np.nan) for r in rs])
         out[key] = {
             "sequences": len(rs),
             "rot_mean_deg": float(np.mean(finite)) if finite.size else float("nan"),
@@ -265,8 +266,7 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "trans_mean_pct": nan_if_empty(np.array([r["trans_mean_pct"] for r in rs])),
             "speed_mean": nan_if_empty(np.array([r["speed_mean"] for r in rs])),
             "in_basin": nan_if_empty(np.array([r.get("in_basin", np.nan) for r in rs])),
-            "edge_px_median": (float(np.nanmedian([r.get("edge_px_median", np.nan) for r in rs]))
-                               if np.any(np.isfinite([r.get("edge_px_median", np.nan) for r in rs])) else float("nan")),
+            "edge_px_median": float(np.nanmedian(edge_px)) if np.any(np.isfinite(edge_px)) else float("nan"),
             "add_recall": nan_if_empty(np.array([r.get("add_recall", np.nan) for r in rs])),
             "add_auc": nan_if_empty(np.array([r.get("add_auc", np.nan) for r in rs])),
             "coverage": float(np.mean([r["coverage"] for r in rs])),

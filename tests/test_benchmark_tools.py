@@ -12,7 +12,7 @@ import predict_stages  # noqa: E402
 from _common import test_views as views_of  # noqa: E402  (not a test: renamed so pytest does not collect it)
 from hybridpose.datasets import render_random_dataset  # noqa: E402
 from hybridpose.geometry import Camera  # noqa: E402
-from hybridpose.regressors import predictor  # noqa: E402
+from hybridpose.regressors import keypoint_passes  # noqa: E402
 from hybridpose.regressors.predictor import CheckpointRegressor  # noqa: E402
 from hybridpose.regressors.checkpoints import shipped_checkpoint  # noqa: E402
 
@@ -36,7 +36,7 @@ def test_stage_timers_split_the_predict_path_and_put_every_function_back(truss, 
     assert [getattr(owner, attr) for owner, attr in predict_stages.ENGINE_CALLS] == calls
     with pytest.raises(RuntimeError, match="boom"):
         with predict_stages.stage_timers():
-            assert predictor.solve_pnp is not originals[2][2]
+            assert keypoint_passes.solve_pnp is not originals[2][2]
             raise RuntimeError("boom")
     assert all(getattr(owner, attr) is fn for owner, attr, fn in originals)
 

@@ -15,7 +15,9 @@ from hybridpose.regressors.calibration import nees, pnp_covariance
 from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss, soft_argmax, widen_state_dict
 from hybridpose.regressors.engines import TorchEngine
 from hybridpose.regressors.keypoint_pnp import solve_pnp
-from hybridpose.regressors.predictor import CheckpointRegressor, TWIN_EDGE_WEIGHT, twin_scores
+from hybridpose.regressors.keypoint_passes import KeypointEstimate
+from hybridpose.regressors.predictor import CheckpointRegressor
+from hybridpose.regressors.twin_choice import TWIN_EDGE_WEIGHT, twin_scores
 from hybridpose.regressors.detection import detect_bright_object, detect_dim_object
 from hybridpose.registry import available, create
 
@@ -126,14 +128,14 @@ def test_turned_passes_use_their_own_outlier_strategy(tiny_checkpoint, truss, ca
     """``turn_pnp_outliers`` reaches the PnP of the turned crops only (the first pass keeps ``pnp_outliers``);
     by default no RANSAC there, with None the turned crops use ``pnp_outliers`` too, and the edge-on
     expert inherits both."""
-    from hybridpose.regressors import predictor
+    from hybridpose.regressors import keypoint_passes as passes
     from hybridpose.render import Renderer
 
     cam = Camera.default().scaled(160)
     with Renderer(truss, cam) as r:
         frame = Frame(r.render(Pose.from_rotvec_t([0.2, 0.1, 0.0], [0.0, 0.0, 0.7])).rgb, cam, 0.0)
-    seen, solve = [], predictor.solve_pnp
-    monkeypatch.setattr(predictor, "solve_pnp", lambda *a, outliers, **k: seen.append(outliers) or solve(*a, outliers=outliers, **k))
+    seen, solve = [], passes.solve_pnp
+    monkeypatch.setattr(passes, "solve_pnp", lambda *a, outliers, **k: seen.append(outliers) or solve(*a, outliers=outliers, **k))
     CheckpointRegressor(tiny_checkpoint, turns="always", passes=1, edge_on_expert=None,
                         turn_pnp_outliers=None).predict(frame)
     # (an untrained network: its box may give no plausible pose, and the dim fallback makes its passes again)
@@ -218,28 +220,28 @@ def test_checkpoint_regressor_returns_a_valid_measurement(tiny_checkpoint, truss
 
 def test_size_ratio_compares_the_projected_extent_with_the_box(truss, camera, rng, monkeypatch):
     """Oracle: cv2.projectPoints of the same points; a pose far behind the box's size is refused."""
-    from hybridpose.regressors import predictor
+    from hybridpose.regressors import keypoint_passes as passes
 
     pose = _pose(rng, z=0.8)
     uv = cv2.projectPoints(truss.keypoints, cv2.Rodrigues(pose.R)[0], pose.t, camera.K, None)[0][:, 0]
     x0, y0 = uv.min(0)
     w, h = uv.max(0) - uv.min(0)
-    assert predictor.size_ratio(pose, truss.keypoints, camera, (x0, y0, w, h)) == pytest.approx(1.0)
-    assert predictor.size_ratio(pose, truss.keypoints, camera, (x0, y0, 2 * w, 2 * h)) == pytest.approx(2.0)
+    assert passes.size_ratio(pose, truss.keypoints, camera, (x0, y0, w, h)) == pytest.approx(1.0)
+    assert passes.size_ratio(pose, truss.keypoints, camera, (x0, y0, 2 * w, 2 * h)) == pytest.approx(2.0)
     far = Pose(pose.R, pose.t * 4.0)                    # the PnP depth blow-up: 4× too far, ≈ 4× too small
-    assert predictor.size_ratio(far, truss.keypoints, camera, (x0, y0, w, h)) > predictor.SIZE_RATIO_MAX
+    assert passes.size_ratio(far, truss.keypoints, camera, (x0, y0, w, h)) > passes.SIZE_RATIO_MAX
     behind = Pose(pose.R, -pose.t)
-    assert predictor.size_ratio(behind, truss.keypoints, camera, (x0, y0, w, h)) == float("inf")
+    assert passes.size_ratio(behind, truss.keypoints, camera, (x0, y0, w, h)) == float("inf")
 
 
 def test_regressor_refuses_a_pose_that_does_not_fit_the_box(tiny_checkpoint, truss, camera, monkeypatch):
-    from hybridpose.regressors import predictor
+    from hybridpose.regressors import keypoint_passes as passes
     from hybridpose.render import Renderer
 
     with Renderer(truss, camera) as r:
         frame = Frame(r.render(Pose.from_quat_t([1, 0, 0, 0], [0.0, 0.0, 0.6])).rgb, camera, 0.0)
     reg = create("regressor", "default", checkpoint=tiny_checkpoint, object=truss)
-    monkeypatch.setattr(predictor, "size_ratio", lambda *a: predictor.SIZE_RATIO_MAX * 1.01)
+    monkeypatch.setattr(passes, "size_ratio", lambda *a: passes.SIZE_RATIO_MAX * 1.01)
     m = reg.predict(frame)
     assert m.lost and m.pose is None and m.quality == 0.0
 
@@ -248,6 +250,7 @@ def test_depth_gate_refuses_estimates_far_beyond_the_trained_depths(tiny_checkpo
     """The end-on truss near the camera and the truss across the view far away fill the same box, so
     size_ratio passes both; an estimate deeper than the gate is no plausible pose. "auto" is 3x the far
     end of the depths train recorded from the dataset (0.3-1.2 m here)."""
+    from hybridpose.regressors import keypoint_passes as passes
     from hybridpose.regressors import predictor
     from hybridpose.regressors.keypoint_pnp import PnPResult
     from hybridpose.render import Renderer
@@ -262,8 +265,8 @@ def test_depth_gate_refuses_estimates_far_beyond_the_trained_depths(tiny_checkpo
         return PnPResult(pose=Pose(np.eye(3), [0.0, 0.0, depth["z"]]), inliers=np.ones(len(points_2d), bool),
                          rms_px=1.0, information=np.eye(6))
 
-    monkeypatch.setattr(predictor, "solve_pnp", pnp_at_depth)
-    monkeypatch.setattr(predictor, "size_ratio", lambda *a: 1.0)
+    monkeypatch.setattr(passes, "solve_pnp", pnp_at_depth)
+    monkeypatch.setattr(passes, "size_ratio", lambda *a: 1.0)
     kw = dict(checkpoint=tiny_checkpoint, object=truss, refine_edges=False, check_twins=False)
     assert create("regressor", "default", **kw).max_depth_m is None   # off unless asked for
     auto = create("regressor", "default", max_depth_m="auto", **kw)
@@ -692,8 +695,8 @@ def test_sun_turn_aligns_the_light_with_the_training_sun(tiny_checkpoint, truss)
         assert (np.degrees(np.arctan2(y, x)) - trained + 180) % 360 - 180 == pytest.approx(0.0, abs=1e-6)
     # every network pass of predict starts from the sun turn
     reg = CheckpointRegressor(tiny_checkpoint, turns="always", passes=1)
-    seen, solve = [], reg._solve_turned
-    reg._solve_turned = lambda crop, K, angles, *rest: seen.append(tuple(angles)) or solve(crop, K, angles, *rest)
+    seen, solve = [], reg.passes.solve_turned
+    reg.passes.solve_turned = lambda crop, K, angles, *rest: seen.append(tuple(angles)) or solve(crop, K, angles, *rest)
     from hybridpose.render import Renderer
 
     cam = Camera.default().scaled(160)
@@ -737,7 +740,7 @@ def test_sun_phase_angle_and_light_azimuth(truss):
 
 
 def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_checkpoint):
-    from hybridpose.regressors.predictor import SECOND_PASS_BELOW, wants_second_pass
+    from hybridpose.regressors.keypoint_passes import SECOND_PASS_BELOW, wants_second_pass
 
     reg = CheckpointRegressor(tiny_checkpoint)
     assert reg.options.passes == "auto" and CheckpointRegressor(tiny_checkpoint, passes="2").options.passes == 2
@@ -753,7 +756,7 @@ def test_auto_passes_run_the_second_pass_only_where_the_head_is_unsure(tiny_chec
 def test_auto_turns_only_where_the_first_pnp_drops_keypoints(tiny_checkpoint):
     from types import SimpleNamespace
 
-    from hybridpose.regressors.predictor import TURNS_BELOW_INLIERS, wants_turns
+    from hybridpose.regressors.keypoint_passes import TURNS_BELOW_INLIERS, wants_turns
 
     reg = CheckpointRegressor(tiny_checkpoint)
     assert reg.options.turns == "auto"
@@ -791,9 +794,9 @@ def test_turned_crops_map_their_keypoints_back_to_the_crop(tiny_checkpoint):
     crop[dot[1], dot[0]] = 255
     crop = cv2.GaussianBlur(crop, (5, 5), 1.0)  # a turned dot stays the brightest pixel near its place
     K_crop = np.array([[100.0, 0, S / 2], [0, 100.0, S / 2], [0, 0, 1]])
-    passes = reg._solve_turned(crop, K_crop, (0.0, 20.0, -20.0, 40.0, -40.0))
+    turned = reg.passes.solve_turned(crop, K_crop, (0.0, 20.0, -20.0, 40.0, -40.0))
     assert fake.seen == [5], "one batch for all turns"
-    for res, uv, order, prob in passes:
+    for res, uv, order, prob in turned:
         assert res is None  # all keypoints on one pixel: no pose
         np.testing.assert_allclose(uv, np.tile(dot, (len(uv), 1)), atol=1.0)
         assert prob.shape == (len(reg.twins) + 1,) and order[0] == 0
@@ -802,7 +805,7 @@ def test_turned_crops_map_their_keypoints_back_to_the_crop(tiny_checkpoint):
 def test_turned_pass_wins_only_with_more_keypoints_kept(tiny_checkpoint, monkeypatch):
     from types import SimpleNamespace
 
-    from hybridpose.regressors.predictor import TURNS_DEG
+    from hybridpose.regressors.keypoint_passes import TURNS_DEG
 
     reg = CheckpointRegressor(tiny_checkpoint)
     ratio = {0.0: 0.6, **{a: 0.5 for a in TURNS_DEG}, TURNS_DEG[2]: 0.8}
@@ -811,15 +814,15 @@ def test_turned_pass_wins_only_with_more_keypoints_kept(tiny_checkpoint, monkeyp
     def fake(crop, K_crop, angles, outliers=None):
         return [(SimpleNamespace(inlier_ratio=ratio[a], rms_px=1.0, angle=a), uv0, [0, 1, 2, 3], None) for a in angles]
 
-    monkeypatch.setattr(reg, "_solve_turned", fake)
+    monkeypatch.setattr(reg.passes, "solve_turned", fake)
     image, K = np.zeros((480, 640, 3), np.uint8), Camera.default().K
-    res, *_ = reg._keypoint_pass(image, K, (320.0, 240.0, 200.0), turns=True)
+    res, *_ = reg.passes.network_pass(image, K, (320.0, 240.0, 200.0), turns=True)
     assert res.angle == TURNS_DEG[2]
     ratio[0.0] = 0.95  # the first pass keeps enough keypoints: no turns tried
-    res, *_ = reg._keypoint_pass(image, K, (320.0, 240.0, 200.0), turns=True)
+    res, *_ = reg.passes.network_pass(image, K, (320.0, 240.0, 200.0), turns=True)
     assert res.angle == 0.0
     ratio[0.0] = 0.6
-    res, *_ = reg._keypoint_pass(image, K, (320.0, 240.0, 200.0), turns=False)
+    res, *_ = reg.passes.network_pass(image, K, (320.0, 240.0, 200.0), turns=False)
     assert res.angle == 0.0
 
 
@@ -882,7 +885,7 @@ def test_twin_scores_add_the_verifier_belief():
 
 
 def test_regressor_asks_the_verifier_only_where_the_head_is_unsure(tiny_checkpoint, truss, camera, tmp_path):
-    from hybridpose.regressors.predictor import VERIFIER_SURE
+    from hybridpose.regressors.twin_choice import VERIFIER_SURE
     from hybridpose.render import Renderer
 
     assert CheckpointRegressor(tiny_checkpoint, verifier=None).verifier is None
@@ -901,12 +904,12 @@ def test_regressor_asks_the_verifier_only_where_the_head_is_unsure(tiny_checkpoi
         return real(image, K, candidates, strip_pose)
 
     reg.verifier.probabilities = spy
-    reg._refine(frame, pose, [0, 1, 2, 3], np.array([VERIFIER_SURE + 0.02, 0.01, 0.01, 0.01]))
+    reg.twin_choice.refine(frame, pose, [0, 1, 2, 3], np.array([VERIFIER_SURE + 0.02, 0.01, 0.01, 0.01]))
     assert not calls, "a sure head decides alone"
-    reg._refine(frame, pose, [0, 1, 2, 3], np.array([VERIFIER_SURE - 0.05, 0.03, 0.01, 0.01]))
+    reg.twin_choice.refine(frame, pose, [0, 1, 2, 3], np.array([VERIFIER_SURE - 0.05, 0.03, 0.01, 0.01]))
     assert len(calls) == 1, "with a verifier the head must be surer (VERIFIER_SURE) to decide alone"
     calls.clear()
-    reg._refine(frame, pose, [0, 1, 2, 3], np.array([0.4, 0.3, 0.2, 0.1]))
+    reg.twin_choice.refine(frame, pose, [0, 1, 2, 3], np.array([0.4, 0.3, 0.2, 0.1]))
     assert len(calls) == 1 and len(calls[0]) == 4
     assert rotation_error_deg(calls[0][0], pose) < 1e-6  # the head's choice first: the strip follows it
     # a verifier for another object is refused by name
@@ -922,7 +925,7 @@ def test_verifier_choice_before_fitting_fits_only_the_chosen_twin(tiny_checkpoin
                                                                  monkeypatch):
     """VERIFIER_EDGE_WEIGHT = 0: the edge fits would not change the choice, so head × verifier choose
     first and only that twin is edge-fitted (one fit, not four)."""
-    import hybridpose.regressors.predictor as predictor
+    import hybridpose.regressors.twin_choice as twin_choice
     import hybridpose.edges.fit as edges
     from hybridpose.render import Renderer
 
@@ -940,13 +943,13 @@ def test_verifier_choice_before_fitting_fits_only_the_chosen_twin(tiny_checkpoin
         return real_fit(view, frame, start, **kw)
 
     monkeypatch.setattr(edges, "fit_edges", spy)
-    reg._refine(frame, pose, order, head)
+    reg.twin_choice.refine(frame, pose, order, head)
     assert 2 <= len(fitted) <= 4, "edges weighed in the choice: twins fitted until none left can win"
     fitted.clear()
-    monkeypatch.setattr(predictor, "VERIFIER_EDGE_WEIGHT", 0.0)
-    got, twin = reg._refine(frame, pose, order, head)
+    monkeypatch.setattr(twin_choice, "VERIFIER_EDGE_WEIGHT", 0.0)
+    got, twin = reg.twin_choice.refine(frame, pose, order, head)
     assert twin == 2 and len(fitted) == 1  # log 0.2 + log 0.97 beats log 0.4 + log 0.01
-    assert rotation_error_deg(fitted[0], reg._twin_starts(pose, order)[2]) < 1e-6
+    assert rotation_error_deg(fitted[0], reg.twin_choice.starts(pose, order)[2]) < 1e-6
 
 
 @settings(max_examples=60, deadline=None)
@@ -954,10 +957,11 @@ def test_verifier_choice_before_fitting_fits_only_the_chosen_twin(tiny_checkpoin
                           st.booleans()), min_size=1, max_size=6),
        st.sampled_from([0.0, 2.0, TWIN_EDGE_WEIGHT]), st.booleans())
 def test_pruned_twin_fits_choose_as_fitting_them_all(cands, edge_weight, with_verifier):
-    """_best_fitted_twin = fit every start and take the first best twin_scores, with no more fits (a fit's
+    """best_fitted_start = fit every start and take the first best twin_scores, with no more fits (a fit's
     quality ≤ 1 bounds each start's score); failed fits (None) score as quality 0."""
-    import hybridpose.edges.fit as edges
     from types import SimpleNamespace
+
+    from hybridpose.regressors.twin_choice import best_fitted_start
 
     head = [c[0] + 1e-3 for c in cands]
     ver = [c[1] + 1e-3 for c in cands] if with_verifier else None
@@ -965,16 +969,11 @@ def test_pruned_twin_fits_choose_as_fitting_them_all(cands, edge_weight, with_ve
     starts = list(range(len(cands)))
     fitted = []
 
-    def fake_fit(view, frame, start, gray=None, search_px=None):
+    def fake_fit(start):
         fitted.append(start)
         return fits[start]
 
-    real = edges.fit_edges
-    edges.fit_edges = fake_fit
-    try:
-        best, fit = CheckpointRegressor._best_fitted_twin(None, None, None, starts, head, ver, edge_weight)
-    finally:
-        edges.fit_edges = real
+    best, fit = best_fitted_start(fake_fit, starts, head, ver, edge_weight)
     every = twin_scores(head, [f.quality if f else 0.0 for f in fits], edge_weight=edge_weight, verifier_prob=ver)
     assert best == int(np.argmax(every)) and fit is fits[best]
     assert len(fitted) == len(set(fitted)) <= len(cands)
@@ -1066,7 +1065,7 @@ def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpo
     from scipy.spatial.transform import Rotation
 
     from hybridpose.objects import view_elevation_deg
-    from hybridpose.regressors.predictor import MIRROR_SWITCH_P, REFINE_MIN_QUALITY, REFINE_SEARCH_PX
+    from hybridpose.regressors.twin_choice import MIRROR_SWITCH_P, REFINE_MIN_QUALITY, REFINE_SEARCH_PX
     from hybridpose.edges import fit_edges
     from hybridpose.regressors.verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror
     from hybridpose.render import Renderer
@@ -1091,10 +1090,10 @@ def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpo
     reg.mirror_verifier.probabilities = stub
     with Renderer(truss, camera) as r:
         frame = Frame(r.render(edge_on).rgb, camera, 0.0)
-    assert reg._mirror_check(frame, face_on) is None and not calls, "far from edge-on: no check"
+    assert reg.twin_choice.mirror_check(frame, face_on) is None and not calls, "far from edge-on: no check"
     assert view_elevation_deg(edge_on, truss) < MIRROR_BELOW_DEG
     answer["p"] = np.array([0.9, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.01])
-    pose, p, k = reg._mirror_check(frame, edge_on)                         # the pose itself is believed
+    pose, p, k = reg.twin_choice.mirror_check(frame, edge_on)                         # the pose itself is believed
     assert k == 0 and p == 0.9 and pose is edge_on
     cands, strip_pose = calls[-1]
     assert len(cands) == 8 and rotation_error_deg(strip_pose, edge_on) < 1e-9
@@ -1104,9 +1103,9 @@ def test_mirror_check_runs_near_edge_on_and_switches_only_when_sure(tiny_checkpo
         assert rotation_error_deg(got, want) < 1e-9 and np.allclose(got.t, want.t)
     answer["p"] = np.full(8, 0.01)
     answer["p"][5] = MIRROR_SWITCH_P - 0.02
-    assert reg._mirror_check(frame, edge_on)[2] == 0                       # not sure enough
+    assert reg.twin_choice.mirror_check(frame, edge_on)[2] == 0                       # not sure enough
     answer["p"][5] = MIRROR_SWITCH_P + 0.02
-    pose, p, k = reg._mirror_check(frame, edge_on)
+    pose, p, k = reg.twin_choice.mirror_check(frame, edge_on)
     assert k == 5 and p == pytest.approx(MIRROR_SWITCH_P + 0.02)
     # the believed candidate (the mirror's first twin), edge-fitted where the fit is good, as _refine does
     fit = fit_edges(reg.twin_check.view, frame, mirror @ S[1], search_px=REFINE_SEARCH_PX)
@@ -1130,9 +1129,9 @@ def test_a_mirror_switch_returns_that_pose_with_the_verifiers_belief_in_its_qual
     kept = reg.predict(frame)
     assert not kept.lost and kept.quality > 0
     other = Pose.from_rotvec_t([0.1, -0.2, 0.3], [0.01, 0.0, 0.8])
-    monkeypatch.setattr(reg, "_mirror_check", lambda frame, pose: (pose, 0.6, 0))
+    monkeypatch.setattr(reg.twin_choice, "mirror_check", lambda frame, pose: (pose, 0.6, 0))
     assert reg.predict(frame).quality == pytest.approx(kept.quality)
-    monkeypatch.setattr(reg, "_mirror_check", lambda frame, pose: (other, 0.5, 5))
+    monkeypatch.setattr(reg.twin_choice, "mirror_check", lambda frame, pose: (other, 0.5, 5))
     m = reg.predict(frame)
     assert rotation_error_deg(m.pose, other) < 1e-9 and np.allclose(m.pose.t, other.t)
     assert m.quality > 0
@@ -1141,7 +1140,7 @@ def test_a_mirror_switch_returns_that_pose_with_the_verifiers_belief_in_its_qual
 
     np.testing.assert_allclose(m.covariance / quality_factor(reg.calibration, m.quality),
                                kept.covariance / quality_factor(reg.calibration, kept.quality))
-    monkeypatch.setattr(reg, "_mirror_check", lambda frame, pose: (other, 1.0, 5))
+    monkeypatch.setattr(reg.twin_choice, "mirror_check", lambda frame, pose: (other, 1.0, 5))
     assert reg.predict(frame).quality == pytest.approx(2 * m.quality)   # the belief, not the head's p, weighs it
 
 
@@ -1192,13 +1191,13 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
     order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
     expert_pose = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.01, 0.02, 0.75])
     calls = []
-    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (replace(res, pose=near), order, prob, 64)
+    reg.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0: KeypointEstimate(replace(res, pose=near), order, prob, 64)
 
     def expert(image, cam, seen, sun_turn=0.0):
         calls.append(seen)
-        return replace(res, pose=expert_pose), order, prob, 64
+        return KeypointEstimate(replace(res, pose=expert_pose), order, prob, 64)
 
-    reg.expert._estimate_in = expert
+    reg.expert.passes.estimate_in = expert
     for gate, runs in ((elevation + 1.0, True), (elevation - 1.0, False)):
         reg.configure(expert_below_deg=gate)
         m = reg.predict(frame, roi=(200, 150, 240, 180))
@@ -1208,7 +1207,7 @@ def test_edge_on_expert_replaces_the_estimate_only_below_its_gate(tiny_checkpoin
         if runs:
             assert calls[-1] == (200, 150, 240, 180), "the expert sees the same detection"
         calls.clear()
-    reg.expert._estimate_in = lambda *a, **k: None              # the expert finds nothing: the first estimate
+    reg.expert.passes.estimate_in = lambda *a, **k: None              # the expert finds nothing: the first estimate
     reg.configure(expert_below_deg=90.0)
     m = reg.predict(frame)
     assert rotation_error_deg(m.pose, near) < 1e-9
@@ -1262,13 +1261,13 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
     assert CheckpointRegressor(tiny_checkpoint).options.expert_rule == "pooled-unsure"   # the default
     assert res.inlier_ratio == 1.0
     first = replace(res, pose=near, rms_px=2.0)
-    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: (first, order, prob, 64)
+    reg.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0: KeypointEstimate(first, order, prob, 64)
     measured = []
     measure = reg._measure
-    reg._measure = lambda frame, image, cam, est: measured.append(est[0].pose) or measure(frame, image, cam, est)
+    reg._measure = lambda frame, undistorted, est: measured.append(est[0].pose) or measure(frame, undistorted, est)
     for rms, crop_px, want in ((1.0, 64, other), (3.0, 64, near), (2.0, 64, near), (2.4, 96, other)):
         second = replace(res, pose=other, rms_px=rms)
-        reg.expert._estimate_in = lambda image, cam, seen, sun_turn=0.0, e=second, s=crop_px: (e, order, prob, s)
+        reg.expert.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0, e=second, s=crop_px: KeypointEstimate(e, order, prob, s)
         measured.clear()
         m = reg.predict(frame, roi=(200, 150, 240, 180))
         assert m.pose.allclose(want), (rms, crop_px)
@@ -1290,8 +1289,8 @@ def test_pooled_rule_returns_the_best_scored_twin_of_both_estimates_with_fewer_f
     from scipy.spatial.transform import Rotation
 
     import hybridpose.edges.fit as edges
-    from hybridpose.regressors.predictor import (REFINE_MIN_QUALITY, REFINE_SEARCH_PX, VERIFIER_EDGE_WEIGHT,
-                                                 _pnp_quality)
+    from hybridpose.regressors.keypoint_passes import pnp_quality
+    from hybridpose.regressors.twin_choice import REFINE_MIN_QUALITY, REFINE_SEARCH_PX, VERIFIER_EDGE_WEIGHT
 
     near, frame, res = _near_edge_on_view(truss, camera, Rotation.from_euler("x", 84, degrees=True).as_matrix())
     reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, expert_below_deg=90.0,
@@ -1300,27 +1299,27 @@ def test_pooled_rule_returns_the_best_scored_twin_of_both_estimates_with_fewer_f
     turned = Pose(Rotation.from_rotvec([0.0, 0.0, 0.06]).as_matrix(), np.zeros(3)) @ near   # a 3.4° worse estimate
     if wrong_first:   # the keypoints' pose is turned to the head's twin (order[0]), here a wrong one
         twin = reg.twin_check.twins[0]
-        ests = [(replace(res, pose=near @ twin, rms_px=1.5), [1, 0, 2, 3], np.array([0.3, 0.6, 0.05, 0.05]), 64),
-                (replace(res, pose=turned @ twin, rms_px=0.8), [1, 0, 2, 3], np.array([0.25, 0.7, 0.03, 0.02]), 64)]
+        ests = [KeypointEstimate(replace(res, pose=near @ twin, rms_px=1.5), [1, 0, 2, 3], np.array([0.3, 0.6, 0.05, 0.05]), 64),
+                KeypointEstimate(replace(res, pose=turned @ twin, rms_px=0.8), [1, 0, 2, 3], np.array([0.25, 0.7, 0.03, 0.02]), 64)]
     else:
-        ests = [(replace(res, pose=near, rms_px=1.5), [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01]), 64),
-                (replace(res, pose=turned, rms_px=0.8), [1, 0, 2, 3], np.array([0.1, 0.4, 0.3, 0.2]), 64)]
-    reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[0]
-    reg.expert._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[1]
+        ests = [KeypointEstimate(replace(res, pose=near, rms_px=1.5), [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01]), 64),
+                KeypointEstimate(replace(res, pose=turned, rms_px=0.8), [1, 0, 2, 3], np.array([0.1, 0.4, 0.3, 0.2]), 64)]
+    reg.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[0]
+    reg.expert.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[1]
     # brute force: every candidate fitted and scored
     best, best_score = None, -np.inf
     for est in ests:
         pose, order, prob, _ = est[0].pose, est[1], est[2], est[3]
-        starts = reg._twin_starts(pose, order)
+        starts = reg.twin_choice.starts(pose, order)
         head = [prob[k] for k in order]
         ver = reg.verifier.probabilities(frame.image, camera.K, starts)
         for j, start in enumerate(starts):
             fit = edges.fit_edges(reg.twin_check.view, frame, start, search_px=REFINE_SEARCH_PX)
             score = (twin_scores([head[j]], [0.0 if fit is None else fit.quality], edge_weight=VERIFIER_EDGE_WEIGHT,
-                                 verifier_prob=[ver[j]])[0] + np.log(_pnp_quality(est) + 1e-3))
+                                 verifier_prob=[ver[j]])[0] + np.log(pnp_quality(est) + 1e-3))
             if score > best_score:
                 out = fit.pose if fit is not None and fit.quality >= REFINE_MIN_QUALITY else start
-                best, best_score = (out, _pnp_quality(est) * head[j]), score
+                best, best_score = (out, pnp_quality(est) * head[j]), score
     fits = []
     real_fit = edges.fit_edges
     monkeypatch.setattr(edges, "fit_edges", lambda *a, **k: fits.append(1) or real_fit(*a, **k))
@@ -1340,7 +1339,7 @@ def test_pooled_unsure_pools_only_where_a_twin_head_is_unsure(tiny_checkpoint, t
 
     from scipy.spatial.transform import Rotation
 
-    from hybridpose.regressors.predictor import VERIFIER_SURE
+    from hybridpose.regressors.twin_choice import VERIFIER_SURE
 
     near, frame, res = _near_edge_on_view(truss, camera, Rotation.from_euler("x", 84, degrees=True).as_matrix())
     turned = Pose(Rotation.from_rotvec([0.0, 0.0, 0.06]).as_matrix(), np.zeros(3)) @ near
@@ -1348,14 +1347,14 @@ def test_pooled_unsure_pools_only_where_a_twin_head_is_unsure(tiny_checkpoint, t
     # the second estimate's sure head favours the end-for-end twin; the first head is sure, then unsure
     for first_prob, pooled in ((np.array([0.98, 0.01, 0.005, 0.005]), False), (np.array([0.93, 0.04, 0.02, 0.01]), True)):
         assert (first_prob.max() < VERIFIER_SURE) == pooled
-        ests = [(replace(res, pose=near, rms_px=1.5), [0, 1, 2, 3], first_prob, 64),
-                (replace(res, pose=turned @ twin, rms_px=0.8), [1, 0, 2, 3], np.array([0.01, 0.98, 0.005, 0.005]), 64)]
+        ests = [KeypointEstimate(replace(res, pose=near, rms_px=1.5), [0, 1, 2, 3], first_prob, 64),
+                KeypointEstimate(replace(res, pose=turned @ twin, rms_px=0.8), [1, 0, 2, 3], np.array([0.01, 0.98, 0.005, 0.005]), 64)]
         out = {}
         for rule in ("pooled-unsure", "pooled", "quality"):
             reg = CheckpointRegressor(tiny_checkpoint, edge_on_expert=tiny_checkpoint, expert_below_deg=90.0,
                                       expert_rule=rule)
-            reg._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[0]
-            reg.expert._estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[1]
+            reg.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[0]
+            reg.expert.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0: ests[1]
             out[rule] = reg.predict(frame, roi=(200, 150, 240, 180))
         assert out["pooled"].quality != pytest.approx(out["quality"].quality)
         same = out["pooled" if pooled else "quality"]

@@ -40,7 +40,6 @@ def regressor(truss):
 def test_shipped_checkpoint_is_small_and_describes_itself():
     path = shipped_checkpoint("default")
     assert path.stat().st_size < 25 * 2**20
-    import torch
 
     ck = torch.load(path, map_location="cpu", weights_only=False)
     assert ck["config"]["model"] == "default" and ck["dataset"]["object"] == "truss"
@@ -148,7 +147,7 @@ def test_twin_choice_trusts_a_sure_head_and_asks_the_edges_when_unsure(regressor
     with the shipped twin verifier), the wrong twin is kept (refined in place); unsure, the edges (and
     the verifier) outweigh it and the right twin comes back."""
     from hybridpose.geometry import Pose
-    from hybridpose.regressors.predictor import TWIN_SURE, VERIFIER_SURE
+    from hybridpose.regressors.twin_choice import TWIN_SURE, VERIFIER_SURE
 
     sure_from = TWIN_SURE if regressor.verifier is None else VERIFIER_SURE
 
@@ -160,9 +159,9 @@ def test_twin_choice_trusts_a_sure_head_and_asks_the_edges_when_unsure(regressor
     order = [head] + [k for k in range(4) if k != head]
     unsure, sure = np.full(4, 0.2), np.full(4, (1 - sure_from - 0.02) / 3)
     unsure[head], sure[head] = 0.4, sure_from + 0.02
-    pose, twin = regressor._refine(frame, wrong, order, unsure)
+    pose, twin = regressor.twin_choice.refine(frame, wrong, order, unsure)
     assert rotation_error_deg(pose, truth) < 2.0 and twin == 0  # the keypoints' own pose: the truth
-    pose, twin = regressor._refine(frame, wrong, order, sure)
+    pose, twin = regressor.twin_choice.refine(frame, wrong, order, sure)
     assert rotation_error_deg(pose, truth) > 170.0 and twin == head
 
 
@@ -170,7 +169,6 @@ def test_twin_choice_trusts_a_sure_head_and_asks_the_edges_when_unsure(regressor
 def test_quality_carries_the_twin_heads_belief(truss, belief):
     """A pose the head is unsure of (maybe turned end for end, which no covariance can say) gets a
     proportionally lower quality: quality = PnP quality × the head's probability of the returned twin."""
-    import torch
 
     from hybridpose.geometry import Pose
 
@@ -266,13 +264,12 @@ def test_the_edge_on_expert_ships_and_measures_near_edge_on_views(regressor, tru
     with Renderer(truss, camera) as r:
         frame = Frame(r.render(truth).rgb, camera, 0.0)
     calls = []
-    estimate = regressor.expert._estimate_in
-    regressor.expert._estimate_in = lambda *a, **k: calls.append(1) or estimate(*a, **k)
+    estimate = regressor.expert.passes.estimate_in
+    regressor.expert.passes.estimate_in = lambda *a, **k: calls.append(1) or estimate(*a, **k)
     try:
-        with torch.no_grad():
-            ests = regressor._keypoint_estimates(frame.image, camera, None)
+        ests = regressor.keypoint_estimates(frame)
     finally:
-        del regressor.expert._estimate_in
+        del regressor.expert.passes.estimate_in
     assert calls and len(ests) == 2 and ests[1][3] == regressor.expert.image_size
     assert rotation_error_deg(ests[1][0].pose, truth) < 10 or rotation_error_deg(ests[0][0].pose, truth) < 10
     m = regressor.predict(frame)

@@ -29,6 +29,7 @@ from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .calibration import MIN_BAND_POSES, nees, quality_scale
 from .engines import call_ms, keypoint_engine
+from .keypoint_passes import image_batch
 from .calibration import uncalibrated_record
 from .gradcam import write_gradcam_sheet
 from .options import KeypointOptions
@@ -338,12 +339,12 @@ def network_call_ms(reg: CheckpointRegressor, calls: int = 20, repeats: int = 3,
     ONNX Runtime), or with ``on_torch`` on torch whatever the engine (the yardstick earlier records used)."""
     image = np.zeros((reg.image_size, reg.image_size, 3), np.uint8)
     if reg.engine is not None and not on_torch:
-        run, x = reg.engine, reg._batch(image)
+        run, x = reg.engine, image_batch(image)
     elif reg.model_name == "parallel-vgg19":
         # both streams, as predict runs them: the whole frame and the bounded image, each at the input size
-        run, x = (lambda v: reg.net(v, v)), reg._tensor(image)
+        run, x = (lambda v: reg.net(v, v)), reg.tensor(image)
     else:
-        run, x = reg.net, reg._tensor(image)
+        run, x = reg.net, reg.tensor(image)
     with torch.inference_mode():
         return call_ms(run, x, calls, repeats, sync=torch.cuda.synchronize if reg.device.type == "cuda" else None)
 

@@ -20,7 +20,7 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
     """
     import cv2
 
-    from ..geometry.crops import crop_box
+    from ..geometry.crops import crop_box, crop_image
     from .detection import CROP_MARGIN, detect_bright_object
 
     net = reg.net
@@ -36,13 +36,13 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
         if reg.kind == "keypoints":
             box = detect_bright_object(frame.image)
             box = crop_box(box, CROP_MARGIN) if box else ((frame.camera.width - 1) / 2, (frame.camera.height - 1) / 2, float(frame.camera.width))
-            img, _ = reg._crop(frame.image, frame.camera.K, *box)
+            img, _ = crop_image(frame.image, frame.camera.K, *box, (S, S))
         elif parallel:  # the crop predict gives the rotation stream without a roi
             with torch.no_grad():
                 img = reg.bounded_image(frame)
         else:
             img = cv2.resize(frame.image, (S, S), interpolation=cv2.INTER_AREA)
-        x = reg._tensor(img).requires_grad_(True)
+        x = reg.tensor(img).requires_grad_(True)
         with torch.enable_grad():
             if reg.kind == "keypoints":
                 score = net.heatmaps(x).flatten(2).max(-1).values.sum()

@@ -2,6 +2,7 @@
 refused or replaced with a clear reason where it cannot run."""
 import logging
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -68,7 +69,14 @@ def test_auto_engine_is_onnxruntime_on_the_cpu_and_falls_back_to_torch(truss, mo
     assert keypoint_engine("auto", net, torch.device("cpu"), 64).name == "onnxruntime"
     shipped = CheckpointRegressor(shipped_checkpoint("default"))     # the default: its 8-bit models
     assert shipped.engine.name == "onnxruntime-int8" and shipped.expert.engine.name == "onnxruntime-int8"
-    assert engines.call_ms(TorchEngine(net, torch.device("cpu")), torch.zeros(1, 3, 64, 64), calls=2, repeats=2) > 0
+    runs = []
+
+    def slow(x):  # an engine whose every call takes at least 2 ms
+        runs.append(x.shape)
+        time.sleep(0.002)
+
+    assert engines.call_ms(slow, torch.zeros(1, 3, 64, 64), calls=2, repeats=2) >= 2.0
+    assert len(runs) == 1 + 2 * 2, "one warm-up call, then repeats × calls"
     monkeypatch.setitem(sys.modules, "onnxruntime", None)  # as if not installed
     with caplog.at_level(logging.INFO, logger="hybridpose.regressors.engines"):
         assert keypoint_engine("auto", net, torch.device("cpu"), 64).name == "torch"

@@ -1245,13 +1245,15 @@ def test_quality_scale_recovers_each_bands_spread_and_never_rises_with_quality()
         quality_scale(np.full(60, np.nan), np.ones(60))
 
 
-def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpoint, truss, camera):
+def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpoint, truss, camera, monkeypatch):
     """expert_rule="quality": both estimates are measured and the one of higher quality is returned
     (the first on a tie); each estimate's quality uses its own crop side (the expert may run at
     another resolution: the same RMS in pixels of a larger crop is a smaller error)."""
     from dataclasses import replace
 
     from scipy.spatial.transform import Rotation
+
+    from hybridpose.regressors import predictor
 
     near, frame, res = _near_edge_on_view(truss, camera, Rotation.from_euler("x", 85, degrees=True).as_matrix())
     order, prob = [0, 1, 2, 3], np.array([0.97, 0.01, 0.01, 0.01])
@@ -1262,9 +1264,9 @@ def test_edge_on_expert_quality_rule_returns_the_better_measurement(tiny_checkpo
     assert res.inlier_ratio == 1.0
     first = replace(res, pose=near, rms_px=2.0)
     reg.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0: KeypointEstimate(first, order, prob, 64)
-    measured = []
-    measure = reg._measure
-    reg._measure = lambda frame, undistorted, est: measured.append(est[0].pose) or measure(frame, undistorted, est)
+    measured = []  # one covariance per estimate measured
+    covariance = predictor.pnp_covariance
+    monkeypatch.setattr(predictor, "pnp_covariance", lambda *a: measured.append(1) or covariance(*a))
     for rms, crop_px, want in ((1.0, 64, other), (3.0, 64, near), (2.0, 64, near), (2.4, 96, other)):
         second = replace(res, pose=other, rms_px=rms)
         reg.expert.passes.estimate_in = lambda image, cam, seen, sun_turn=0.0, e=second, s=crop_px: KeypointEstimate(e, order, prob, s)

@@ -166,7 +166,12 @@ def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
 
         assert not np.array_equal(img, cv2.resize(image, (64, 64), interpolation=cv2.INTER_AREA))
     # the report's bare-call timing feeds every input the model takes (the parallel one's two streams)
-    assert network_call_ms(reg, calls=1, repeats=1) > 0
+    seen = []
+    forward = reg.net.forward
+    reg.net.forward = lambda *inputs: seen.append([tuple(x.shape) for x in inputs]) or forward(*inputs)
+    network_call_ms(reg, calls=2, repeats=1)
+    streams = 2 if name == "parallel-vgg19" else 1
+    assert seen == [[(1, 3, 64, 64)] * streams] * 3   # a warm-up call, then the timed ones
 
 
 @pytest.mark.parametrize("name", ["parallel-vgg19", "default"])  # parallel: both VGG streams and the branch

@@ -76,6 +76,19 @@ def adds(est: Pose, gt: Pose, points_obj) -> float:
     return float(np.mean(dist))
 
 
+def pose_errors(est: Pose, gt: Pose, symmetries=(), points_obj=None, symmetric: bool = False) -> dict:
+    """One estimate's errors, each to the nearest of ``gt``'s equivalent poses under ``symmetries``
+    (:func:`nearest_equivalent`): ``rot_deg`` (°), ``trans_m`` (m), ``speed`` (SPEED score) and, with
+    ``points_obj`` (N, 3) object points in metres, ``add_m``: ADD, or ADD-S for a ``symmetric`` object
+    (against ``gt`` itself: ADD-S needs no equivalent). ``nearest``: the equivalent pose scored against."""
+    near = nearest_equivalent(est, gt, symmetries)
+    out = {"rot_deg": rotation_error_deg(est, near), "trans_m": translation_error_m(est, near),
+           "speed": speed_score(est, near), "nearest": near}
+    if points_obj is not None:
+        out["add_m"] = (adds if symmetric else add)(est, gt, points_obj)
+    return out
+
+
 def add_recall(errors_m, diameter_m: float, fraction: float = 0.1) -> float:
     """Share of ADD(-S) errors below ``fraction · diameter`` (ADD-0.1d recall), 0..1."""
     e = np.asarray(errors_m, dtype=np.float64)

@@ -4,7 +4,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hybridpose.geometry import Pose, random_quat
-from hybridpose.metrics import add, add_recall, adds, auc, rotation_error_deg, speed_score, translation_error_m
+from hybridpose.metrics import (add, add_recall, adds, auc, pose_errors, rotation_error_deg, speed_score,
+                                translation_error_m)
 
 
 def random_pose(rng):
@@ -39,6 +40,25 @@ def test_add_and_adds_against_brute_force(rng, truss):
         brute = np.mean([min(np.linalg.norm(g - e) for e in pe) for g in pg])
         assert adds(est, gt, pts) == pytest.approx(brute)
         assert adds(est, gt, pts) <= add(est, gt, pts) + 1e-12
+
+
+def test_pose_errors_score_the_nearest_symmetric_equivalent(rng):
+    """A box's half-turn about its own axis looks the same: an estimate of the turned pose has zero
+    error to the nearest equivalent (ADD-S ≈ 0) and the half-turn's 180° without the symmetry (ADD > 0)."""
+    half_turn = Pose(Rotation.from_euler("z", 180, degrees=True).as_matrix(), np.zeros(3))
+    # points of a box symmetric under that half-turn
+    pts = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.05, 0.05) for z in (-0.02, 0.02)])
+    for _ in range(10):
+        gt = random_pose(rng)
+        est = (gt @ half_turn).retract([0.01, 0.0, 0.0, 0.002, 0.0, 0.0])   # ≈ 0.57° and 2 mm off the turned pose
+        sym = pose_errors(est, gt, [half_turn], pts, symmetric=True)
+        assert sym["rot_deg"] == pytest.approx(rotation_error_deg(est, gt @ half_turn))
+        assert sym["rot_deg"] < 1.0 and sym["trans_m"] == pytest.approx(translation_error_m(est, gt))
+        assert sym["speed"] == pytest.approx(speed_score(est, gt @ half_turn))
+        assert sym["add_m"] == pytest.approx(adds(est, gt, pts)) and sym["nearest"].allclose(gt @ half_turn)
+        plain = pose_errors(est, gt, (), pts)
+        assert plain["rot_deg"] > 179.0 and plain["add_m"] == pytest.approx(add(est, gt, pts))
+        assert "add_m" not in pose_errors(est, gt)
 
 
 def test_auc_matches_numerical_integration(rng):

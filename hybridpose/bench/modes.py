@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core import Frame
 from ..geometry import Pose
-from ..metrics import add, adds, auc, nearest_equivalent, rotation_error_deg, speed_score, translation_error_m
+from ..metrics import auc, nearest_equivalent, pose_errors, rotation_error_deg
 
 HALF_VISIBLE = 0.5  # errors are reported on frames where at least this share of the object is visible
 COVERED = 0.05  # below this visible share the object counts as covered
@@ -153,7 +153,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     clear_good, false_alarms, nees_in, nees_n = 0, 0, 0, 0
     considered = 0
     points = obj.sample_surface(500, rng=0) if obj is not None else None
-    add_fn = adds if obj is not None and obj.symmetric else add
+    symmetric = obj is not None and obj.symmetric
     syms = obj.symmetries if obj is not None else ()
     for s, r in zip(seq, records):
         truth = nearest_equivalent(r.pose, s.truth, syms) if r.pose is not None else s.truth
@@ -170,12 +170,12 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         if s.visible >= HALF_VISIBLE:
             considered += 1
             if r.trusted and err is not None:
-                te = translation_error_m(r.pose, truth)
+                errors = pose_errors(r.pose, s.truth, syms, points, symmetric)
                 rot.append(err)
-                trans.append(te)
-                pct.append(100 * te / s.truth.distance_m)
+                trans.append(errors["trans_m"])
+                pct.append(100 * errors["trans_m"] / s.truth.distance_m)
                 in_basin += int(err <= BASIN_DEG and pct[-1] <= BASIN_PCT)
-                speed.append(speed_score(r.pose, truth))
+                speed.append(errors["speed"])
                 if edge_pts is not None:
                     cam = s.frame.camera
                     edge_px.append(float(np.linalg.norm(cam.project(edge_pts, r.pose) - cam.project(edge_pts, truth),
@@ -188,7 +188,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
                     except np.linalg.LinAlgError:
                         pass
                 if points is not None:
-                    add_err.append(add_fn(r.pose, s.truth, points))
+                    add_err.append(errors["add_m"])
             elif points is not None:
                 add_err.append(np.inf)
     rot_a = np.array(rot) if rot else np.array([np.nan])

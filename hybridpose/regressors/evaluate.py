@@ -24,7 +24,8 @@ from ..datasets.bop import BopScene, find_scenes
 from ..geometry import Pose
 from ..io import atomic_write_json, atomic_write_text
 from ..machine import cpu_label, describe_cpu
-from ..metrics import add, add_recall, adds, nearest_equivalent, rotation_error_deg, speed_score, translation_error_m
+from ..metrics import add_recall, nearest_equivalent, rotation_error_deg
+from ..metrics import pose_errors as metric_errors
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from .calibration import COVERAGE as COVARIANCE_COVERAGE
 from .calibration import MIN_BAND_POSES, nees, quality_scale
@@ -167,12 +168,11 @@ def pose_errors(est: Pose, truth: Pose, obj, points, twins=()) -> dict:
     to the nearest of the truth's equivalent poses under ``obj``'s symmetries, the rotation also up to
     the checkpoint's box ``twins`` (``rot_twin_deg``), the SPEED score, and ADD (ADD-S for a symmetric
     object) over ``points`` (N, 3) object points, metres."""
-    near = nearest_equivalent(est, truth, obj.symmetries)
-    return {"rot_deg": rotation_error_deg(est, near),
-            # to the nearest box twin: the error a truly box-symmetric part cannot avoid
-            "rot_twin_deg": min(rotation_error_deg(est, near @ S) for S in (Pose.identity(), *twins)),
-            "trans_m": translation_error_m(est, near), "speed": speed_score(est, near),
-            "add_m": (adds if obj.symmetric else add)(est, truth, points)}
+    errors = metric_errors(est, truth, obj.symmetries, points, obj.symmetric)
+    near = errors.pop("nearest")
+    # to the nearest box twin: the error a truly box-symmetric part cannot avoid
+    errors["rot_twin_deg"] = min(rotation_error_deg(est, near @ S) for S in (Pose.identity(), *twins))
+    return errors
 
 
 def covariance_nees(m, truth: Pose, twins=()) -> dict:

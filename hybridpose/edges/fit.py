@@ -168,9 +168,10 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     if x1 - x0 < 4 or y1 - y0 < 4:
         return float("nan")
     full = to_gray(frame.image) if gray is None else gray
-    g = full[y0:y1, x0:x1]
-    edges = cv2.Canny(np.clip(g, 0, 255).astype(np.uint8), CANNY_LOW, CANNY_HIGH) > 0
-    if background_edge_density(full, (x0, y0, x1, y1)) > CLUTTER_EDGE_DENSITY:
+    # one Canny for the box and the ring around it
+    around, (X0, Y0) = _edges_around(full, (x0, y0, x1, y1))
+    edges = around[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0]
+    if _ring_density(around, (x0 - X0, y0 - Y0, x1 - X0, y1 - Y0)) > CLUTTER_EDGE_DENSITY:
         # a cluttered background (a bench, a photo, the Earth): only the image edges on the object's
         # projected outline and inside it are the object's to explain
         hull = cv2.convexHull(np.round(s.uv - [x0, y0]).astype(np.int32))
@@ -194,11 +195,24 @@ def background_edge_density(gray: np.ndarray, box, ring_px: int = CLUTTER_RING_P
     (H, W) grey image: ≈ 0 on black space (at most 0.012 with the arm beside the truss, tuning seeds),
     0.16–0.30 around a part in front of a photo."""
     x0, y0, x1, y1 = box
+    edges, (X0, Y0) = _edges_around(gray, box, ring_px)
+    return _ring_density(edges, (x0 - X0, y0 - Y0, x1 - X0, y1 - Y0))
+
+
+def _edges_around(gray: np.ndarray, box, ring_px: int = CLUTTER_RING_PX) -> tuple[np.ndarray, tuple[int, int]]:
+    """Canny edges (bool) of ``box`` (x0, y0, x1, y1 px) grown by ``ring_px`` and clipped to the (H, W)
+    grey image, and the grown box's top-left corner (x, y)."""
+    x0, y0, x1, y1 = box
     h, w = gray.shape[:2]
     X0, Y0, X1, Y1 = max(x0 - ring_px, 0), max(y0 - ring_px, 0), min(x1 + ring_px, w), min(y1 + ring_px, h)
-    edges = cv2.Canny(np.clip(gray[Y0:Y1, X0:X1], 0, 255).astype(np.uint8), CANNY_LOW, CANNY_HIGH) > 0
+    return cv2.Canny(np.clip(gray[Y0:Y1, X0:X1], 0, 255).astype(np.uint8), CANNY_LOW, CANNY_HIGH) > 0, (X0, Y0)
+
+
+def _ring_density(edges: np.ndarray, inner) -> float:
+    """Share of edge pixels in ``edges`` outside its ``inner`` box (x0, y0, x1, y1, in its pixels)."""
+    x0, y0, x1, y1 = inner
     ring = np.ones(edges.shape, bool)
-    ring[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0] = False
+    ring[y0:y1, x0:x1] = False
     return float(edges[ring].mean()) if ring.any() else 0.0
 
 

@@ -89,6 +89,13 @@ class HybridConfig:
             when that fit lands elsewhere (``disagreement_chi2``) and its quality beats the current
             track's by this margin, the check disagrees even where the CNN's own covariance is too
             wide to tell (the image's edges decide between the two poses).
+        start_quality: a CNN pose starts (or restarts) the track only where the tracker's fit from
+            it reaches this quality: the fits from wrong CNN poses that the edges still hold land at
+            0.4–0.6, right ones mostly above 0.65 (chosen on the tuning seeds: docs/decisions.md).
+        restart_unconfirmed: when checks disagree with the track and the tracker started from the
+            CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
+            lost until the CNN and the edges agree again (False: such restarts were wrong in every
+            case on the tuning seeds).
         check_on_rejection: a tracker measurement refused by the gate calls a CNN check at once; when
             the CNN pose and the edge fit started from it both agree with the refused measurement
             (``disagreement_chi2``), the motion model was wrong, not the tracker (a sudden change
@@ -111,6 +118,8 @@ class HybridConfig:
     check_below_quality: float = 0.7
     probation_frames: int = 1
     check_on_rejection: bool = True
+    start_quality: float = 0.62
+    restart_unconfirmed: bool = False
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames"):
@@ -124,6 +133,8 @@ class HybridConfig:
         for name in ("disagreement_chi2", "reacquire_chi2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
+        if not 0 <= self.start_quality <= 1:
+            raise ValueError(f"start_quality: expected a tracker quality in [0, 1], got {self.start_quality}")
         if not 0 <= self.switch_quality_margin <= 1:
             raise ValueError(f"switch_quality_margin: expected a quality difference in [0, 1], got {self.switch_quality_margin}")
         if not 0 <= self.check_roi_margin <= 2:
@@ -295,6 +306,8 @@ class HybridEstimator:
                 elif far or better:
                     self._n.disagreements += 1
                     if self._n.disagreements >= self.config.confirm_checks:
+                        if not stayed and not self.config.restart_unconfirmed:
+                            return self._declare_lost(frame, timings)
                         # restart from the edge fit where it stayed with the CNN, else from the CNN itself
                         start = fit if stayed else c
                         self._restart(frame, start, timings)
@@ -351,7 +364,7 @@ class HybridEstimator:
         except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
             return None
         fit = self._track_from(frame, m.pose, timings)
-        return None if fit.lost else fit
+        return None if fit.lost or fit.quality < self.config.start_quality else fit
 
     @staticmethod
     def _tracker_twist(previous: Measurement | None, m: Measurement) -> np.ndarray | None:

@@ -95,11 +95,21 @@ def test_ray_gives_the_local_results(smoke, tmp_path):
     (["--suite", "smoke", "--regressor", "missing.pt"], "--regressor: 'missing.pt' is neither"),
     (["--suite", "smoke", "--modes", "oracle"], "--modes: unknown mode 'oracle'"),
     (["--suite", "smoke", "--check-periods", "ten"], "--check-periods: expected whole numbers"),
+    (["--suite", "smoke", "--config", "tracker_resumes=maybe"], "--config: tracker_resumes: expected true or false"),
+    (["--suite", "smoke", "--config", "start_quality=high"], "--config: start_quality: expected a number"),
 ])
 def test_bad_names_are_refused_before_any_work(args, message, tmp_path, capsys):
     assert main(["bench", *args, "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "c").exists()  # nothing rendered
+
+
+def test_config_fields_are_parsed_by_their_type():
+    from hybridpose.bench.command import parse_config
+
+    cfg = parse_config("start_quality=0.5, restart_unconfirmed=true,check_period=5,tracker_resumes=0")
+    assert (cfg.start_quality, cfg.restart_unconfirmed, cfg.check_period, cfg.tracker_resumes) == (0.5, True, 5, False)
+    assert isinstance(cfg.check_period, int) and isinstance(cfg.restart_unconfirmed, bool)
 
 
 def test_user_data_must_be_bop_and_the_regressor_must_fit_the_object(tmp_path, capsys):

@@ -101,11 +101,14 @@ def test_a_silent_drift_is_caught_by_the_cnn_checks_and_reinitialises():
 
 def test_a_slow_silent_drift_is_caught_by_the_periodic_checks():
     class Creeping(ScriptedTracker):
-        """0.5° more off every frame from frame 12, fully confident, until initialised again."""
+        """0.5° more off every frame from frame 12, fully confident, until initialised again; a fit
+        started within 1° of the truth (a CNN check's) finds the truth once the drift is plain."""
 
         def track(self, frame, prior=None):
             k = frame.index
             off = 0.5 * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
+            if off > 2.0 and prior is not None and rotation_error_deg(prior, truth(k)) < 1.0:
+                off = 0.0
             cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
             return Measurement(tilt(truth(k), off), cov, 0.85, "tracker:scripted", frame.timestamp)
 
@@ -116,6 +119,52 @@ def test_a_slow_silent_drift_is_caught_by_the_periodic_checks():
     # (9.5°) it is not, and frame 31 confirms it
     assert [k for k, e in enumerate(out) if e.status == "reinit"] == [31]
     assert all(rotation_error_deg(e.pose, truth(k)) < 0.5 for k, e in enumerate(out) if k >= 31)
+
+
+class Stubborn(ScriptedTracker):
+    """0.5° more off every frame from frame 12, fully confident, wherever it is started (a fit from
+    the CNN pose lands back on the drift) until initialised again."""
+
+    def track(self, frame, prior=None):
+        k = frame.index
+        off = 0.5 * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
+        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
+        return Measurement(tilt(truth(k), off), cov, 0.85, "tracker:scripted", frame.timestamp)
+
+
+@pytest.mark.parametrize("restart_unconfirmed", [False, True])
+def test_a_cnn_pose_the_edges_do_not_confirm_declares_the_object_lost(restart_unconfirmed):
+    """Two checks disagree with the track, and the tracker started from the CNN pose does not stay
+    there: by default the object is lost (no trusted pose until the CNN and the edges agree again),
+    not restarted from a CNN pose nothing in the image confirmed; ``restart_unconfirmed`` restarts."""
+    est = HybridEstimator(Stubborn(), OracleRegressor(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=10, confirm_checks=2, probation_frames=0,
+                                       restart_unconfirmed=restart_unconfirmed))
+    out = run(est, 33)
+    assert [e.status for e in out[29:32]] == ["tracking", "tracking", "reinit" if restart_unconfirmed else "lost"]
+    assert HybridConfig().restart_unconfirmed is False   # the default
+
+
+class PoorFitAtFirst(ScriptedTracker):
+    """Follows the truth, with fit quality 0.5 before frame 4 and 0.85 from there on."""
+
+    def track(self, frame, prior=None):
+        m = super().track(frame, prior)
+        return m if frame.index >= 4 else Measurement(m.pose, m.covariance, 0.5, m.source, m.timestamp)
+
+
+def test_a_start_needs_an_edge_fit_of_start_quality():
+    """The CNN pose starts the track only where the tracker's fit from it reaches ``start_quality``
+    (a poor fit from a CNN pose is where wrong starts come from)."""
+    est = HybridEstimator(PoorFitAtFirst(), OracleRegressor(), registry.create("fusion", "ukf"), HybridConfig())
+    out = run(est, 8)
+    assert HybridConfig().start_quality > 0.5
+    assert [e.pose is None for e in out[:5]] == [True] * 4 + [False] and out[4].status == "init"
+    loose = HybridEstimator(PoorFitAtFirst(), OracleRegressor(), registry.create("fusion", "ukf"),
+                            HybridConfig(start_quality=0.0))
+    assert run(loose, 1)[0].status == "init" and loose.status == "tracking"
+    with pytest.raises(ValueError, match="start_quality"):
+        HybridConfig(start_quality=1.5)
 
 
 def test_a_single_cnn_outlier_is_ignored():

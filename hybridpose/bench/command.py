@@ -116,6 +116,11 @@ def parse_config(text: str) -> HybridConfig:
         key = key.strip()
         if key not in fields or not value:
             raise ValueError(f"--config: expected name=value with a name among {', '.join(fields)}, got {item!r}")
+        if isinstance(fields[key], bool):
+            if value.strip().lower() not in ("true", "false", "1", "0"):
+                raise ValueError(f"--config: {key}: expected true or false, got {value!r}")
+            changes[key] = value.strip().lower() in ("true", "1")
+            continue
         try:
             changes[key] = type(fields[key])(float(value)) if isinstance(fields[key], int) else float(value)
         except ValueError:

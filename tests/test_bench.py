@@ -51,6 +51,7 @@ def test_smoke_suite_writes_results_report_and_plots(smoke):
     assert np.nanmedian([r["rot_median_deg"] for r in by_mode["hybrid"]]) < 5.0
     report = (out / "report.md").read_text()
     assert "Targets for `hybrid (edges+default+ukf)`" in report and "| tracker (edges) |" in report
+    assert "Targets for `tracker (edges)` (from the true first pose" in report
     assert (out / "error_vs_distance.png").stat().st_size > 1000 and (out / "speed_accuracy.png").is_file()
 
 
@@ -102,6 +103,26 @@ def test_bad_names_are_refused_before_any_work(args, message, tmp_path, capsys):
     assert main(["bench", *args, "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "c").exists()  # nothing rendered
+
+
+def test_tracker_targets_name_the_worst_kind_of_sequence():
+    from hybridpose.bench.report import tracker_targets
+
+    def row(seq, rot_median, trans_median, silent=0, ms=2.0):
+        return {"label": "tracker (edges)", "sequence": seq, "rot_mean_deg": rot_median, "rot_median_deg": rot_median,
+                "trans_median_pct": trans_median, "trans_mean_m": 0.001, "trans_mean_pct": trans_median,
+                "speed_mean": 0.01, "coverage": 1.0, "silent_failures": silent, "false_alarms": 1,
+                "clear_good_frames": 100, "frames": 60, "frames_lost": 0, "covered_tracking_10deg": 0,
+                "recover_frames": [], "ms_per_frame": ms, "cnn_calls_per_100": 0.0}
+
+    rows = [row("tumble_none_s500", 0.1, 0.05), row("tumble_none_s501", 0.15, 0.08),
+            row("approach_none_s500", 0.3, 0.2, silent=3), row("approach_none_s501", 0.25, 0.06)]
+    text = tracker_targets(rows, ["cnn (default)", "tracker (edges)"])
+    assert "MISSED: median rotation" in text and "worst 0.28° (approach_none)" in text
+    assert "worst 0.13 % (approach_none)" in text
+    assert "met: p90 over sequences" in text and "MISSED: silent failures ≤ 0.5 % of frames — 1.25 %" in text
+    assert "met: false alarms on clear frames ≤ 2 % — 1.0 %" in text and "met: ≤ 5 ms per frame — 2.0 ms" in text
+    assert tracker_targets(rows, ["cnn (default)"]) == ""
 
 
 def test_config_fields_are_parsed_by_their_type():

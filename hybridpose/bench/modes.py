@@ -207,6 +207,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         "rot_max_deg": float(np.max(rot_a)),
         "trans_mean_m": float(np.mean(trans)) if trans else float("nan"),
         "trans_mean_pct": float(np.mean(pct)) if pct else float("nan"),
+        "trans_median_pct": float(np.median(pct)) if pct else float("nan"),
         "speed_mean": float(np.mean(speed)) if speed else float("nan"),
         "in_basin": in_basin / max(considered, 1),
         "edge_px_median": float(np.median(edge_px)) if edge_px else float("nan"),

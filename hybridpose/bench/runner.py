@@ -242,6 +242,11 @@ def _run_on_ray(todo: dict[str, list[RunSpec]], scenes: dict[str, Path], address
             ray.shutdown()
 
 
+def _nanmedian(values) -> float:
+    values = np.asarray(values, dtype=float)
+    return float(np.nanmedian(values)) if np.any(np.isfinite(values)) else float("nan")
+
+
 def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["label"]) -> dict[str, dict]:
     """Spread over sequences per group (default: per spec label): the median / p90 / worst of each
     sequence's mean rotation error, pooled means, totals of silent failures and of covered frames
@@ -262,6 +267,9 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "seq_rot_mean_worst_deg": float(np.nanmax(mean_rot)) if finite.size else float("nan"),
             "seq_rot_median_median_deg": float(np.nanmedian([r["rot_median_deg"] for r in rs])) if finite.size
             else float("nan"),
+            "seq_rot_median_p90_deg": float(np.nanpercentile([r["rot_median_deg"] for r in rs], 90)) if finite.size
+            else float("nan"),
+            "seq_trans_median_median_pct": _nanmedian([r.get("trans_median_pct", np.nan) for r in rs]),
             "trans_mean_m": nan_if_empty(np.array([r["trans_mean_m"] for r in rs])),
             "trans_mean_pct": nan_if_empty(np.array([r["trans_mean_pct"] for r in rs])),
             "speed_mean": nan_if_empty(np.array([r["speed_mean"] for r in rs])),

@@ -40,18 +40,24 @@ def test_project_samples_matches_cv2(rng):
     assert keep_all.all()
 
 
-def _steps_numpy(profiles, search_px, min_contrast):
+def _steps_numpy(profiles, search_px, min_contrast, limits=None):
     """The edge search's step finder written with NumPy array operations (an independent oracle)."""
     k = np.arange(-search_px - 1, search_px + 2, dtype=np.float32)
     g = np.abs(profiles[:, 2:] - profiles[:, :-2]) * 0.5
     ks = k[1:-1]
-    j = np.argmax(g * np.exp(-0.5 * (ks / max(search_px, 1)) ** 2), axis=1)
+    score = g * np.exp(-0.5 * (ks / max(search_px, 1)) ** 2)
+    if limits is not None:
+        score = np.where(np.abs(ks)[None, :] > limits[:, None], -np.inf, score)
+    j = np.argmax(score, axis=1)
     rows = np.arange(len(j))
     jl, jr = np.clip(j - 1, 0, len(ks) - 1), np.clip(j + 1, 0, len(ks) - 1)
     a, b, c = g[rows, jl], g[rows, j], g[rows, jr]
     den = a - 2 * b + c
-    sub = np.where((j > 0) & (j < len(ks) - 1) & (den < -1e-6), 0.5 * (a - c) / np.where(den == 0, 1, den), 0.0)
-    return ks[j] + sub, b >= min_contrast, profiles.mean(1)
+    inner = (j > 0) & (j < len(ks) - 1)
+    flank = (np.zeros(len(j), bool) if limits is None
+             else inner & (limits < search_px) & ((a > b) | (c > b)))
+    sub = np.where(inner & (den < -1e-6) & ~flank, 0.5 * (a - c) / np.where(den == 0, 1, den), 0.0)
+    return ks[j] + sub, (b >= min_contrast) & ~flank, profiles.mean(1)
 
 
 @settings(max_examples=40, deadline=None)
@@ -61,11 +67,32 @@ def test_strongest_steps_match_numpy(search_px, seed):
     # smooth random profiles with a few steps, as image edges look after bilinear sampling
     prof = np.cumsum(rng.normal(0, 3, (64, 2 * search_px + 3)) * (rng.random((64, 2 * search_px + 3)) < 0.2),
                      axis=1).astype(np.float32) * 10 + 60
-    offset, valid, bright = ek.strongest_steps(prof, search_px, 4.0)
-    ref_offset, ref_valid, ref_bright = _steps_numpy(prof, search_px, 4.0)
-    np.testing.assert_allclose(offset, ref_offset, atol=1e-5)
-    np.testing.assert_array_equal(valid, ref_valid)
-    np.testing.assert_allclose(bright, ref_bright, rtol=1e-5, atol=1e-3)  # grey levels
+    full = np.full(64, np.float32(search_px))
+    limits = rng.uniform(0, search_px, 64).astype(np.float32)   # each line stopped somewhere
+    for lim in (full, limits):
+        offset, valid, bright = ek.strongest_steps(prof, search_px, 4.0, lim)
+        ref_offset, ref_valid, ref_bright = _steps_numpy(prof, search_px, 4.0, lim)
+        np.testing.assert_allclose(offset, ref_offset, atol=1e-5)
+        np.testing.assert_array_equal(valid, ref_valid)
+        np.testing.assert_allclose(bright, ref_bright, rtol=1e-5, atol=1e-3)  # grey levels
+    # the step chosen lies within the limit; its sub-pixel refinement (at a peak only) moves it by at most half a pixel
+    assert np.all(np.abs(ek.strongest_steps(prof, search_px, 4.0, limits)[0]) <= np.floor(limits) + 0.5 + 1e-6)
+
+
+def test_edge_clearance_is_the_distance_to_the_nearest_other_model_edge():
+    """Two parallel horizontal edges 7 px apart and a third far away: each sample's normal meets the
+    other edge at 7 px (oracle: the geometry; within the raster's half pixel), the far edge beyond ``max_px`` gives ``max_px + 1``; a
+    sample's own edge and its collinear neighbour (another id on the same line) do not count."""
+    xs = np.arange(20.0, 60.0, 4.0)
+    uv = np.concatenate([np.stack([xs, np.full_like(xs, 30.0)], 1), np.stack([xs, np.full_like(xs, 37.0)], 1),
+                         np.stack([xs, np.full_like(xs, 80.0)], 1)])
+    normals = np.tile([0.0, 1.0], (len(uv), 1))
+    tangents = np.tile([2.4, 0.0], (len(uv), 1))
+    n = len(xs)
+    ids = np.concatenate([np.where(xs < 40, 0, 3), np.full(n, 1), np.full(n, 2)]).astype(np.int64)  # ids 0 and 3: one line
+    got = ek.edge_clearance(uv, normals, tangents, ids, 100, 100, 12)
+    np.testing.assert_allclose(got[:2 * n], 7.0, atol=0.5)   # the raster's half-pixel rounding
+    np.testing.assert_allclose(got[2 * n:], 13.0)
 
 
 @pytest.mark.parametrize("frac", [0.0, 0.1, 0.3, 0.5, 0.7, 0.9])
@@ -79,10 +106,10 @@ def test_edge_search_finds_a_step_edge(frac):
     mu, mv = ek.search_maps(uv, normals, 8)
     np.testing.assert_allclose(mu[0], uv[0, 0] + np.arange(-9, 10), atol=1e-5)
     prof = cv2.remap(gray, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    offset, valid, _ = ek.strongest_steps(prof, 8, 4.0)
+    offset, valid, _ = ek.strongest_steps(prof, 8, 4.0, np.full(len(uv), np.float32(8)))
     assert valid.all()
     np.testing.assert_allclose(offset, 100.5 - uv[:, 0], atol=0.1)
-    offset, valid, bright = ek.strongest_steps(np.full_like(prof, 80.0), 8, 4.0)
+    offset, valid, bright = ek.strongest_steps(np.full_like(prof, 80.0), 8, 4.0, np.full(len(uv), np.float32(8)))
     assert not valid.any() and np.allclose(bright, 80.0)
 
 

@@ -77,11 +77,60 @@ def search_maps(uv, normals, search_px):
 
 
 @numba.njit(cache=True, nogil=True)
-def strongest_steps(profiles, search_px, min_contrast):
+def edge_clearance(uv, normals, tangents_px, edge_ids, width, height, max_px):
+    """Pixels (S,) float32 along each sample's normal to the nearest *other* projected model edge
+    (``max_px + 1`` where none lies within ``max_px``): the samples (``uv`` (S, 2) px, unit ``normals``
+    (S, 2), ``tangents_px`` (S, 2): half the sample's stretch along its edge, px) are drawn as
+    segments labelled by their ``edge_ids`` (S,) into a raster of the image (``width`` × ``height``)
+    around them, then each normal is walked out to ``max_px`` both ways. Crossings within 1.5 px are
+    the sample's own edge or its collinear neighbour and are not counted."""
+    S = uv.shape[0]
+    out = np.empty(S, np.float32)
+    if S == 0:
+        return out
+    # the raster covers the samples' box grown by the walk, clipped to the image
+    pad = max_px + 2.0 + np.max(np.abs(tangents_px))
+    x0 = max(int(np.floor(np.min(uv[:, 0]) - pad)), 0)
+    y0 = max(int(np.floor(np.min(uv[:, 1]) - pad)), 0)
+    x1 = min(int(np.ceil(np.max(uv[:, 0]) + pad)) + 1, width)
+    y1 = min(int(np.ceil(np.max(uv[:, 1]) + pad)) + 1, height)
+    w, h = max(x1 - x0, 1), max(y1 - y0, 1)
+    labels = np.zeros((h, w), np.int32)
+    for s in range(S):
+        ax, ay = uv[s, 0] - tangents_px[s, 0] - x0, uv[s, 1] - tangents_px[s, 1] - y0
+        bx, by = uv[s, 0] + tangents_px[s, 0] - x0, uv[s, 1] + tangents_px[s, 1] - y0
+        steps = int(2.0 * max(abs(bx - ax), abs(by - ay))) + 1
+        for i in range(steps + 1):
+            f = i / steps
+            x, y = int(round(ax + f * (bx - ax))), int(round(ay + f * (by - ay)))
+            if 0 <= x < w and 0 <= y < h:
+                labels[y, x] = edge_ids[s] + 1
+    for s in range(S):
+        own = edge_ids[s] + 1
+        best = np.float32(max_px + 1)
+        for k2 in range(3, 2 * max_px + 1):        # half-pixel steps from 1.5 px out
+            k = 0.5 * k2
+            if k >= best:
+                break
+            for sign in (-1.0, 1.0):
+                x = int(round(uv[s, 0] + sign * k * normals[s, 0])) - x0
+                y = int(round(uv[s, 1] + sign * k * normals[s, 1])) - y0
+                if 0 <= x < w and 0 <= y < h:
+                    lab = labels[y, x]
+                    if lab != 0 and lab != own:
+                        best = np.float32(k)
+                        break
+        out[s] = best
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def strongest_steps(profiles, search_px, min_contrast, limits):
     """The strongest intensity step along each search line of ``profiles`` (S, 2L+3) float32 grey
     levels (from :func:`search_maps`): (offset (S,) px along the normal, sub-pixel; valid (S,): step ≥
     ``min_contrast`` grey levels per pixel; mean grey level (S,) of the line). A mild Gaussian
-    preference for nearer steps breaks ties as RAPID's nearest-maximum rule would."""
+    preference for nearer steps breaks ties as RAPID's nearest-maximum rule would. ``limits`` (S,)
+    float32: steps farther than this from the sample are not considered."""
     S, n = profiles.shape
     m = n - 2                                      # steps at k = −L … L
     sigma = np.float32(max(search_px, 1))
@@ -97,6 +146,8 @@ def strongest_steps(profiles, search_px, min_contrast):
         best_j, best_score, total = 0, np.float32(-1.0), 0.0
         for i in range(m):
             g[i] = abs(profiles[s, i + 2] - profiles[s, i]) * np.float32(0.5)
+            if abs(i - search_px) > limits[s]:
+                continue
             score = g[i] * prefer[i]
             if score > best_score:
                 best_j, best_score = i, score
@@ -105,13 +156,16 @@ def strongest_steps(profiles, search_px, min_contrast):
         brightness[s] = total / n
         b = g[best_j]
         sub = np.float32(0.0)
+        flank = False
         if 0 < best_j < m - 1:
             a, c = g[best_j - 1], g[best_j + 1]
             den = a - np.float32(2.0) * b + c
-            if den < -1e-6:
+            # a line stopped short may stop on the flank of a stronger step beyond its reach: no match
+            flank = limits[s] < search_px and (a > b or c > b)
+            if den < -1e-6 and not flank:
                 sub = np.float32(0.5) * (a - c) / den
         offset[s] = np.float32(best_j - search_px) + sub
-        valid[s] = b >= min_contrast
+        valid[s] = b >= min_contrast and not flank
     return offset, valid, brightness
 
 

@@ -75,6 +75,7 @@ class ModelView:
         self.object = object
         self.points = a + frac[:, None] * (b - a)                 # (P, 3) samples
         self.directions = (b - a) / length[e_idx, None]           # (P, 3) unit edge directions
+        self.edge_of = e_idx                                      # (P,) the sharp edge each sample lies on
         self.faces = faces[e_idx]                                 # (P, 2) adjacent triangles
         self.face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
         self._normal_dot_point = np.einsum("pkj,pj->pk", self.face_normals[self.faces], self.points)  # (P, 2)

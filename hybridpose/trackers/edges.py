@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from ..core import Frame
 from ..edges import ModelView, fit_edges, honest_quality, to_gray
+from ..edges.fit import TRACKING_POLISH
 from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
@@ -51,7 +52,7 @@ class EdgeTracker(Tracker):
 
     def _fit(self, frame: Frame, start: Pose, outer: int = 3, gray=None):
         return fit_edges(self.view, frame, start, gray=gray, search_px=self.search_px, max_samples=self.max_samples,
-                         covariance_scale=self.covariance_scale, outer=outer)
+                         covariance_scale=self.covariance_scale, outer=outer, polish=TRACKING_POLISH)
 
     def _track(self, frame: Frame, start: Pose):
         gray = to_gray(frame.image)  # one conversion for the fit and the quality

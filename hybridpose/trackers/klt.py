@@ -31,6 +31,7 @@ from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 from ..edges import ModelView, fit_from_proposals, honest_quality
+from ..edges.fit import TRACKING_POLISH
 from ..geometry import projection_jacobian
 
 log = logging.getLogger(__name__)
@@ -167,7 +168,7 @@ class KltPnpTracker(Tracker):
         # it is poor and the fit from the start is better (KLT reaches further under fast motion,
         # the edges remove its drift)
         best = fit_from_proposals(self.view, frame, (start,) if klt is None else (klt[0], start),
-                                  gray=gray.astype(np.float32))
+                                  gray=gray.astype(np.float32), polish=TRACKING_POLISH)
         if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0

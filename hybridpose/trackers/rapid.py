@@ -34,6 +34,7 @@ from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 from ..edges import ModelView, fit_from_proposals, honest_quality, to_gray
+from ..edges.fit import TRACKING_POLISH
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
 VARIANTS = {"rapid": "Rapid_create", "rapid-ols": "OLSTracker_create", "rapid-gos": "GOSTracker_create"}
@@ -104,7 +105,8 @@ class RapidTracker(Tracker):
         # the silhouette pose is a proposal: the edge fit from the caller's start is kept when good,
         # else the fit from the silhouette pose competes (more agreeing model edges win)
         gray = to_gray(frame.image)
-        best = fit_from_proposals(self.view, frame, (start,) if pose is start else (start, pose), gray=gray)
+        best = fit_from_proposals(self.view, frame, (start,) if pose is start else (start, pose), gray=gray,
+                                  polish=TRACKING_POLISH)
         if best is None:
             return None, None, 0.0
         return best.pose, best.covariance, honest_quality(self.view, frame, best, gray)

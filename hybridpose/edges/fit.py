@@ -75,6 +75,13 @@ def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: in
 TRACKING_POLISH = 2
 
 
+def check_polish(polish) -> int:
+    """``polish`` as a whole number of iterations ≥ 0 (ValueError naming it otherwise)."""
+    if isinstance(polish, bool) or int(polish) != polish or polish < 0:
+        raise ValueError(f"polish: expected a whole number of iterations ≥ 0, got {polish!r}")
+    return int(polish)
+
+
 def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | None = None, search_px: int = 12,
               outer: int = 3, inner: int = 3, inlier_px: float = 2.0, max_samples: int = 400,
               covariance_scale: float = 1.0, max_step_m: float | None = None, polish: int = 0) -> EdgeFit | None:

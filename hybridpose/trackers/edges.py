@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from ..core import Frame
 from ..edges import ModelView, fit_edges, honest_quality, to_gray
-from ..edges.fit import TRACKING_POLISH
+from ..edges.fit import TRACKING_POLISH, check_polish
 from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
@@ -28,6 +28,8 @@ class EdgeTracker(Tracker):
             default is measured by ``hybridpose bench`` (NEES coverage on rendered sequences).
         explain: the quality also asks how much of the image's edges and lit pixels around the
             object the model explains (:func:`honest_quality`); False: the fit's quality alone.
+        polish: the fit's last iterations with each sample's search stopped halfway to the nearest
+            other model edge (:func:`~hybridpose.edges.fit_edges`; 0: none).
     """
 
     name = "edges"
@@ -35,8 +37,10 @@ class EdgeTracker(Tracker):
     reference_rate = 0.1
 
     def __init__(self, object: ObjectModel, search_px: int = 12, max_samples: int = 400,
-                 lost_quality: float | None = None, covariance_scale: float = 4.0, explain: bool = True) -> None:
+                 lost_quality: float | None = None, covariance_scale: float = 4.0, explain: bool = True,
+                 polish: int = TRACKING_POLISH) -> None:
         super().__init__(object, lost_quality)
+        self.polish = check_polish(polish)
         if search_px < 1:
             raise ValueError(f"search_px: expected ≥ 1 pixel, got {search_px}")
         self.view = ModelView(object)
@@ -52,7 +56,7 @@ class EdgeTracker(Tracker):
 
     def _fit(self, frame: Frame, start: Pose, outer: int = 3, gray=None):
         return fit_edges(self.view, frame, start, gray=gray, search_px=self.search_px, max_samples=self.max_samples,
-                         covariance_scale=self.covariance_scale, outer=outer, polish=TRACKING_POLISH)
+                         covariance_scale=self.covariance_scale, outer=outer, polish=self.polish)
 
     def _track(self, frame: Frame, start: Pose):
         gray = to_gray(frame.image)  # one conversion for the fit and the quality

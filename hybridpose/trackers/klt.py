@@ -31,7 +31,7 @@ from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 from ..edges import ModelView, fit_from_proposals, honest_quality
-from ..edges.fit import TRACKING_POLISH
+from ..edges.fit import TRACKING_POLISH, check_polish
 from ..geometry import projection_jacobian
 
 log = logging.getLogger(__name__)
@@ -52,14 +52,17 @@ class KltPnpTracker(Tracker):
             hybrid KLT+edge tracker) and re-detect the corners at the refined pose. Without it
             KLT corners on a flat-shaded truss slide ≈ 0.3 px per frame and the pose drifts
             (≈ 1.5° after 10 frames, 4–5° after 30, measured on the tumble sequence).
+        polish: the edge fit's polish iterations (:func:`~hybridpose.edges.fit_edges`).
     """
 
     name = "klt-pnp"
     default_lost_quality = 0.3
 
     def __init__(self, object: ObjectModel, max_features: int = 150, min_features: int = 40, fb_px: float = 1.0,
-                 ransac_px: float = 2.0, edge_refine: bool = True, lost_quality: float | None = None) -> None:
+                 ransac_px: float = 2.0, edge_refine: bool = True, lost_quality: float | None = None,
+                 polish: int = TRACKING_POLISH) -> None:
         super().__init__(object, lost_quality)
+        self.polish = check_polish(polish)
         if not 6 <= min_features <= max_features:
             raise ValueError(f"min_features, max_features: expected 6 ≤ min ≤ max, got {min_features}, {max_features}")
         self.view = ModelView(object)
@@ -168,7 +171,7 @@ class KltPnpTracker(Tracker):
         # it is poor and the fit from the start is better (KLT reaches further under fast motion,
         # the edges remove its drift)
         best = fit_from_proposals(self.view, frame, (start,) if klt is None else (klt[0], start),
-                                  gray=gray.astype(np.float32), polish=TRACKING_POLISH)
+                                  gray=gray.astype(np.float32), polish=self.polish)
         if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0

@@ -34,10 +34,15 @@ from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 from ..edges import ModelView, fit_from_proposals, honest_quality, to_gray
-from ..edges.fit import TRACKING_POLISH
+from ..edges.fit import TRACKING_POLISH, check_polish
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
 VARIANTS = {"rapid": "Rapid_create", "rapid-ols": "OLSTracker_create", "rapid-gos": "GOSTracker_create"}
+
+
+# polish iterations of the refinement per variant, chosen on the standard suite's tuning seeds
+# (docs/decisions.md): the polish helps rapid-gos and hurts rapid and rapid-ols there
+POLISH = {"rapid": 0, "rapid-ols": 0, "rapid-gos": TRACKING_POLISH}
 
 
 class RapidTracker(Tracker):
@@ -52,13 +57,16 @@ class RapidTracker(Tracker):
         subdivide_m: longest mesh edge after subdivision (control points live on vertices).
         lost_quality: below it ``lost`` (default 0.5 with refinement: the inlier fraction of
             matched edge samples × support; 0.3 for OpenCV's ratio).
+        polish: the refinement's polish iterations (:func:`~hybridpose.edges.fit_edges`); None: the
+            variant's default (``POLISH``).
     """
 
     def __init__(self, object: ObjectModel, variant: str = "rapid", refine: bool = True, control_points: int = 200,
                  search_px: int = 20, iterations: int = 2, subdivide_m: float = 0.04,
-                 lost_quality: float | None = None) -> None:
+                 lost_quality: float | None = None, polish: int | None = None) -> None:
         if variant not in VARIANTS:
             raise ValueError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
+        self.polish = check_polish(POLISH[variant] if polish is None else polish)
         self.default_lost_quality = 0.5 if refine else 0.3
         super().__init__(object, lost_quality)
         if control_points < 3 or search_px < 1 or iterations < 1 or subdivide_m <= 0:
@@ -106,7 +114,7 @@ class RapidTracker(Tracker):
         # else the fit from the silhouette pose competes (more agreeing model edges win)
         gray = to_gray(frame.image)
         best = fit_from_proposals(self.view, frame, (start,) if pose is start else (start, pose), gray=gray,
-                                  polish=TRACKING_POLISH)
+                                  polish=self.polish)
         if best is None:
             return None, None, 0.0
         return best.pose, best.covariance, honest_quality(self.view, frame, best, gray)

@@ -158,9 +158,12 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
     by_kind = summarise([r for r in rows if r["label"] in head],
                         group=lambda r: f"{r['label'].split(' ')[0]} · {kind_of(r['sequence'])}")
     seeds = cfg.get("seeds")
+    # the edge-on tumbles draw their own seeds (those whose start lies near edge-on)
+    edge_on = sorted(int(n.rsplit("_s", 1)[1]) for n in cfg["sequences"] if "edgeon" in n and "_s" in n)
     what = (f"Sequences from `{cfg['data']}` ({len(cfg['sequences'])}), object `{cfg.get('object')}`" if cfg.get("data")
             else f"Suite `{cfg['suite']}`, split `{cfg['split']}` ({len(cfg['sequences'])} sequences"
-            + (f", seeds {seeds[0]}–{seeds[-1]}" if seeds else "") + ")")
+            + (f", seeds {seeds[0]}–{seeds[-1]}" if seeds else "")
+            + (f"; edge-on tumbles: seeds {edge_on[0]}–{edge_on[-1]}" if edge_on else "") + ")")
     lines = [
         what + f", commit `{result['commit']}`, "
         f"{cfg['workers']} worker(s), {result['seconds']:.0f} s. Tracker-only starts from the true first pose and is "

@@ -28,7 +28,8 @@ def test_seed_splits_never_overlap_and_suites_are_what_they_say():
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory):
     root = tmp_path_factory.mktemp("bench")
-    rc = main(["bench", "--suite", "smoke", "--out", str(root / "out"), "--cache", str(root / "cache")])
+    # rendered here, then run by two worker processes: the path where forked workers once hung
+    rc = main(["bench", "--suite", "smoke", "--out", str(root / "out"), "--cache", str(root / "cache"), "--workers", "2"])
     assert rc == 0
     return root
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
@@ -205,7 +206,9 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
             keep(rows, name)
             done.update({(name, r["key"]): r for r in rows})
     else:
-        with ProcessPoolExecutor(workers) as pool:
+        # fresh interpreters, not forks: the parent may have just rendered the suite, and a fork of a
+        # process holding the renderer's threads and GL context hung its workers before their first task
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = {pool.submit(run_sequence, name, str(scenes[name]), sp): name for name, sp in todo.items()}
             for fut in as_completed(futures):
                 name = futures[fut]

@@ -114,7 +114,7 @@ class HybridConfig:
     reacquire_chi2: float = DEFAULT_GATE_CHI2
     lost_check_period: int = 1
     check_roi_margin: float = 0.15
-    switch_quality_margin: float = 0.1
+    switch_quality_margin: float = 0.05
     check_below_quality: float = 0.7
     probation_frames: int = 1
     check_on_rejection: bool = True

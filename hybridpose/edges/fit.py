@@ -70,6 +70,14 @@ def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: in
     return _kernels.strongest_steps(profiles, int(search_px), float(min_contrast), limits)
 
 
+def _half_stretch(view: ModelView, pose: Pose, cam, normals: np.ndarray) -> np.ndarray:
+    """(S, 2) px: half of each projected sample's stretch along its edge (perpendicular to its image
+    ``normals`` (S, 2)), 0.6 × the samples' spacing so that neighbouring stretches overlap a little
+    and draw a continuous edge."""
+    along = np.stack([normals[:, 1], -normals[:, 0]], 1)
+    return (0.6 * view.step_px(pose, cam)) * along
+
+
 # the trackers' polish iterations (``fit_edges(polish=...)``), chosen on the standard suite's tuning
 # seeds (docs/decisions.md)
 TRACKING_POLISH = 2
@@ -139,12 +147,11 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
         if keep.sum() < 6:
             return None
         points, directions, uv, normals, visible = points[keep], directions[keep], uv[keep], normals[keep], visible[keep]
-        along = np.stack([normals[:, 1], -normals[:, 0]], 1)
-        reach = 0.5 * _kernels.edge_clearance(uv, normals, (0.6 * view.step_px(Pose(R, t), cam)) * along,
+        reach = 0.5 * _kernels.edge_clearance(uv, normals, _half_stretch(view, Pose(R, t), cam, normals),
                                               view.edge_of[visible], cam.width, cam.height, 2 * rng_px + 2)
         limits = np.minimum(reach, np.float32(rng_px)).astype(np.float32)
         for _ in range(int(polish)):
-            keep, uv, normals = _kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, False)
+            _, uv, normals = _kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, False)
             offset, valid_p, _ = _search(gray, uv, normals, rng_px, limits=limits)
             if valid_p.sum() < 6:
                 break
@@ -211,9 +218,8 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     if len(idx) < 6:
         return float("nan")
     s = view.samples_at(pose, cam, idx)
-    along = np.stack([s.normals[:, 1], -s.normals[:, 0]], 1)
-    half = 0.6 * view.step_px(pose, cam)  # samples' segments overlap a little: a continuous edge
-    a, b = s.uv - half * along, s.uv + half * along
+    stretch = _half_stretch(view, pose, cam, s.normals)
+    a, b = s.uv - stretch, s.uv + stretch
     lo = np.floor(np.minimum(a, b).min(0)).astype(int) - EXPLAIN_MARGIN_PX
     hi = np.ceil(np.maximum(a, b).max(0)).astype(int) + EXPLAIN_MARGIN_PX
     x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)

@@ -84,6 +84,8 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     assert reg.detection == "network"
     # started from the truss network's weights, but with the box's own keypoints
     assert np.allclose(reg.keypoints_m, box.keypoints)
+    # the box's corners look alike under its half-turns: one unlabelled heatmap, PnP tries the labellings
+    assert reg.net.unlabelled and reg.passes.unlabelled is not None and reg.twins == [] and not reg.has_twin_head
     # a second run resumes: nothing is done again
     stamp = (out / "best.pt").stat().st_mtime_ns
     again = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None)

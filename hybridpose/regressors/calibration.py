@@ -104,11 +104,17 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> float:
 def keypoint_pnp_batch(model, batch, device=None) -> tuple[list, torch.Tensor | None]:
     """One network pass of a keypoint model over ``batch`` and PnP per sample (crop pixels, the
     batch's crop ``K``): (``PnPResult`` or None where PnP fails, per sample; twin logits (B, T) or None)."""
-    pred, _, twin = model(batch["image"].to(device or "cpu"), with_twin=True)
+    pred, score, twin = model(batch["image"].to(device or "cpu"), with_twin=True)
     pts3 = model.keypoints_m.cpu().numpy().astype(np.float64)
-    results = [solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size)
-               for uv, K in zip(pred.float().cpu().numpy().astype(np.float64), batch["K"].numpy().astype(np.float64))]
-    return results, twin
+    Ks = batch["K"].numpy().astype(np.float64)
+    pred = pred.float().cpu().numpy().astype(np.float64)
+    if getattr(model, "unlabelled", False):
+        from .unlabelled import detections, solve_pnp_unlabelled
+
+        planes, gauge = model.planes.cpu().numpy(), model.gauge.tolist()
+        return [solve_pnp_unlabelled(detections(uv, s), pts3, planes, gauge, K, PNP_THRESHOLD * model.image_size)
+                for uv, s, K in zip(pred, score.float().cpu().numpy(), Ks)], None
+    return [solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size) for uv, K in zip(pred, Ks)], twin
 
 
 def _keypoint_errors(model, loader, twins=(), device=None) -> tuple[list[float], int, int]:

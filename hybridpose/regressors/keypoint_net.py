@@ -16,6 +16,9 @@ from torch import nn
 from torch.nn import functional as F
 
 HEATMAP_STRIDE = 4
+# the unlabelled head's bias at start: every cell at probability 0.1 (CenterNet's prior), so the focal
+# loss on a map that is almost all background starts small and stable
+PRIOR_BIAS = -2.19
 
 
 class _Block(nn.Module):
@@ -110,6 +113,62 @@ class KeypointNet(nn.Module):
             return uv, spread
         twin = self.twin_head(c4.mean((2, 3))) if self.twin_head is not None else None
         return uv, spread, twin
+
+
+class UnlabelledKeypointNet(KeypointNet):
+    """Crop (B, 3, S, S) → the N strongest peaks of one heatmap of all keypoints, without saying which
+    keypoint each is: uv (B, N, 2) crop pixels, score (B, N) probabilities, strongest first.
+
+    For objects with symmetries (:mod:`hybridpose.regressors.unlabelled`): the same encoder and
+    decoder as :class:`KeypointNet`, one output channel; PnP tries the labellings.
+
+    Args:
+        keypoints_m, width, image_size: as :class:`KeypointNet`.
+        gauge: the keypoints the first detection may be (:func:`~.unlabelled.symmetry_gauge`);
+            None: any. Stored with the keypoints' hull planes (:func:`~.unlabelled.hull_planes`),
+            so a checkpoint carries everything its PnP needs.
+    """
+
+    unlabelled = True
+
+    def __init__(self, keypoints_m, width: int = 32, image_size: int = 128, gauge=None) -> None:
+        from .unlabelled import hull_planes
+
+        super().__init__(keypoints_m, width, image_size, 0)
+        self.head = nn.Conv2d(self.head.in_channels, 1, 1)
+        nn.init.constant_(self.head.bias, PRIOR_BIAS)
+        n = self.num_keypoints
+        gauge = list(range(n)) if gauge is None else [int(g) for g in gauge]
+        if not gauge or min(gauge) < 0 or max(gauge) >= n:
+            raise ValueError(f"gauge: expected keypoint indices in [0, {n}), got {gauge}")
+        self.register_buffer("gauge", torch.tensor(gauge, dtype=torch.long))
+        self.register_buffer("planes", torch.tensor(hull_planes(np.array(keypoints_m, dtype=np.float64))))
+
+    def forward(self, x: torch.Tensor, with_twin: bool = False, heatmaps: bool = False):
+        """(uv (B, N, 2), score (B, N)); with ``with_twin`` a third output, None (no twin head);
+        with ``heatmaps`` the (B, 1, S/4, S/4) logits instead (what training needs)."""
+        logits, _ = self._run(x)
+        if heatmaps:
+            return logits
+        uv, score = heatmap_peaks(logits, self.num_keypoints, HEATMAP_STRIDE)
+        return (uv, score, None) if with_twin else (uv, score)
+
+
+def heatmap_peaks(logits: torch.Tensor, k: int, stride: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``k`` strongest local maxima (3×3) of one-channel heatmaps: (B, 1, h, w) logits → uv (B, k, 2)
+    input pixels (the probability-weighted mean of the peak's 3×3 cells), score (B, k) probabilities,
+    strongest first. Exported to ONNX as it is (max-pool, top-k, gather)."""
+    prob = torch.sigmoid(logits[:, :1].float())                        # (B, 1, h, w)
+    b, _, h, w = prob.shape
+    peak = prob * (F.max_pool2d(prob, 3, 1, 1) == prob).to(prob.dtype)
+    score, index = peak.reshape(b, h * w).topk(k, dim=1)
+    xs = torch.arange(w, dtype=prob.dtype, device=prob.device).reshape(1, 1, 1, w).expand(1, 1, h, w)
+    ys = torch.arange(h, dtype=prob.dtype, device=prob.device).reshape(1, 1, h, 1).expand(1, 1, h, w)
+    mass = F.avg_pool2d(prob, 3, 1, 1)
+    mx = (F.avg_pool2d(prob * xs, 3, 1, 1) / mass.clamp_min(1e-12)).reshape(b, h * w)
+    my = (F.avg_pool2d(prob * ys, 3, 1, 1) / mass.clamp_min(1e-12)).reshape(b, h * w)
+    uv = torch.stack([mx.gather(1, index), my.gather(1, index)], -1) * stride + (stride - 1) / 2
+    return uv, score
 
 
 def soft_argmax(logits: torch.Tensor, stride: int) -> tuple[torch.Tensor, torch.Tensor]:

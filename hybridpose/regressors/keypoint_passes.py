@@ -20,8 +20,10 @@ from ..geometry import Camera, Pose
 from ..geometry.crops import crop_box, crop_image
 from .calibration import PNP_THRESHOLD
 from .detection import CROP_MARGIN
+from .keypoint_net import HEATMAP_STRIDE
 from .keypoint_pnp import PnPResult, solve_pnp
 from .options import KeypointOptions
+from .unlabelled import detections, solve_pnp_unlabelled
 
 QUALITY_RMS = 0.02  # RMS reprojection error (fraction of the crop side) at which quality falls to 1/e
 # passes="auto": the second, re-centred network pass only where the first pass's twin head is below
@@ -41,6 +43,9 @@ SIZE_RATIO_MAX = 3.0
 # and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (a test written before those views were rendered).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
 TURNS_BELOW_INLIERS = 0.8
+# a whole-frame pass of an unlabelled network whose detections PnP cannot use (a part a few cells
+# across) still says where the part is: a box around them at least this many heatmap cells wide
+MIN_BOX_CELLS = 4
 
 
 def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:
@@ -131,13 +136,17 @@ class KeypointPasses:
         options: the :class:`KeypointOptions` whose ``passes``, ``turns``, ``pnp_outliers`` and
             ``turn_pnp_outliers`` apply (the regressor replaces it when it is reconfigured).
         max_depth_m: the depth gate, metres (None: none).
+        unlabelled: for an :class:`~.keypoint_net.UnlabelledKeypointNet` (the engine then gives its
+            peaks and their scores): the keypoints' hull planes and symmetry gauge
+            (:mod:`.unlabelled`); None for a network that names its keypoints.
     """
 
     def __init__(self, engine, keypoints_m: np.ndarray, twins: list, has_twin_head: bool, image_size: int,
-                 options: KeypointOptions, max_depth_m: float | None = None) -> None:
+                 options: KeypointOptions, max_depth_m: float | None = None, unlabelled=None) -> None:
         self.engine, self.keypoints_m, self.twins = engine, keypoints_m, twins
         self.has_twin_head, self.image_size = has_twin_head, image_size
         self.options, self.max_depth_m = options, max_depth_m
+        self.unlabelled = unlabelled
 
     def network_pass(self, image: np.ndarray, K: np.ndarray, box, turns: bool = False, sun_turn: float = 0.0):
         """One network pass on ``box`` (cx, cy, side) in ``image`` with intrinsics ``K`` (3, 3): (PnP
@@ -165,13 +174,18 @@ class KeypointPasses:
         crops = [crop if a == 0 else cv2.warpAffine(crop, A[:2], crop.shape[1::-1], flags=cv2.INTER_LINEAR,
                                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
                  for a, A in zip(angles_deg, turns)]
-        uv_all, _, twin = self.engine(image_batch(*crops))
+        uv_all, score_all, twin = self.engine(image_batch(*crops))
         out = []
         for i, A in enumerate(turns):
             back = np.linalg.inv(A)
             uv = uv_all[i].float().cpu().numpy().astype(np.float64) @ back[:2, :2].T + back[:2, 2]
-            res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size,
-                            outliers=outliers)
+            if self.unlabelled is not None:
+                planes, gauge = self.unlabelled
+                uv = detections(uv, score_all[i].float().cpu().numpy())
+                res = solve_pnp_unlabelled(uv, self.keypoints_m, planes, gauge, K_crop, PNP_THRESHOLD * self.image_size)
+            else:
+                res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size,
+                                outliers=outliers)
             order, prob = list(range(len(self.twins) + 1)), None
             if self.has_twin_head:
                 prob = torch.softmax(twin[i].float(), 0).cpu().numpy()
@@ -205,13 +219,21 @@ class KeypointPasses:
         """Box (x, y, w, h) pixels of the keypoints' projection at the pose one network pass on the whole
         frame gives (coarse: the object may be a few dozen pixels of the network's input), or None."""
         whole = ((cam.width - 1) / 2, (cam.height - 1) / 2, float(max(cam.width, cam.height)))
-        res = self.network_pass(image, cam.K, whole)[0]
+        res, found, K_crop = self.network_pass(image, cam.K, whole)[:3]
         if res is None:
-            return None
-        pts = res.pose @ self.keypoints_m
-        if np.any(pts[:, 2] <= 0.05):
-            return None
-        uv = cam.project(self.keypoints_m, res.pose)
+            # unlabelled detections too few or too close for PnP (a small part): the box around them
+            if self.unlabelled is None or len(found) == 0:
+                return None
+            A = cam.K @ np.linalg.inv(K_crop)
+            uv = found @ A[:2, :2].T + A[:2, 2]
+            centre, half = 0.5 * (uv.min(0) + uv.max(0)), 0.5 * (uv.max(0) - uv.min(0))
+            half = np.maximum(half, MIN_BOX_CELLS * HEATMAP_STRIDE * A[0, 0] / 2)
+            uv = np.stack([centre - half, centre + half])
+        else:
+            pts = res.pose @ self.keypoints_m
+            if np.any(pts[:, 2] <= 0.05):
+                return None
+            uv = cam.project(self.keypoints_m, res.pose)
         (x0, y0), (x1, y1) = np.maximum(uv.min(0), 0.0), np.minimum(uv.max(0), [cam.width - 1.0, cam.height - 1.0])
         if x1 - x0 < 2 or y1 - y0 < 2:
             return None
@@ -225,6 +247,8 @@ class KeypointPasses:
         else:  # PnP failed: the raw coarse keypoints, mapped back to the frame
             A = K @ np.linalg.inv(K_crop)
             pts = uv @ A[:2, :2].T + A[:2, 2]
+        if len(pts) == 0:
+            return None
         lo, hi = pts.min(0), pts.max(0)
         if not np.all(np.isfinite(lo)) or np.any(hi - lo < 1):
             return None

@@ -21,16 +21,22 @@ class PnPResult:
         rms_px: RMS reprojection error of the inliers, pixels.
         information: (6, 6) ``JᵀJ`` of the inlier reprojections w.r.t. the right perturbation
             ``[ω, v]`` (px²/unit²); ``σ² · inv(information)`` is the covariance for pixel noise σ.
+        visible: (N,) bool, the keypoints an image can show at ``pose`` (None: all of them, as for a
+            network that places every keypoint; unlabelled detections see only the visible ones).
     """
 
     pose: Pose
     inliers: np.ndarray
     rms_px: float
     information: np.ndarray
+    visible: np.ndarray | None = None
 
     @property
     def inlier_ratio(self) -> float:
-        return float(self.inliers.mean())
+        """Share of the keypoints kept — of the visible ones where ``visible`` is given."""
+        if self.visible is None:
+            return float(self.inliers.mean())
+        return float(self.inliers.sum() / max(int(self.visible.sum()), 1))
 
 
 def _project(pose: Pose, points_m: np.ndarray, K: np.ndarray) -> np.ndarray:

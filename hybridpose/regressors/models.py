@@ -7,7 +7,7 @@ import torch
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
-from .keypoint_net import KeypointNet
+from .keypoint_net import KeypointNet, UnlabelledKeypointNet
 from .vgg import BranchedVGG19, ParallelVGG19, VGGPose
 
 MODELS: dict[str, Callable[..., nn.Module]] = {
@@ -18,11 +18,22 @@ MODELS: dict[str, Callable[..., nn.Module]] = {
     # CPU models: keypoint heatmaps on the object-centred crop, pose by PnP (see keypoint_net.py).
     # "default" is the one we ship trained (chosen by accuracy per ms, benchmarks/RESULTS.md);
     # "keypoints" the wider variant for when a few more ms buy accuracy.
-    "default": lambda keypoints_m, image_size=128, twin_classes=0, **kw: KeypointNet(keypoints_m, 32, image_size, twin_classes),
-    "keypoints": lambda keypoints_m, image_size=160, twin_classes=0, **kw: KeypointNet(keypoints_m, 48, image_size, twin_classes),
+    # An object with symmetries gets the unlabelled variant (``gauge`` given: unlabelled.py).
+    "default": lambda keypoints_m, image_size=128, twin_classes=0, gauge=None, **kw: _keypoint_net(
+        keypoints_m, 32, image_size, twin_classes, gauge),
+    "keypoints": lambda keypoints_m, image_size=160, twin_classes=0, gauge=None, **kw: _keypoint_net(
+        keypoints_m, 48, image_size, twin_classes, gauge),
 }
 
 KEYPOINT_MODELS = ("default", "keypoints")
+
+
+def _keypoint_net(keypoints_m, width: int, image_size: int, twin_classes: int, gauge) -> nn.Module:
+    if gauge is None:
+        return KeypointNet(keypoints_m, width, image_size, twin_classes)
+    if twin_classes:
+        raise ValueError("twin_classes: an unlabelled keypoint net (gauge given) has no twin head")
+    return UnlabelledKeypointNet(keypoints_m, width, image_size, gauge)
 
 # training settings that differ from TrainConfig's (paper) defaults: the keypoint nets train from
 # scratch with batch norm, where the paper's lr = 1e-4 for ImageNet-initialised VGGs is too slow

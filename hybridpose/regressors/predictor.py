@@ -195,7 +195,8 @@ class CheckpointRegressor(PoseRegressor):
         # keypoint models only: the direct (VGG) ones are GPU models, and take the whole frame
         self.passes = (KeypointPasses(keypoint_engine(engine, self.net, self.device, self.image_size, self.memory_format,
                                                       checkpoint=self.path),
-                                      self.keypoints_m, self.twins, self.has_twin_head, self.image_size, opts)
+                                      self.keypoints_m, self.twins, self.has_twin_head, self.image_size, opts,
+                                      unlabelled=self._unlabelled())
                        if self.kind == "keypoints" else None)
         if self.calibration is None:
             log.warning("%s: no covariance calibration stored; covariances are inflated ×%g", self.path, UNCALIBRATED_SCALE)
@@ -218,6 +219,12 @@ class CheckpointRegressor(PoseRegressor):
                             if self.twin_check is not None else None)
         self.expert_object = None  # the object whose view elevation gates the expert
         self.expert = self._load_expert(opts.edge_on_expert, object)
+
+    def _unlabelled(self):
+        """(hull planes, gauge) of an unlabelled keypoint net (:mod:`.unlabelled`), else None."""
+        if not getattr(self.net, "unlabelled", False):
+            return None
+        return self.net.planes.cpu().numpy(), [int(g) for g in self.net.gauge.cpu()]
 
     def configure(self, **changes) -> None:
         """Change run-time options (:meth:`KeypointOptions.run_time`: passes, turns, ...) of this loaded

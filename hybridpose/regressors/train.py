@@ -34,6 +34,7 @@ from .verify import box_half_turns
 from .models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
 from .train_data import dataset_info, make_augment, make_datasets
 from .train_steps import batch_loss, evaluate, forward
+from .unlabelled import symmetry_gauge
 from .vgg import VGG_INITS, load_imagenet_weights
 
 log = logging.getLogger(__name__)
@@ -214,10 +215,16 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
     if model_kind(cfg.model) == "keypoints":
         obj = dataset_object(cfg.data)
         kw = {"keypoints_m": obj.keypoints, "image_size": cfg.image_size}
-        twins = box_half_turns(obj) if cfg.twin_loss else []
-        label_sets = np.stack([obj.keypoints] + [S @ obj.keypoints for S in twins])
-        if twins:
-            kw["twin_classes"] = len(label_sets)
+        if obj.symmetries:
+            # no image says which of a symmetric object's look-alike keypoints is which: one heatmap
+            # of them all, and PnP tries the labellings (unlabelled.py); no twins to learn
+            kw["gauge"] = symmetry_gauge(obj.keypoints, obj.symmetries)
+            label_sets = obj.keypoints
+        else:
+            twins = box_half_turns(obj) if cfg.twin_loss else []
+            label_sets = np.stack([obj.keypoints] + [S @ obj.keypoints for S in twins])
+            if twins:
+                kw["twin_classes"] = len(label_sets)
     model = build_model(cfg.model, **kw)
     train_ds, val_ds = make_datasets(cfg, keypoints_m=label_sets)
     gen = torch.Generator().manual_seed(cfg.seed)

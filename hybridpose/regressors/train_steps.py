@@ -8,7 +8,9 @@ import torch
 
 from ..geometry import Pose
 from .calibration import keypoint_pnp_batch
-from .keypoint_net import keypoint_loss
+from ..geometry import quat_wxyz_to_matrix
+from .keypoint_net import HEATMAP_STRIDE, keypoint_loss
+from .unlabelled import focal_loss, heatmap_targets, visible_keypoints
 from .losses import pose_loss, quat_geodesic_angle
 
 
@@ -33,6 +35,11 @@ def batch_loss(model, batch, device, beta: float, twin_weight: float) -> torch.T
     if is_keypoint_model(model):
         net = _unwrap(model)
         labels = batch["kp2d"].to(device)
+        if getattr(net, "unlabelled", False):
+            R = quat_wxyz_to_matrix(batch["q"].numpy())
+            seen = visible_keypoints(net.planes.cpu().numpy(), R, batch["t"].numpy().astype(np.float64))
+            target = heatmap_targets(labels, torch.from_numpy(seen).to(device), net.image_size, HEATMAP_STRIDE)
+            return focal_loss(model(batch["image"].to(device, non_blocking=True), heatmaps=True), target)
         if net.twin_head is not None and labels.ndim == 4:
             pred, spread, twin = model(batch["image"].to(device, non_blocking=True), with_twin=True)
             loss, best = keypoint_loss(pred, spread, labels, net.image_size, return_best=True)

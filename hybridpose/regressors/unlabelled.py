@@ -30,6 +30,8 @@ from .keypoint_pnp import PnPResult
 DETECTION_THRESHOLD = 0.1  # a heatmap peak above this probability is a keypoint detection
 TARGET_SIGMA_CELLS = 1.0   # the training target's Gaussian, heatmap cells
 TRIPLES = 4                # P3P triples tried, from the best-scoring detections
+EARLY_STOP_RESIDUAL = 0.25  # mean residual (of the threshold) below which a pose ends the search
+EARLY_STOP_DETECTIONS = 7
 MAX_PLANES = 12            # hull faces kept per keypoint (a vertex of a fine hull touches more)
 
 
@@ -161,17 +163,36 @@ def solve_pnp_unlabelled(points_2d: np.ndarray, points_m: np.ndarray, planes: np
     if len(det) < max(4, min_inliers) or not np.all(np.isfinite(det)):
         return None
     labels = _assignments(len(pts), gauge)
-    Rs, ts = [], []
+    best = None
     for tri in list(itertools.combinations(range(min(len(det), triples + 2)), 3))[:triples]:
-        image = det[list(tri)]
-        for abc in labels:
-            try:
-                _, rvecs, tvecs = cv2.solveP3P(pts[abc], image, K, None, flags=cv2.SOLVEPNP_P3P)
-            except cv2.error:  # collinear detections
-                break
-            for rv, tv in zip(rvecs, tvecs):
-                Rs.append(cv2.Rodrigues(rv)[0])
-                ts.append(tv.ravel())
+        found = _best_of_triple(det, tri, pts, planes, labels, K, threshold_px)
+        if found is not None and (best is None or found[0] > best[0]):
+            best = found
+        # seven or more detections all explained closely, no visible keypoint left without one:
+        # further triples only cost time. Fewer can fit a wrong labelling within a pixel or two: a
+        # box's two faces seen under weak perspective fit their depth-reversed (Necker) pose too,
+        # and only the residuals of every triple tell them apart.
+        if (best is not None and best[0][0] == len(det) >= EARLY_STOP_DETECTIONS
+                and -best[0][1] <= EARLY_STOP_RESIDUAL * threshold_px * best[0][0]):
+            break
+    if best is None or best[0][0] < min_inliers:
+        return None
+    return _refined(det, pts, planes, K, best[1], best[2], threshold_px, min_inliers)
+
+
+def _best_of_triple(det, tri, pts, planes, labels, K, threshold_px):
+    """The best pose of P3P on detections ``tri`` under every labelling in ``labels``: ((detections
+    explained, −cost), R, t), or None where P3P has no pose in front of the camera."""
+    image = det[list(tri)]
+    Rs, ts = [], []
+    for abc in labels:
+        try:
+            _, rvecs, tvecs = cv2.solveP3P(pts[abc], image, K, None, flags=cv2.SOLVEPNP_P3P)
+        except cv2.error:  # collinear detections
+            return None
+        for rv, tv in zip(rvecs, tvecs):
+            Rs.append(cv2.Rodrigues(rv)[0])
+            ts.append(tv.ravel())
     if not Rs:
         return None
     R, t = np.array(Rs), np.array(ts)
@@ -189,10 +210,8 @@ def solve_pnp_unlabelled(points_2d: np.ndarray, points_m: np.ndarray, planes: np
     # the most detections explained, then the least residual plus a threshold per visible keypoint
     # that no detection explains (a pose that shows corners the network did not see is less likely)
     cost = np.minimum(near, threshold_px).sum(1) + threshold_px * np.maximum(vis.sum(1) - explained, 0)
-    best = np.lexsort((cost, -explained))[0]
-    if explained[best] < min_inliers:
-        return None
-    return _refined(det, pts, planes, K, R[best], t[best], threshold_px, min_inliers)
+    i = np.lexsort((cost, -explained))[0]
+    return (int(explained[i]), -float(cost[i])), R[i], t[i]
 
 
 def _refined(det, pts, planes, K, R, t, threshold_px, min_inliers) -> PnPResult | None:

@@ -291,7 +291,9 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"{req['camera']['width']}×{req['camera']['height']}, budget {p['budget_min']:g} min, seed {req['seed']}.", "",
         f"- Rendered {p['train_views']} training and {p['test_views']} held-out views (random backgrounds, "
         f"lights and colours; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away).",
-        f"- Trained the `default` network ({IMAGE_SIZE} px, {FULL_VIEW:.0%} whole-frame crops) for up to "
+        f"- Trained the `default` network ({IMAGE_SIZE} px, {FULL_VIEW:.0%} whole-frame crops"
+        + (f"; one unlabelled heatmap of its {len(obj.keypoints)} keypoints, which look alike under its symmetries"
+           if obj.symmetric else "") + f") for up to "
         f"{p['epochs']} epochs within {p['train_min']:.0f} min, from `{req['init_from']}`.",
         f"- Minutes per stage: {minutes}.", "",
         f"Held-out views ({a['views']}, not those that calibrated the covariance): rotation error median "

@@ -530,13 +530,15 @@ class CheckpointRegressor(PoseRegressor):
         # quality does, through the belief in the returned twin (a gate on it removes most of the gross
         # errors): the head's, or the mirror verifier's where it replaced the pose
         belief = None
+        # an object with symmetries has twins no image tells apart: none to check
+        check_twins = self.options.check_twins and self.passes.unlabelled is None
         if self.twin_choice is not None:
             if self.options.refine_edges:
-                pose, twin = self.twin_choice.refine(undistorted, pose, order, prob, check_twins=self.options.check_twins)
+                pose, twin = self.twin_choice.refine(undistorted, pose, order, prob, check_twins=check_twins)
                 checked = self.twin_choice.mirror_check(undistorted, pose)
                 if checked is not None and checked[2] > 0:
                     pose, belief, _ = checked
-            elif self.options.check_twins and not self.has_twin_head:
+            elif check_twins and not self.has_twin_head:
                 pose, _, flipped = self.twin_check.best(undistorted, pose)
                 if flipped:  # the keypoints disagreed with the image: the pose is right, the fit is not
                     quality *= 0.5

@@ -139,3 +139,11 @@ def test_the_unlabelled_network_runs_alike_on_torch_and_onnxruntime(box):
         UnlabelledKeypointNet(box.keypoints, gauge=[9])
     with pytest.raises(ValueError, match="twin"):
         build_model("default", keypoints_m=box.keypoints, gauge=[0], twin_classes=4)
+
+
+def test_the_linked_cluster_keeps_the_chain_from_the_strongest_detection():
+    from hybridpose.regressors.keypoint_passes import linked_cluster
+
+    points = np.array([[10.0, 10.0], [100.0, 100.0], [14.0, 12.0], [18.0, 15.0], [21.0, 30.0], [104.0, 99.0]])
+    assert linked_cluster(points, 5.0).tolist() == [[10.0, 10.0], [14.0, 12.0], [18.0, 15.0]]
+    assert len(linked_cluster(points, 20.0)) == 4 and len(linked_cluster(points, 200.0)) == 6

@@ -43,10 +43,12 @@ SIZE_RATIO_MAX = 3.0
 # and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (a test written before those views were rendered).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
 TURNS_BELOW_INLIERS = 0.8
-# a whole-frame pass of an unlabelled network finds the part as the detections linked to the strongest
-# one (each within CLUSTER_LINK of the crop side of another; clutter elsewhere stays out), boxed at
-# least MIN_BOX_CELLS heatmap cells wide
-CLUSTER_LINK = 0.2  # box fit's calibration views, > 10° off: 0.12 / 0.2 / 0.3 → 47 / 27 / 30 %
+# a whole-frame pass of an unlabelled network whose detections PnP cannot use (a part a few cells across)
+# still says where the part is: the detections linked to the strongest one (each within CLUSTER_LINK of
+# the crop side of another; clutter elsewhere stays out), boxed at least MIN_BOX_CELLS heatmap cells wide.
+# Where PnP has a pose, its projection boxes the part better (tuning sequences over photos: CNN-only
+# within a tracker's basin 38 vs 17 % of the frames; the procedural views favoured the linked box)
+CLUSTER_LINK = 0.2  # procedural calibration views, whole path > 10° off: 0.12 / 0.2 / 0.3 → 47 / 27 / 30 %
 MIN_BOX_CELLS = 4
 
 
@@ -234,9 +236,7 @@ class KeypointPasses:
         frame gives (coarse: the object may be a few dozen pixels of the network's input), or None."""
         whole = ((cam.width - 1) / 2, (cam.height - 1) / 2, float(max(cam.width, cam.height)))
         res, found, K_crop = self.network_pass(image, cam.K, whole)[:3]
-        if self.unlabelled is not None:
-            # the part is a few cells across at this scale: its detections locate it better than a
-            # PnP pose on them does (and there may be too few of them for one)
+        if self.unlabelled is not None and res is None:
             if len(found) == 0:
                 return None
             A = cam.K @ np.linalg.inv(K_crop)

@@ -145,5 +145,5 @@ def test_the_linked_cluster_keeps_the_chain_from_the_strongest_detection():
     from hybridpose.regressors.keypoint_passes import linked_cluster
 
     points = np.array([[10.0, 10.0], [100.0, 100.0], [14.0, 12.0], [18.0, 15.0], [21.0, 30.0], [104.0, 99.0]])
-    assert linked_cluster(points, 5.0).tolist() == [[10.0, 10.0], [14.0, 12.0], [18.0, 15.0]]
+    assert linked_cluster(points, 6.0).tolist() == [[10.0, 10.0], [14.0, 12.0], [18.0, 15.0]]
     assert len(linked_cluster(points, 20.0)) == 4 and len(linked_cluster(points, 200.0)) == 6

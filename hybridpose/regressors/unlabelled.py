@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import torch
 from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial.transform import Rotation
 
 from ..geometry import Pose, projection_jacobian
 from .keypoint_pnp import PnPResult
@@ -188,18 +189,18 @@ def _best_of_triple(det, tri, pts, planes, labels, K, threshold_px):
     """The best pose of P3P on detections ``tri`` under every labelling in ``labels``: ((detections
     explained, −cost), R, t), or None where P3P has no pose in front of the camera."""
     image = det[list(tri)]
-    Rs, ts = [], []
+    rs, ts = [], []
     for abc in labels:
         try:
             _, rvecs, tvecs = cv2.solveP3P(pts[abc], image, K, None, flags=cv2.SOLVEPNP_P3P)
         except cv2.error:  # collinear detections
             return None
-        for rv, tv in zip(rvecs, tvecs):
-            Rs.append(cv2.Rodrigues(rv)[0])
-            ts.append(tv.ravel())
-    if not Rs:
+        rs += rvecs
+        ts += tvecs
+    if not rs:
         return None
-    R, t = np.array(Rs), np.array(ts)
+    R = Rotation.from_rotvec(np.array(rs).reshape(-1, 3)).as_matrix()  # one call for all (cv2.Rodrigues: one each)
+    t = np.array(ts).reshape(-1, 3)
     cam = pts @ R.transpose(0, 2, 1) + t[:, None]                               # (P, N, 3)
     ahead = (cam[..., 2] > 1e-6).all(1)
     if not ahead.any():

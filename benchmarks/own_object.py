@@ -4,7 +4,10 @@ vs hybrid on sequences of it in front of a real photo the fit never saw.
     python benchmarks/own_object.py --out runs/own_object [--budget 40m] [--workers 1]
 
 1. writes a plain box mesh (180 × 110 × 70 mm, in millimetres as CAD exports are);
-2. ``hybridpose fit`` for it within ``--budget`` (random procedural backgrounds, lights and colours);
+2. ``hybridpose fit`` for it within ``--budget`` (random lights and colours; backgrounds half
+   procedural clutter, half cut from the photos that ship with scikit-image — astronaut, coffee, cat,
+   motorcycles, rocket, textures: ``pip install hybridpose[bench]``; ``--train-photos none`` for
+   procedural backgrounds only);
 3. renders six 60-frame sequences (tumble, approach, fly-around; with and without the arm passing in
    front) over crops of ``grace_hopper.jpg`` — a photograph that ships with matplotlib and that no
    training view used — one look per sequence;
@@ -29,6 +32,28 @@ SEQUENCES = (("tumble", "none", 1), ("tumble", "arm-full", 2), ("approach", "non
 BOX_MM = (180.0, 110.0, 70.0)
 
 
+# scikit-image's sample photos of scenes and textures (not its microscopy, text or synthetic images)
+TRAIN_PHOTOS = ("astronaut.png", "coffee.png", "chelsea.png", "motorcycle_left.png", "motorcycle_right.png",
+                "rocket.jpg", "camera.png", "coins.png", "grass.png", "gravel.png", "brick.png", "hubble_deep_field.jpg")
+
+
+def training_photos(folder: Path) -> Path:
+    """``folder`` filled with :data:`TRAIN_PHOTOS` from the installed scikit-image; a clear error without it."""
+    try:
+        import skimage
+    except ImportError:
+        raise SystemExit("--train-photos skimage: scikit-image is not installed (pip install hybridpose[bench]); "
+                         "or pass --train-photos none") from None
+    source = Path(skimage.__file__).parent / "data"
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in TRAIN_PHOTOS:
+        if (source / name).is_file():
+            shutil.copy(source / name, folder / name)
+    if not any(folder.iterdir()):
+        raise SystemExit(f"--train-photos skimage: none of its sample photos under {source}")
+    return folder
+
+
 def hp(*args) -> None:
     subprocess.run([sys.executable, "-m", "hybridpose", *map(str, args)], check=True)
 
@@ -39,6 +64,9 @@ def main() -> None:
     ap.add_argument("--budget", default="40m")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--results-md", default=str(Path(__file__).parent / "RESULTS.md"))
+    ap.add_argument("--train-photos", choices=("skimage", "none"), default="skimage",
+                    help="backgrounds of the training views: half from scikit-image's sample photos (default), "
+                         "or procedural clutter only")
     args = ap.parse_args()
     import trimesh
 
@@ -48,7 +76,10 @@ def main() -> None:
     if not mesh.is_file():
         trimesh.creation.box(extents=BOX_MM).export(mesh)
     fit = out / "fit"
-    hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, "--workers", args.workers)
+    extra = []
+    if args.train_photos == "skimage":
+        extra = ["--backgrounds", training_photos(out / "train_photos")]
+    hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, "--workers", args.workers, *extra)
     photos = out / "photos"
     photos.mkdir(exist_ok=True)
     shutil.copy(Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg", photos)

@@ -154,3 +154,20 @@ def test_your_own_bop_sequences(smoke, tmp_path):
     result = json.loads((out / "results.json").read_text())
     assert result["config"]["data"] == str(scene) and len(result["rows"]) == 2
     assert (out / "report.md").read_text().startswith(f"Sequences from `{scene}` (1), object `truss`")
+
+
+def test_the_results_page_block_is_replaced_appended_or_made(smoke, tmp_path):
+    from hybridpose.bench.command import write_results_page
+
+    result = json.loads((smoke / "out" / "results.json").read_text())
+    page = tmp_path / "page.md"
+    write_results_page(page, result, block="mine")                       # no page yet: made with the block
+    made = page.read_text()
+    assert made.startswith("<!-- mine:begin -->") and made.rstrip().endswith("<!-- mine:end -->")
+    page.write_text("# Title\n\nprose\n" + made + "after\n")
+    write_results_page(page, result, block="mine")                       # replaced in place
+    kept = page.read_text()
+    assert kept.startswith("# Title\n\nprose\n<!-- mine:begin -->") and kept.endswith("<!-- mine:end -->\nafter\n")
+    assert kept.count("<!-- mine:begin -->") == 1
+    write_results_page(page, result, block="other")                      # another block: appended at the end
+    assert page.read_text().startswith(kept) and page.read_text().rstrip().endswith("<!-- other:end -->")

@@ -218,12 +218,13 @@ def write_video(out: Path, scene_dir: Path, spec: RunSpec) -> Path:
 
 def write_results_page(path, result: dict, plots: list[str] = (), block: str = RESULTS_BLOCK) -> None:
     """Replace the block between ``<!-- {block}:begin -->`` and ``<!-- {block}:end -->`` of the
-    results page with this run's report (the main block also with the paper's table)."""
+    results page with this run's report (the main block also with the paper's table); a page without
+    the block gets it at its end, a missing page is made with only the block."""
     path = Path(path)
     begin, end = f"<!-- {block}:begin -->", f"<!-- {block}:end -->"
-    page = path.read_text()
+    page = path.read_text() if path.is_file() else ""
     if begin not in page or end not in page:
-        raise ValueError(f"{path}: no {begin} … {end} block to replace")
+        page = page + ("\n" if page and not page.endswith("\n") else "") + f"{begin}\n{end}\n"
     head, rest = page.split(begin, 1)
     _, tail = rest.split(end, 1)
     text = report_markdown(result, plots) + ("\n" + PAPER_TABLE + "\n" if block == RESULTS_BLOCK else "")

@@ -166,7 +166,8 @@ class KeypointPasses:
 
     def network_pass(self, image: np.ndarray, K: np.ndarray, box, turns: bool = False, sun_turn: float = 0.0):
         """One network pass on ``box`` (cx, cy, side) in ``image`` with intrinsics ``K`` (3, 3): (PnP
-        result in the head's most likely twin or None, keypoints (N, 2) in crop pixels, crop K, twin
+        result in the head's most likely twin or None, keypoints (N, 2) in crop pixels (an unlabelled
+        network's detections, (M, 2), strongest first), crop K, twin
         order, twin probabilities), order and probabilities as in :class:`KeypointEstimate`. With
         ``turns`` the crop turned by ``TURNS_DEG`` is tried too where :func:`wants_turns` says so, and
         the pass whose PnP keeps the most keypoints (then the lowest RMS) is returned. Every turn

@@ -111,7 +111,7 @@ def keypoint_pnp_batch(model, batch, device=None) -> tuple[list, torch.Tensor | 
     if getattr(model, "unlabelled", False):
         from .unlabelled import detections, solve_pnp_unlabelled
 
-        planes, gauge = model.planes.cpu().numpy(), model.gauge.tolist()
+        planes, gauge = model.pnp_geometry()
         return [solve_pnp_unlabelled(detections(uv, s), pts3, planes, gauge, K, PNP_THRESHOLD * model.image_size)
                 for uv, s, K in zip(pred, score.float().cpu().numpy(), Ks)], None
     return [solve_pnp(uv, pts3, K, threshold_px=PNP_THRESHOLD * model.image_size) for uv, K in zip(pred, Ks)], twin

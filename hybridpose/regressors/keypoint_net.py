@@ -144,6 +144,10 @@ class UnlabelledKeypointNet(KeypointNet):
         self.register_buffer("gauge", torch.tensor(gauge, dtype=torch.long))
         self.register_buffer("planes", torch.tensor(hull_planes(np.array(keypoints_m, dtype=np.float64))))
 
+    def pnp_geometry(self) -> tuple[np.ndarray, list[int]]:
+        """(hull planes (N, F, 4) float32, gauge) on the CPU: what its PnP needs besides the keypoints."""
+        return self.planes.cpu().numpy(), [int(g) for g in self.gauge.cpu()]
+
     def forward(self, x: torch.Tensor, with_twin: bool = False, heatmaps: bool = False):
         """(uv (B, N, 2), score (B, N)); with ``with_twin`` a third output, None (no twin head);
         with ``heatmaps`` the (B, 1, S/4, S/4) logits instead (what training needs)."""

@@ -222,9 +222,7 @@ class CheckpointRegressor(PoseRegressor):
 
     def _unlabelled(self):
         """(hull planes, gauge) of an unlabelled keypoint net (:mod:`.unlabelled`), else None."""
-        if not getattr(self.net, "unlabelled", False):
-            return None
-        return self.net.planes.cpu().numpy(), [int(g) for g in self.net.gauge.cpu()]
+        return self.net.pnp_geometry() if getattr(self.net, "unlabelled", False) else None
 
     def configure(self, **changes) -> None:
         """Change run-time options (:meth:`KeypointOptions.run_time`: passes, turns, ...) of this loaded

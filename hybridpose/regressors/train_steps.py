@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..geometry import Pose
+from ..geometry import Pose, quat_wxyz_to_matrix
 from .calibration import keypoint_pnp_batch
-from ..geometry import quat_wxyz_to_matrix
 from .keypoint_net import HEATMAP_STRIDE, keypoint_loss
 from .unlabelled import focal_loss, heatmap_targets, visible_keypoints
 from .losses import pose_loss, quat_geodesic_angle

@@ -142,6 +142,11 @@ def detections(uv: np.ndarray, score: np.ndarray, threshold: float = DETECTION_T
     return np.asarray(uv, dtype=np.float64)[np.asarray(score) >= threshold]
 
 
+def _pixels(cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(..., 2) pixels of camera-frame points (..., 3) in front of the camera (pinhole ``K``, no skew)."""
+    return cam[..., :2] / cam[..., 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+
+
 def _assignments(n_keypoints: int, gauge) -> np.ndarray:
     """(A, 3) ordered keypoint triples whose first entry is in ``gauge``."""
     return np.array([(a, b, c) for a in gauge for b in range(n_keypoints) for c in range(n_keypoints)
@@ -208,7 +213,7 @@ def _best_of_triple(det, tri, pts, planes, labels, K, threshold_px):
     if not ahead.any():
         return None
     R, t, cam = R[ahead], t[ahead], cam[ahead]
-    uv = cam[..., :2] / cam[..., 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+    uv = _pixels(cam, K)
     vis = visible_keypoints(planes, R, t)                                        # (P, N)
     dist = np.linalg.norm(det[None, :, None] - uv[:, None], axis=3)              # (P, M, N)
     dist[~np.broadcast_to(vis[:, None], dist.shape)] = np.inf
@@ -227,7 +232,7 @@ def _refined(det, pts, planes, K, R, t, threshold_px, min_inliers) -> PnPResult 
     rvec, tvec = cv2.Rodrigues(R)[0], t.reshape(3, 1).copy()
     pose = Pose(R, t)
     for _ in range(2):
-        pairs = _matches(det, pts, planes, K, pose, threshold_px)
+        pairs, _ = _matches(det, pts, planes, K, pose, threshold_px)
         if len(pairs) < min_inliers:
             return None
         d, k = det[pairs[:, 0]], pts[pairs[:, 1]]
@@ -235,7 +240,7 @@ def _refined(det, pts, planes, K, R, t, threshold_px, min_inliers) -> PnPResult 
         pose = Pose.from_rotvec_t(rvec.ravel(), tvec.ravel())
         if pose.t[2] <= 0:
             return None
-    pairs = _matches(det, pts, planes, K, pose, threshold_px)
+    pairs, vis = _matches(det, pts, planes, K, pose, threshold_px)
     if len(pairs) < min_inliers:
         return None
     inliers = np.zeros(len(pts), bool)
@@ -243,18 +248,18 @@ def _refined(det, pts, planes, K, R, t, threshold_px, min_inliers) -> PnPResult 
     uv, J = projection_jacobian(pose, pts[pairs[:, 1]], K)
     rms = float(np.sqrt(np.mean(np.sum((uv - det[pairs[:, 0]]) ** 2, 1))))
     J = J.reshape(-1, 6)
-    vis = visible_keypoints(planes, pose.R, pose.t) | inliers
-    return PnPResult(pose=pose, inliers=inliers, rms_px=rms, information=J.T @ J, visible=vis)
+    return PnPResult(pose=pose, inliers=inliers, rms_px=rms, information=J.T @ J, visible=vis | inliers)
 
 
-def _matches(det, pts, planes, K, pose: Pose, threshold_px) -> np.ndarray:
-    """(L, 2) int pairs (detection, keypoint): each visible keypoint to its nearest detection within
-    ``threshold_px``, nearest pairs first, each detection and keypoint used once."""
+def _matches(det, pts, planes, K, pose: Pose, threshold_px) -> tuple[np.ndarray, np.ndarray]:
+    """((L, 2) int pairs (detection, keypoint), (N,) keypoints visible at ``pose``): each visible
+    keypoint to its nearest detection within ``threshold_px``, nearest pairs first, each detection
+    and keypoint used once."""
     cam = pts @ pose.R.T + pose.t
-    if np.any(cam[:, 2] <= 1e-6):
-        return np.zeros((0, 2), np.int64)
-    uv = cam[:, :2] / cam[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
     vis = visible_keypoints(planes, pose.R, pose.t)
+    if np.any(cam[:, 2] <= 1e-6):
+        return np.zeros((0, 2), np.int64), vis
+    uv = _pixels(cam, K)
     d = np.linalg.norm(det[:, None] - uv[None], axis=2)
     d[:, ~vis] = np.inf
     pairs, used_d, used_k = [], set(), set()
@@ -267,4 +272,4 @@ def _matches(det, pts, planes, K, pose: Pose, threshold_px) -> np.ndarray:
         pairs.append((i, j))
         used_d.add(i)
         used_k.add(j)
-    return np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2), vis

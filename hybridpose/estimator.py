@@ -9,7 +9,8 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
                           └──────────────────── reinit ◀──two CNN answers agree
 
 - **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker,
-  started from the CNN pose, confirms it (not lost); the tracker's fit starts the fusion.
+  started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
+  error), confirms it (not lost); the tracker's fit starts the fusion.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
   gated (Mahalanobis) and fused. Every ``check_period`` frames the CNN runs on a crop around the
   predicted projection, and the tracker fits the edges from the CNN pose too. The check disagrees
@@ -92,6 +93,13 @@ class HybridConfig:
         start_quality: a CNN pose starts (or restarts) the track only where the tracker's fit from
             it reaches this quality: the fits from wrong CNN poses that the edges still hold land at
             0.4–0.6, right ones mostly above 0.65 (chosen on the tuning seeds: docs/decisions.md).
+        start_depth_step, start_depth_span: a CNN pose's largest error in the image is its depth (a few
+            % of the distance: at 0.35 m, 40 px where the edge search reaches 12; the edge fit
+            converges from about ±2 %). Where the fit from the CNN pose falls short of
+            ``start_quality`` at initialisation, the CNN pose slid along its viewing ray by whole steps
+            of ``start_depth_step`` (relative distance), up to ``start_depth_span`` either way and
+            nearest first, is tried; the first fit to reach ``start_quality`` and beat the fit from
+            the CNN pose by ``switch_quality_margin`` starts the track (0: the CNN pose only).
         restart_unconfirmed: when checks disagree with the track and the tracker started from the
             CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
             lost until the CNN and the edges agree again (False: such restarts were wrong in every
@@ -119,6 +127,8 @@ class HybridConfig:
     probation_frames: int = 1
     check_on_rejection: bool = True
     start_quality: float = 0.62
+    start_depth_step: float = 0.03
+    start_depth_span: float = 0.12
     restart_unconfirmed: bool = False
 
     def __post_init__(self) -> None:
@@ -137,6 +147,9 @@ class HybridConfig:
             raise ValueError(f"start_quality: expected a tracker quality in [0, 1], got {self.start_quality}")
         if not 0 <= self.switch_quality_margin <= 1:
             raise ValueError(f"switch_quality_margin: expected a quality difference in [0, 1], got {self.switch_quality_margin}")
+        if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:
+            raise ValueError(f"start_depth_step, start_depth_span: expected relative distances in [0, 1), got "
+                             f"{self.start_depth_step}, {self.start_depth_span}")
         if not 0 <= self.check_roi_margin <= 2:
             raise ValueError(f"check_roi_margin: expected a fraction in [0, 2], got {self.check_roi_margin}")
 
@@ -251,7 +264,7 @@ class HybridEstimator:
     # --- the three states --------------------------------------------------------------------------
     def _initialise(self, frame: Frame, timings: dict) -> Estimate:
         m = self._cnn(frame, None, timings)
-        fit = self._confirmed(frame, m, timings)
+        fit = self._confirmed(frame, m, timings, depth_search=True)
         if fit is None:
             return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status="init")
         self._restart(frame, fit, timings)
@@ -354,17 +367,41 @@ class HybridEstimator:
         self._n.last_cnn = self._cnn(frame, None, timings)
         return self._estimate("lost", ())
 
-    def _confirmed(self, frame: Frame, m: Measurement, timings: dict) -> Measurement | None:
-        """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found
-        nothing or the tracker, started there, is lost (the model's edges do not match the image)."""
+    def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
+        """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing
+        or the fit does not reach ``start_quality`` (the model's edges do not match the image).
+
+        With ``depth_search``, where the fit from ``m`` falls short, the fits from ``m`` slid along its
+        viewing ray (:meth:`_starts`, nearest first) are tried: the first one to reach
+        ``start_quality`` and beat the fit from ``m`` by ``switch_quality_margin`` is taken (every
+        extra try is another chance for a wrong pose to pass the threshold: the image must decide)."""
         if m.pose is None:
             return None
-        try:
-            self._timed(timings, "tracker", self.tracker.init, frame, m.pose)
-        except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
-            return None
-        fit = self._track_from(frame, m.pose, timings)
-        return None if fit.lost or fit.quality < self.config.start_quality else fit
+        starts = self._starts(m.pose) if depth_search else [m.pose]
+        first_quality = None
+        for start in starts:
+            try:
+                self._timed(timings, "tracker", self.tracker.init, frame, start)
+            except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
+                fit = None
+            else:
+                fit = self._track_from(frame, start, timings)
+            quality = 0.0 if fit is None or fit.lost else fit.quality
+            if first_quality is None:
+                first_quality, bar = quality, self.config.start_quality
+                bar_shifted = max(bar, quality + self.config.switch_quality_margin)
+            if quality >= bar:
+                return fit
+            bar = bar_shifted
+        return None
+
+    def _starts(self, pose: Pose) -> list[Pose]:
+        """``pose``, then ``pose`` with its distance scaled by 1 ± k·``start_depth_step`` (k = 1, 2, …,
+        up to ``start_depth_span``), nearest first."""
+        step, span = self.config.start_depth_step, self.config.start_depth_span
+        k_max = int(span / step + 1e-9) if step > 0 else 0
+        factors = [1.0] + [1.0 + sign * k * step for k in range(1, k_max + 1) for sign in (-1, 1)]
+        return [pose if f == 1.0 else Pose(pose.R, pose.t * f) for f in factors]
 
     @staticmethod
     def _tracker_twist(previous: Measurement | None, m: Measurement) -> np.ndarray | None:

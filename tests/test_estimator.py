@@ -167,6 +167,41 @@ def test_a_start_needs_an_edge_fit_of_start_quality():
         HybridConfig(start_quality=1.5)
 
 
+class DepthBasinTracker(ScriptedTracker):
+    """Converges on the truth only from a start within 2 % of its distance (the edge fit's basin in
+    depth); lost from anywhere else."""
+
+    def track(self, frame, prior=None):
+        if abs(np.linalg.norm(prior.t) / np.linalg.norm(truth(frame.index).t) - 1) > 0.02:
+            return Measurement(None, np.eye(6), 0.2, "tracker:scripted", frame.timestamp)
+        return super().track(frame, prior)
+
+
+class FarRegressor(OracleRegressor):
+    """The truth's direction, 7 % too far (a CNN's typical depth error)."""
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return Measurement(Pose(m.pose.R, m.pose.t * 1.07), m.covariance, m.quality, m.source, m.timestamp)
+
+
+def test_a_start_searches_the_cnn_depth_along_the_viewing_ray():
+    """A CNN pose 7 % too far lies outside the tracker's basin; the start slid along its viewing ray
+    by whole ``start_depth_step`` steps finds the basin on the first frame (off: never)."""
+    est = HybridEstimator(DepthBasinTracker(), FarRegressor(), registry.create("fusion", "ukf"), HybridConfig())
+    first = run(est, 1)[0]
+    assert first.pose is not None and est.status == "tracking"
+    assert abs(np.linalg.norm(first.pose.t) - np.linalg.norm(truth(0).t)) < 0.002
+    off = HybridEstimator(DepthBasinTracker(), FarRegressor(), registry.create("fusion", "ukf"),
+                          HybridConfig(start_depth_step=0.0))
+    assert all(e.pose is None for e in run(off, 5))
+    narrow = HybridEstimator(DepthBasinTracker(), FarRegressor(), registry.create("fusion", "ukf"),
+                             HybridConfig(start_depth_span=0.03))
+    assert all(e.pose is None for e in run(narrow, 5))
+    with pytest.raises(ValueError, match="start_depth_step"):
+        HybridConfig(start_depth_step=-0.1)
+
+
 def test_a_single_cnn_outlier_is_ignored():
     est = HybridEstimator(ScriptedTracker(), OracleRegressor(outliers={10}), registry.create("fusion", "ukf"),
                           HybridConfig(check_period=10, confirm_checks=2))

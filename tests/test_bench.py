@@ -10,7 +10,7 @@ from hybridpose.cli import main
 
 ROW_FIELDS = {"sequence", "mode", "tracker", "regressor", "fusion", "frames", "rot_mean_deg", "rot_median_deg",
               "trans_mean_m", "trans_mean_pct", "add_recall", "silent_failures", "frames_lost", "recover_frames_max",
-              "ms_per_frame", "cnn_calls_per_100"}
+              "ms_per_frame", "ms_tracker", "ms_regressor", "ms_fusion", "cnn_calls_per_100"}
 
 
 def test_seed_splits_never_overlap_and_suites_are_what_they_say():
@@ -49,10 +49,17 @@ def test_smoke_suite_writes_results_report_and_plots(smoke):
     assert all(r["cnn_calls_per_100"] == 100.0 for r in by_mode["cnn"])
     assert all(r["cnn_calls_per_100"] == 0.0 for r in by_mode["tracker"])
     assert all(r["cnn_calls_per_100"] <= 100.0 for r in by_mode["hybrid"])
+    # the components' shares never exceed the frame's wall time; each mode spends on its own parts
+    for r in rows:
+        assert r["ms_tracker"] + r["ms_regressor"] + r["ms_fusion"] <= r["ms_per_frame"] * 1.001
+    assert all(r["ms_regressor"] == 0.0 and r["ms_tracker"] > 0 for r in by_mode["tracker"])
+    assert all(r["ms_tracker"] == 0.0 and r["ms_regressor"] > 0 for r in by_mode["cnn"])
+    assert all(r["ms_tracker"] > 0 and r["ms_regressor"] > 0 for r in by_mode["hybrid"])
     assert np.nanmedian([r["rot_median_deg"] for r in by_mode["hybrid"]]) < 5.0
     report = (out / "report.md").read_text()
     assert "Targets for `hybrid (edges+default+ukf)`" in report and "| tracker (edges) |" in report
     assert "Targets for `tracker (edges)` (from the true first pose" in report
+    assert "| run | tracker ms | CNN ms | fusion ms |" in report
     assert (out / "error_vs_distance.png").stat().st_size > 1000 and (out / "speed_accuracy.png").is_file()
 
 
@@ -85,8 +92,8 @@ def test_ray_gives_the_local_results(smoke, tmp_path):
                  "--out", str(out), "--cache", str(smoke / "cache")]) == 0
     local = {(r["sequence"], r["label"]): r for r in json.loads((smoke / "out" / "results.json").read_text())["rows"]}
     for r in json.loads((out / "results.json").read_text())["rows"]:
-        mine = {k: v for k, v in r.items() if k not in ("ms_per_frame", "code")}
-        theirs = {k: v for k, v in local[(r["sequence"], r["label"])].items() if k not in ("ms_per_frame", "code")}
+        mine = {k: v for k, v in r.items() if not k.startswith("ms_") and k != "code"}
+        theirs = {k: v for k, v in local[(r["sequence"], r["label"])].items() if not k.startswith("ms_") and k != "code"}
         assert mine == theirs
 
 

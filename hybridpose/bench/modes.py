@@ -27,6 +27,7 @@ RECOVERED_DEG = 2.0  # recovery: rotation error back below this (and a trusted p
 CLEAR = 0.9  # a frame this visible is clear: flagging it lost at a good pose is a false alarm
 GOOD_DEG = 2.0
 BASIN_DEG, BASIN_PCT = 10.0, 5.0  # a pose this close starts a tracker that converges (its basin)
+COMPONENTS = ("tracker", "regressor", "fusion")  # the parts of a frame's cost reported apart
 NEES_90 = 10.645  # 90 % point of χ²₆: a calibrated covariance holds 90 % of the errors inside it
 
 
@@ -44,7 +45,8 @@ class FrameRecord:
     """What a mode said about one frame: ``pose`` (None when it said nothing), ``trusted`` (False when
     it flagged the object lost), milliseconds, CNN calls made for this frame, the hybrid's status,
     the (6, 6) covariance of ``pose``, and ``raw_pose``: the pose it would have given had it not
-    flagged the frame (the tracker's solver pose, the hybrid's prediction), to tell false alarms."""
+    flagged the frame (the tracker's solver pose, the hybrid's prediction), to tell false alarms;
+    ``ms_parts``: milliseconds per component (``"tracker"``, ``"regressor"``, ``"fusion"``)."""
 
     pose: Pose | None
     trusted: bool
@@ -53,6 +55,7 @@ class FrameRecord:
     status: str = ""
     covariance: np.ndarray | None = None
     raw_pose: Pose | None = None
+    ms_parts: dict | None = None
 
 
 def load_sequence(scene_dir) -> list[SequenceFrame]:
@@ -77,12 +80,15 @@ def run_tracker(seq: list[SequenceFrame], tracker) -> list[FrameRecord]:
     first = seq[0]
     t0 = time.perf_counter()
     tracker.init(first.frame, first.truth)
-    records = [FrameRecord(first.truth, True, 1000 * (time.perf_counter() - t0), raw_pose=first.truth)]
+    ms = 1000 * (time.perf_counter() - t0)
+    records = [FrameRecord(first.truth, True, ms, raw_pose=first.truth, ms_parts={"tracker": ms})]
     for s in seq[1:]:
         t0 = time.perf_counter()
         m = tracker.track(s.frame)
-        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0), covariance=m.covariance,
-                                   raw_pose=getattr(tracker, "pose", None) if m.lost else m.pose))
+        ms = 1000 * (time.perf_counter() - t0)
+        records.append(FrameRecord(m.pose, not m.lost, ms, covariance=m.covariance,
+                                   raw_pose=getattr(tracker, "pose", None) if m.lost else m.pose,
+                                   ms_parts={"tracker": ms}))
     return records
 
 
@@ -92,8 +98,9 @@ def run_cnn(seq: list[SequenceFrame], regressor) -> list[FrameRecord]:
     for s in seq:
         t0 = time.perf_counter()
         m = regressor.predict(s.frame)
-        records.append(FrameRecord(m.pose, not m.lost, 1000 * (time.perf_counter() - t0), cnn_calls=1,
-                                   covariance=m.covariance))
+        ms = 1000 * (time.perf_counter() - t0)
+        records.append(FrameRecord(m.pose, not m.lost, ms, cnn_calls=1, covariance=m.covariance,
+                                   ms_parts={"regressor": ms}))
     return records
 
 
@@ -111,8 +118,9 @@ def run_hybrid(seq: list[SequenceFrame], estimator) -> list[FrameRecord]:
 def hybrid_record(e, cnn_calls: int) -> FrameRecord:
     """The record of one hybrid :class:`~hybridpose.core.Estimate` (``cnn_calls`` made for its frame):
     trusted unless lost or without a pose; its pose is also the raw pose (the prediction when lost)."""
+    parts = {k: v for k, v in e.timings_ms.items() if k in COMPONENTS}
     return FrameRecord(e.pose, e.status != "lost" and e.pose is not None, e.timings_ms["total"], cnn_calls=cnn_calls,
-                       status=e.status, covariance=e.covariance, raw_pose=e.pose)
+                       status=e.status, covariance=e.covariance, raw_pose=e.pose, ms_parts=parts)
 
 
 def trusted_errors_deg(seq: list[SequenceFrame], records: list[FrameRecord], symmetries=()) -> list[float | None]:
@@ -144,8 +152,10 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     than 10° off. ``false_alarms``: frames at least ``CLEAR`` visible flagged lost although the pose
     the mode had (``raw_pose``) was within ``GOOD_DEG`` (out of ``clear_good_frames``).
     ``nees_coverage90``: share of the trusted half-visible frames whose error lies inside the 90 %
-    ellipsoid of the reported covariance (0.9 when calibrated). ``recover_frames``: after each full occlusion, the frames from the first frame the
-    object is half visible again until a trusted pose within ``RECOVERED_DEG`` (None: never).
+    ellipsoid of the reported covariance (0.9 when calibrated). ``recover_frames``: after each full
+    occlusion, the frames from the first frame the object is half visible again until a trusted pose
+    within ``RECOVERED_DEG`` (None: never). ``ms_per_frame``: mean wall time of a frame;
+    ``ms_tracker``, ``ms_regressor``, ``ms_fusion``: its mean share per component.
     """
     rot, trans, pct, speed, add_err, silent, covered_bad, lost = [], [], [], [], [], 0, 0, 0
     in_basin, edge_px = 0, []
@@ -221,6 +231,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         "recover_frames": recover,
         "recover_frames_max": max((n for n in recover if n is not None), default=None),
         "ms_per_frame": float(np.mean([r.ms for r in records])),
+        **{f"ms_{part}": float(np.mean([(r.ms_parts or {}).get(part, 0.0) for r in records])) for part in COMPONENTS},
         "cnn_calls_per_100": 100.0 * sum(r.cnn_calls for r in records) / len(records),
     }
 

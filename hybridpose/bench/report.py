@@ -55,6 +55,20 @@ def table(summary: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def cost_table(summary: dict[str, dict]) -> str:
+    """Milliseconds per frame by component (the rest: the policy, image checks, bookkeeping) and CNN
+    calls, one line per run."""
+    lines = ["| run | tracker ms | CNN ms | fusion ms | rest ms | total ms/frame | CNN calls / 100 fr. | CNN ms / call |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, s in summary.items():
+        parts = [s.get(f"ms_{p}", float("nan")) for p in ("tracker", "regressor", "fusion")]
+        rest = s["ms_per_frame"] - float(np.nansum(parts)) if np.any(np.isfinite(parts)) else float("nan")
+        per_call = parts[1] / (s["cnn_calls_per_100"] / 100) if s["cnn_calls_per_100"] > 0 else float("nan")
+        lines.append(f"| {name} | " + " | ".join(_f(x, "{:.1f}") for x in (*parts, rest, s["ms_per_frame"]))
+                     + f" | {_f(s['cnn_calls_per_100'], '{:.0f}')} | {_f(per_call, '{:.1f}')} |")
+    return "\n".join(lines)
+
+
 def _first(summary: dict[str, dict], mode: str) -> tuple[str, dict] | None:
     for name, s in summary.items():
         if name.startswith(mode + " "):
@@ -180,6 +194,10 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
         table(headline),
         "",
         targets(headline),
+        "",
+        "Cost per frame by component (one thread per process, 640×480):",
+        "",
+        cost_table(headline),
         "",
         tracker_targets(rows, cfg["runs"]),
         "",

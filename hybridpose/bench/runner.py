@@ -250,6 +250,11 @@ def _nanmedian(values) -> float:
     return float(np.nanmedian(values)) if np.any(np.isfinite(values)) else float("nan")
 
 
+def _nanmean(values) -> float:
+    values = np.asarray(values, dtype=float)
+    return float(np.nanmean(values)) if np.any(np.isfinite(values)) else float("nan")
+
+
 def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["label"]) -> dict[str, dict]:
     """Spread over sequences per group (default: per spec label): the median / p90 / worst of each
     sequence's mean rotation error, pooled means, totals of silent failures and of covered frames
@@ -260,7 +265,6 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
         mean_rot = np.array([r["rot_mean_deg"] for r in rs])
         rec = [n for r in rs for n in r["recover_frames"]]
         finite = mean_rot[np.isfinite(mean_rot)]
-        nan_if_empty = (lambda xs: float(np.nanmean(xs)) if np.any(np.isfinite(xs)) else float("nan"))
         edge_px = np.array([r.get("edge_px_median", np.nan) for r in rs])
         out[key] = {
             "sequences": len(rs),
@@ -273,18 +277,18 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "seq_rot_median_p90_deg": float(np.nanpercentile([r["rot_median_deg"] for r in rs], 90)) if finite.size
             else float("nan"),
             "seq_trans_median_median_pct": _nanmedian([r.get("trans_median_pct", np.nan) for r in rs]),
-            "trans_mean_m": nan_if_empty(np.array([r["trans_mean_m"] for r in rs])),
-            "trans_mean_pct": nan_if_empty(np.array([r["trans_mean_pct"] for r in rs])),
-            "speed_mean": nan_if_empty(np.array([r["speed_mean"] for r in rs])),
-            "in_basin": nan_if_empty(np.array([r.get("in_basin", np.nan) for r in rs])),
+            "trans_mean_m": _nanmean(np.array([r["trans_mean_m"] for r in rs])),
+            "trans_mean_pct": _nanmean(np.array([r["trans_mean_pct"] for r in rs])),
+            "speed_mean": _nanmean(np.array([r["speed_mean"] for r in rs])),
+            "in_basin": _nanmean(np.array([r.get("in_basin", np.nan) for r in rs])),
             "edge_px_median": float(np.nanmedian(edge_px)) if np.any(np.isfinite(edge_px)) else float("nan"),
-            "add_recall": nan_if_empty(np.array([r.get("add_recall", np.nan) for r in rs])),
-            "add_auc": nan_if_empty(np.array([r.get("add_auc", np.nan) for r in rs])),
+            "add_recall": _nanmean(np.array([r.get("add_recall", np.nan) for r in rs])),
+            "add_auc": _nanmean(np.array([r.get("add_auc", np.nan) for r in rs])),
             "coverage": float(np.mean([r["coverage"] for r in rs])),
             "silent_failures": int(sum(r["silent_failures"] for r in rs)),
             "false_alarm_pct": 100.0 * sum(r.get("false_alarms", 0) for r in rs)
             / max(sum(r.get("clear_good_frames", 0) for r in rs), 1),
-            "nees_coverage90": nan_if_empty(np.array([r.get("nees_coverage90", np.nan) for r in rs])),
+            "nees_coverage90": _nanmean(np.array([r.get("nees_coverage90", np.nan) for r in rs])),
             "frames": int(sum(r["frames"] for r in rs)),
             "frames_lost": int(sum(r["frames_lost"] for r in rs)),
             "covered_tracking_10deg": int(sum(r["covered_tracking_10deg"] for r in rs)),
@@ -292,6 +296,7 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "recover_never": sum(n is None for n in rec),
             "recover_frames_max": max((n for n in rec if n is not None), default=None),
             "ms_per_frame": float(np.mean([r["ms_per_frame"] for r in rs])),
+            **{key: _nanmean([r.get(key, np.nan) for r in rs]) for key in ("ms_tracker", "ms_regressor", "ms_fusion")},
             "cnn_calls_per_100": float(np.mean([r["cnn_calls_per_100"] for r in rs])),
         }
     return out

@@ -1,0 +1,110 @@
+"""``HybridConfig``: every threshold of the hybrid policy (:mod:`hybridpose.estimator`), each default
+chosen on the tuning seeds of the suites (``hybridpose bench --split tuning``; evidence in
+``docs/decisions.md``)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .fusion.base import DEFAULT_GATE_CHI2
+
+
+@dataclass(frozen=True)
+class HybridConfig:
+    """The hybrid policy's parameters.
+
+    Attributes:
+        check_period: frames between CNN checks while tracking (0: never check).
+        disagreement_chi2: squared Mahalanobis distance (fused pose vs CNN pose, both covariances)
+            above which a CNN check disagrees.
+        confirm_checks: consecutive disagreeing checks that re-initialise from the CNN (1: trust
+            every check; 2 or more: a single CNN outlier is ignored).
+        lost_after_rejections: consecutive tracker measurements refused by the fusion's gate that
+            declare the object lost.
+        unstable_window, settle_frames: a restart within ``unstable_window`` frames of the previous
+            one marks the next ``settle_frames`` frames ``lost`` (pose given, not to be trusted): the CNN
+            and the edges keep agreeing on poses that do not hold, a view both get wrong (0: off).
+        tracker_resumes: while lost, the tracker also tries every frame from the fusion's
+            prediction and takes up again by itself when its fit is not lost and passes the gate
+            (the honest quality keeps it from taking up on the arm); False: only the CNN restarts it.
+        lost_after_tracker_losses: consecutive frames the tracker reports lost that declare the
+            object lost (before that the estimate coasts on the fusion's prediction).
+        reacquire_chi2: squared Mahalanobis distance below which two consecutive CNN answers agree
+            while lost (both covariances, plus the motion possible in between).
+        lost_check_period: frames between CNN answers while lost (1: every frame). Under a long
+            occlusion the CNN finds nothing frame after frame; asking it less often is most of the
+            hybrid's saving over CNN-only, at up to that many frames' delay in recovering.
+        check_roi_margin: the CNN check's crop is the box of the object's projection at the
+            predicted pose, grown by this fraction on each side.
+        probation_frames: after every (re)initialisation the CNN checks each of the next this-many
+            frames: a fresh start is the least certain moment (an end-for-end twin that the edges fit
+            as well as the truth, a start as the object comes out from behind the arm).
+        check_below_quality: a tracker measurement of lower quality calls a CNN check at once,
+            whatever ``check_period`` says (0: never). A tracker that slid onto a wrong pose still
+            reports 0.6–0.75 where a right one reports 0.8 and more: the check it calls lets the
+            edges started from the CNN pose show the better fit.
+        switch_quality_margin: at a check, the tracker also fits the model edges from the CNN pose;
+            when that fit lands elsewhere (``disagreement_chi2``) and its quality beats the current
+            track's by this margin, the check disagrees even where the CNN's own covariance is too
+            wide to tell (the image's edges decide between the two poses).
+        start_quality: a CNN pose starts (or restarts) the track only where the tracker's fit from
+            it reaches this quality: the fits from wrong CNN poses that the edges still hold land at
+            0.4–0.6, right ones mostly above 0.65 (chosen on the tuning seeds: docs/decisions.md).
+        start_depth_step, start_depth_span: a CNN pose's largest error in the image is its depth (a few
+            % of the distance: at 0.35 m, 40 px where the edge search reaches 12; the edge fit
+            converges from about ±2 %). Where the fit from the CNN pose falls short of
+            ``start_quality`` at initialisation, the CNN pose slid along its viewing ray by whole steps
+            of ``start_depth_step`` (relative distance), up to ``start_depth_span`` either way and
+            nearest first, is tried; the first fit to reach ``start_quality`` and beat the fit from
+            the CNN pose by ``switch_quality_margin`` starts the track (0: the CNN pose only).
+        restart_unconfirmed: when checks disagree with the track and the tracker started from the
+            CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
+            lost until the CNN and the edges agree again (False: such restarts were wrong in every
+            case on the tuning seeds).
+        check_on_rejection: a tracker measurement refused by the gate calls a CNN check at once; when
+            the CNN pose and the edge fit started from it both agree with the refused measurement
+            (``disagreement_chi2``), the motion model was wrong, not the tracker (a sudden change
+            of motion): the fusion starts over from the tracker's pose, with the twist between its
+            last two poses, and tracking goes on.
+    """
+
+    check_period: int = 10
+    disagreement_chi2: float = DEFAULT_GATE_CHI2  # the 99.9 % point of χ²₆
+    confirm_checks: int = 2
+    lost_after_rejections: int = 3
+    lost_after_tracker_losses: int = 1
+    tracker_resumes: bool = True
+    unstable_window: int = 20
+    settle_frames: int = 0
+    reacquire_chi2: float = DEFAULT_GATE_CHI2
+    lost_check_period: int = 1
+    check_roi_margin: float = 0.15
+    switch_quality_margin: float = 0.05
+    check_below_quality: float = 0.7
+    probation_frames: int = 1
+    check_on_rejection: bool = True
+    start_quality: float = 0.62
+    start_depth_step: float = 0.03
+    start_depth_span: float = 0.12
+    restart_unconfirmed: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("check_period", "probation_frames", "unstable_window", "settle_frames"):
+            v = getattr(self, name)
+            if int(v) != v or v < 0:
+                raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")
+        for name in ("confirm_checks", "lost_after_rejections", "lost_check_period", "lost_after_tracker_losses"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{name}: expected a whole number ≥ 1, got {v}")
+        for name in ("disagreement_chi2", "reacquire_chi2"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
+        if not 0 <= self.start_quality <= 1:
+            raise ValueError(f"start_quality: expected a tracker quality in [0, 1], got {self.start_quality}")
+        if not 0 <= self.switch_quality_margin <= 1:
+            raise ValueError(f"switch_quality_margin: expected a quality difference in [0, 1], got {self.switch_quality_margin}")
+        if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:
+            raise ValueError(f"start_depth_step, start_depth_span: expected relative distances in [0, 1), got "
+                             f"{self.start_depth_step}, {self.start_depth_span}")
+        if not 0 <= self.check_roi_margin <= 2:
+            raise ValueError(f"check_roi_margin: expected a fraction in [0, 2], got {self.check_roi_margin}")

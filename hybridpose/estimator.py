@@ -35,6 +35,7 @@ suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).
 """
 from __future__ import annotations
 
+import inspect
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -88,6 +89,11 @@ class HybridEstimator:
         if not isinstance(self.config, HybridConfig):
             raise TypeError(f"config: expected a HybridConfig, got {type(config).__name__}")
         self.object: ObjectModel | None = getattr(tracker, "object", None)
+        # a tracker whose track() takes search_px searches further from a CNN pose than frame to frame
+        try:
+            self._widens = "search_px" in inspect.signature(tracker.track).parameters
+        except (TypeError, ValueError):
+            self._widens = False
         self.regressor_calls = 0  # since construction: the CNN's share of the work
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.reset()
@@ -198,7 +204,7 @@ class HybridEstimator:
             c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings)
             if c.pose is not None:
                 far = _mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
-                fit = self._track_from(frame, c.pose, timings)
+                fit = self._track_from(frame, c.pose, timings, self._cnn_search_px())
                 if rejected and self.config.check_on_rejection and self._vouched(m, c, fit):
                     # the edges from the CNN pose land on the refused measurement: the motion model
                     # was wrong, not the tracker; start the fusion over from the tracker
@@ -282,7 +288,7 @@ class HybridEstimator:
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 fit = None
             else:
-                fit = self._track_from(frame, start, timings)
+                fit = self._track_from(frame, start, timings, self._cnn_search_px())
             quality = 0.0 if fit is None or fit.lost else fit.quality
             if first_quality is None:
                 first_quality, bar = quality, self.config.start_quality
@@ -318,13 +324,21 @@ class HybridEstimator:
         return (fit.pose is not None and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= chi2
                 and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
 
-    def _track_from(self, frame: Frame, start: Pose, timings: dict) -> Measurement:
-        """The tracker's measurement searched from ``start``; lost where the tracker refuses that start
-        (a prediction coasting while lost can leave the view or pass behind the camera)."""
+    def _track_from(self, frame: Frame, start: Pose, timings: dict, search_px: float | None = None) -> Measurement:
+        """The tracker's measurement searched from ``start`` (up to ``search_px`` pixels away where the
+        tracker can widen its search); lost where the tracker refuses that start (a prediction coasting
+        while lost can leave the view or pass behind the camera)."""
         try:
-            return self._timed(timings, "tracker", self.tracker.track, frame, start)
+            if search_px is None:
+                return self._timed(timings, "tracker", self.tracker.track, frame, start)
+            return self._timed(timings, "tracker", lambda: self.tracker.track(frame, start, search_px=search_px))
         except ValueError:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
+
+    def _cnn_search_px(self) -> float | None:
+        """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` where the tracker can widen
+        its search, else None (its own range)."""
+        return self.config.cnn_search_px if self._widens and self.config.cnn_search_px > 0 else None
 
     def _restart(self, frame: Frame, m: Measurement, timings: dict, twist: np.ndarray | None = None) -> None:
         """Fusion and tracker start over from ``m``, the tracker's fit from a CNN pose, with body twist

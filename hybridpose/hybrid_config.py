@@ -56,6 +56,10 @@ class HybridConfig:
             of ``start_depth_step`` (relative distance), up to ``start_depth_span`` either way and
             nearest first, is tried; the first fit to reach ``start_quality`` and beat the fit from
             the CNN pose by ``switch_quality_margin`` starts the track (0: the CNN pose only).
+        cnn_search_px: how far (px) a tracker fit started from a CNN pose (a start, a check) searches
+            for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
+            0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
+            the previous frame's pose does.
         restart_unconfirmed: when checks disagree with the track and the tracker started from the
             CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
             lost until the CNN and the edges agree again (False: such restarts were wrong in every
@@ -86,6 +90,7 @@ class HybridConfig:
     start_depth_step: float = 0.03
     start_depth_span: float = 0.12
     restart_unconfirmed: bool = False
+    cnn_search_px: float = 12.0
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames"):
@@ -106,5 +111,7 @@ class HybridConfig:
         if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:
             raise ValueError(f"start_depth_step, start_depth_span: expected relative distances in [0, 1), got "
                              f"{self.start_depth_step}, {self.start_depth_span}")
+        if not self.cnn_search_px >= 0:
+            raise ValueError(f"cnn_search_px: expected ≥ 0 pixels, got {self.cnn_search_px}")
         if not 0 <= self.check_roi_margin <= 2:
             raise ValueError(f"check_roi_margin: expected a fraction in [0, 2], got {self.check_roi_margin}")

@@ -202,6 +202,36 @@ def test_a_start_searches_the_cnn_depth_along_the_viewing_ray():
         HybridConfig(start_depth_step=-0.1)
 
 
+class RangeRecordingTracker(ScriptedTracker):
+    """Records the search range it is asked for (a tracker that can widen its search)."""
+
+    def __init__(self, **kw):
+        super().__init__(**kw)
+        self.ranges = []
+
+    def track(self, frame, prior=None, search_px=None):
+        self.ranges.append((frame.index, search_px))
+        return super().track(frame, prior)
+
+
+def test_fits_from_a_cnn_pose_search_further_than_frame_to_frame():
+    """The fit that confirms a CNN start and the fit at each check search ``cnn_search_px``; the
+    frame-to-frame track keeps the tracker's own range; a tracker without ``search_px`` is never asked."""
+    trk = RangeRecordingTracker()
+    est = HybridEstimator(trk, OracleRegressor(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=5, probation_frames=0, cnn_search_px=20))
+    run(est, 11)
+    # the start; then each frame's track from the prediction, and at each check the fit from the CNN pose
+    assert trk.ranges == [(0, 20)] + [(k, None) for k in range(1, 6)] + [(5, 20)] + [(k, None) for k in range(6, 11)] \
+        + [(10, 20)]
+    own = RangeRecordingTracker()
+    run(HybridEstimator(own, OracleRegressor(), registry.create("fusion", "ukf"), HybridConfig(cnn_search_px=0)), 3)
+    assert {r for _, r in own.ranges} == {None}
+    run(HybridEstimator(ScriptedTracker(), OracleRegressor(), registry.create("fusion", "ukf")), 3)  # no search_px
+    with pytest.raises(ValueError, match="cnn_search_px"):
+        HybridConfig(cnn_search_px=-1)
+
+
 def test_a_single_cnn_outlier_is_ignored():
     est = HybridEstimator(ScriptedTracker(), OracleRegressor(outliers={10}), registry.create("fusion", "ukf"),
                           HybridConfig(check_period=10, confirm_checks=2))

@@ -95,9 +95,33 @@ def test_bad_input_gets_clear_errors_and_never_nan(name, truss, tumble):
     frame1, pose1, _ = tumble[1]
     m = trk.track(frame1, prior=pose0)
     assert not m.lost and rotation_error_deg(m.pose, pose1) < 1.0
+    # a wider search from a coarse prior: every backend takes it (one with a fixed range ignores it)
+    m = trk.track(frame1, prior=pose0, search_px=12)
+    assert not m.lost and rotation_error_deg(m.pose, pose1) < 1.0
+    for bad in (0, -3, float("nan")):
+        with pytest.raises(ValueError, match="search_px"):
+            trk.track(frame1, prior=pose0, search_px=bad)
     trk.reset()
     with pytest.raises(RuntimeError, match="before init"):
         trk.track(frame0)
+
+
+def test_a_wider_search_reaches_a_start_beyond_the_frame_to_frame_range(truss, tumble):
+    """Starts 11 px from the truth's projection in twelve directions (beyond ``edges``' frame-to-frame
+    range): a 16-px search (what the hybrid gives a fit from a CNN pose) converges from more of them."""
+    frame, truth, _ = tumble[0]
+    trk = create("tracker", "edges", object=truss)
+    assert trk.search_px < 11
+    converged = {"own range": 0, "16 px": 0}
+    for angle in np.linspace(0, 2 * np.pi, 12, endpoint=False):
+        shift = 11 / frame.camera.fx * truth.t[2] * np.array([np.cos(angle), np.sin(angle), 0.0])
+        start = Pose(truth.R, truth.t + shift)
+        trk.init(frame, start)
+        for key, kwargs in (("own range", {}), ("16 px", {"search_px": 16})):
+            m = trk.track(frame, prior=start, **kwargs)
+            converged[key] += bool(not m.lost and rotation_error_deg(m.pose, truth) < 0.5
+                                   and translation_error_m(m.pose, truth) < 0.002)
+    assert converged["16 px"] >= converged["own range"] + 3, converged
 
 
 def test_edge_trackers_refuse_a_mesh_without_edges():

@@ -50,8 +50,12 @@ class Tracker(ABC):
         self._init(frame, pose)
         self.pose, self.frame = pose, frame
 
-    def track(self, frame: Frame, prior: Pose | None = None) -> Measurement:
+    def track(self, frame: Frame, prior: Pose | None = None, search_px: float | None = None) -> Measurement:
         """Pose in ``frame``, searched around ``prior`` (default: the last pose).
+
+        ``search_px``: how far (pixels) the object may lie from its projection at ``prior`` when that
+        is further than the backend's own frame-to-frame range: a coarse prior such as a CNN pose. A
+        backend with a fixed range ignores it.
 
         Returns a :class:`Measurement` with quality in 0..1. When quality falls below
         ``lost_quality`` or the solve fails, ``lost`` is True and ``pose`` is None (the contract of
@@ -66,8 +70,13 @@ class Tracker(ABC):
         start = self.pose if prior is None else prior
         if prior is not None:
             self._check_pose(prior, "prior")
+        if search_px is not None and not (np.isfinite(search_px) and search_px > 0):
+            raise ValueError(f"search_px: expected a positive number of pixels or None, got {search_px}")
         try:
-            pose, cov, quality = self._track(frame, start)
+            if search_px is None:
+                pose, cov, quality = self._track(frame, start)
+            else:
+                pose, cov, quality = self._track_wide(frame, start, float(search_px))
         except np.linalg.LinAlgError:
             pose, cov, quality = None, None, 0.0
         finite = pose is not None and np.all(np.isfinite(pose.matrix)) and cov is not None and np.all(np.isfinite(cov))
@@ -95,6 +104,10 @@ class Tracker(ABC):
     @abstractmethod
     def _track(self, frame: Frame, start: Pose) -> tuple[Pose | None, np.ndarray | None, float]:
         """(pose, (6, 6) covariance over ``[ω, v]``, quality) in ``frame`` starting from ``start``."""
+
+    def _track_wide(self, frame: Frame, start: Pose, search_px: float) -> tuple[Pose | None, np.ndarray | None, float]:
+        """:meth:`_track` with the search reaching ``search_px`` pixels (default: the backend's own range)."""
+        return self._track(frame, start)
 
     def _accept(self, frame: Frame, pose: Pose | None, quality: float) -> None:
         """Remember the result: the next search starts from the solver's pose, even one below

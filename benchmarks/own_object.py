@@ -1,7 +1,7 @@
 """Your own object, end to end: a CNN fitted to a part nobody trained for, then tracker-only vs CNN-only
 vs hybrid on sequences of it in front of a real photo the fit never saw.
 
-    python benchmarks/own_object.py --out runs/own_object [--budget 40m] [--workers 1]
+    python benchmarks/own_object.py --out runs/own_object [--budget 60m] [--workers 1]
 
 1. writes a plain box mesh (180 × 110 × 70 mm, in millimetres as CAD exports are);
 2. ``hybridpose fit`` for it within ``--budget`` (random lights and colours; backgrounds half
@@ -61,7 +61,7 @@ def hp(*args) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/own_object")
-    ap.add_argument("--budget", default="40m")
+    ap.add_argument("--budget", default="60m")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--results-md", default=str(Path(__file__).parent / "RESULTS.md"))
     ap.add_argument("--train-photos", choices=("skimage", "none"), default="skimage",

@@ -42,6 +42,7 @@ FIT_LR = 1e-3
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
+MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,11 @@ def check_inputs(obj: ObjectModel, camera: Camera, budget_min: float) -> tuple[f
     if obj.diameter > 20.0:
         raise ValueError(f"object: {obj.name} is {obj.diameter:.1f} m across — is the mesh in millimetres? "
                          "pass --scale 0.001")
+    if near < MIN_NEAR_M:
+        raise ValueError(f"object: {obj.name} is {1000 * obj.diameter:.1f} mm across: it would fill this camera's image "
+                         f"only {1000 * near:.0f} mm from the lens (at least {1000 * MIN_NEAR_M:.0f} mm expected) — "
+                         "too small to see; is --scale right (a mesh in millimetres needs --scale 0.001, one in "
+                         "metres none)?")
     if px_far < MIN_OBJECT_PX:
         raise ValueError(f"object: {obj.name} would be {px_far:.0f} px across at {far:.2f} m with this camera; "
                          f"at least {MIN_OBJECT_PX} px are needed")

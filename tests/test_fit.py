@@ -58,6 +58,9 @@ def test_what_cannot_work_is_refused_before_long_work(box_mesh):
         check_inputs(box, cam, 2)
     with pytest.raises(ValueError, match="px across"):
         check_inputs(box, Camera.default().scaled((40, 30)), 60)
+    tiny = load_object(str(box_mesh), scale=0.00001)  # mm read as 10 µm: a 2-mm part
+    with pytest.raises(ValueError, match="too small to see; is --scale right"):
+        check_inputs(tiny, cam, 60)
 
 
 def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tmp_path, capsys):

@@ -271,8 +271,9 @@ class HybridEstimator:
         return self._estimate("lost", ())
 
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
-        """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing
-        or the fit does not reach ``start_quality`` (the model's edges do not match the image).
+        """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing,
+        the fit does not reach ``start_quality`` (the model's edges do not match the image) or it left
+        the CNN pose's uncertainty (``disagreement_chi2``, both covariances: it found something else).
 
         With ``depth_search``, where the fit from ``m`` falls short, the fits from ``m`` slid along its
         viewing ray (:meth:`_starts`, nearest first) are tried: the first one to reach
@@ -293,7 +294,8 @@ class HybridEstimator:
             if first_quality is None:
                 first_quality, bar = quality, self.config.start_quality
                 bar_shifted = max(bar, quality + self.config.switch_quality_margin)
-            if quality >= bar:
+            if quality >= bar and _mahalanobis2(m.pose, m.covariance, fit.pose,
+                                                fit.covariance) <= self.config.disagreement_chi2:
                 return fit
             bar = bar_shifted
         return None

@@ -178,11 +178,12 @@ class DepthBasinTracker(ScriptedTracker):
 
 
 class FarRegressor(OracleRegressor):
-    """The truth's direction, 7 % too far (a CNN's typical depth error)."""
+    """The truth's direction, 7 % too far (a CNN's typical depth error, inside its 3 cm uncertainty)."""
 
     def predict(self, frame, roi=None):
         m = super().predict(frame, roi)
-        return Measurement(Pose(m.pose.R, m.pose.t * 1.07), m.covariance, m.quality, m.source, m.timestamp)
+        cov = np.diag([np.radians(1.0) ** 2] * 3 + [0.03**2] * 3)
+        return Measurement(Pose(m.pose.R, m.pose.t * 1.07), cov, m.quality, m.source, m.timestamp)
 
 
 def test_a_start_searches_the_cnn_depth_along_the_viewing_ray():
@@ -230,6 +231,24 @@ def test_fits_from_a_cnn_pose_search_further_than_frame_to_frame():
     run(HybridEstimator(ScriptedTracker(), OracleRegressor(), registry.create("fusion", "ukf")), 3)  # no search_px
     with pytest.raises(ValueError, match="cnn_search_px"):
         HybridConfig(cnn_search_px=-1)
+
+
+class ElsewhereTracker(ScriptedTracker):
+    """Fits a pose 10° from the truth with full confidence, wherever it starts."""
+
+    def track(self, frame, prior=None):
+        m = super().track(frame, prior)
+        return Measurement(tilt(m.pose, 10.0), m.covariance, m.quality, m.source, m.timestamp)
+
+
+def test_a_start_needs_the_fit_to_stay_with_the_cnn_pose():
+    """A fit that lands outside the CNN pose's uncertainty (``disagreement_chi2``, both covariances)
+    found something else than the CNN did: it confirms nothing and starts nothing."""
+    est = HybridEstimator(ElsewhereTracker(), OracleRegressor(), registry.create("fusion", "ukf"), HybridConfig())
+    assert all(e.pose is None for e in run(est, 4))
+    loose = HybridEstimator(ElsewhereTracker(), OracleRegressor(), registry.create("fusion", "ukf"),
+                            HybridConfig(disagreement_chi2=1e9))
+    assert run(loose, 1)[0].pose is not None
 
 
 def test_a_single_cnn_outlier_is_ignored():

@@ -282,22 +282,20 @@ class HybridEstimator:
         if m.pose is None:
             return None
         starts = self._starts(m.pose) if depth_search else [m.pose]
-        first_quality = None
-        for start in starts:
+        bar = self.config.start_quality
+        for i, start in enumerate(starts):
             try:
                 self._timed(timings, "tracker", self.tracker.init, frame, start)
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 fit = None
             else:
                 fit = self._track_from(frame, start, timings, self._cnn_search_px())
-            quality = 0.0 if fit is None or fit.lost else fit.quality
-            if first_quality is None:
-                first_quality, bar = quality, self.config.start_quality
-                bar_shifted = max(bar, quality + self.config.switch_quality_margin)
-            if quality >= bar and _mahalanobis2(m.pose, m.covariance, fit.pose,
-                                                fit.covariance) <= self.config.disagreement_chi2:
+            found = fit is not None and not fit.lost
+            if (found and fit.quality >= bar
+                    and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2):
                 return fit
-            bar = bar_shifted
+            if i == 0:  # a slid start must beat the fit from the CNN pose itself
+                bar = max(bar, (fit.quality if found else 0.0) + self.config.switch_quality_margin)
         return None
 
     def _starts(self, pose: Pose) -> list[Pose]:

@@ -199,6 +199,10 @@ def test_a_start_searches_the_cnn_depth_along_the_viewing_ray():
     narrow = HybridEstimator(DepthBasinTracker(), FarRegressor(), registry.create("fusion", "ukf"),
                              HybridConfig(start_depth_span=0.03))
     assert all(e.pose is None for e in run(narrow, 5))
+    # a lost fit never starts the track, whatever the quality bar
+    anything = HybridEstimator(DepthBasinTracker(), FarRegressor(), registry.create("fusion", "ukf"),
+                               HybridConfig(start_depth_step=0.0, start_quality=0.0))
+    assert all(e.pose is None for e in run(anything, 3))
     with pytest.raises(ValueError, match="start_depth_step"):
         HybridConfig(start_depth_step=-0.1)
 

@@ -239,7 +239,7 @@ class HybridEstimator:
     def _reacquire(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
         if self.config.tracker_resumes:
-            m = self._track_from(frame, prior.pose, timings, self._cnn_search_px())
+            m = self._track_from(frame, prior.pose, timings)
             self.last_tracker = m
             if not m.lost and self._timed(timings, "fusion", self.fusion.update, m):
                 self.status = "tracking"
@@ -336,8 +336,8 @@ class HybridEstimator:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
 
     def _cnn_search_px(self) -> float | None:
-        """The search range (px) of a fit from a coarse pose (a CNN pose, the prediction while lost):
-        ``cnn_search_px`` where the tracker can widen its search, else None (its own range)."""
+        """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` where the tracker can widen
+        its search, else None (its own range)."""
         return self.config.cnn_search_px if self._widens and self.config.cnn_search_px > 0 else None
 
     def _restart(self, frame: Frame, m: Measurement, timings: dict, twist: np.ndarray | None = None) -> None:

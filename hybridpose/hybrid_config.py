@@ -56,11 +56,10 @@ class HybridConfig:
             of ``start_depth_step`` (relative distance), up to ``start_depth_span`` either way and
             nearest first, is tried; the first fit to reach ``start_quality`` and beat the fit from
             the CNN pose by ``switch_quality_margin`` starts the track (0: the CNN pose only).
-        cnn_search_px: how far (px) a tracker fit started from a coarse pose — a CNN pose (a start, a
-            check) or the prediction while lost (a resume) — searches for the model's edges, where
-            the tracker can widen its search (``track(..., search_px=)``; 0: the tracker's own
-            frame-to-frame range). Such a pose lies further from the truth than the previous
-            frame's pose does.
+        cnn_search_px: how far (px) a tracker fit started from a CNN pose (a start, a check) searches
+            for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
+            0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
+            the previous frame's pose does.
         restart_unconfirmed: when checks disagree with the track and the tracker started from the
             CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
             lost until the CNN and the edges agree again (False: such restarts were wrong in every

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from ..viz import save_figure
+from .modes import COMPONENTS
 from .runner import summarise
 
 # what the hybrid must reach on the standard suite (seeds no tuning used)
@@ -58,12 +59,15 @@ def table(summary: dict[str, dict]) -> str:
 def cost_table(summary: dict[str, dict]) -> str:
     """Milliseconds per frame by component (the rest: the policy, image checks, bookkeeping) and CNN
     calls, one line per run."""
-    lines = ["| run | tracker ms | CNN ms | fusion ms | rest ms | total ms/frame | CNN calls / 100 fr. | CNN ms / call |",
+    heads = {"tracker": "tracker ms", "regressor": "CNN ms", "fusion": "fusion ms"}
+    lines = ["| run | " + " | ".join(heads[p] for p in COMPONENTS)
+             + " | rest ms | total ms/frame | CNN calls / 100 fr. | CNN ms / call |",
              "|---|---|---|---|---|---|---|---|"]
     for name, s in summary.items():
-        parts = [s.get(f"ms_{p}", float("nan")) for p in ("tracker", "regressor", "fusion")]
+        parts = [s.get(f"ms_{p}", float("nan")) for p in COMPONENTS]
         rest = s["ms_per_frame"] - float(np.nansum(parts)) if np.any(np.isfinite(parts)) else float("nan")
-        per_call = parts[1] / (s["cnn_calls_per_100"] / 100) if s["cnn_calls_per_100"] > 0 else float("nan")
+        cnn_ms = s.get("ms_regressor", float("nan"))
+        per_call = cnn_ms / (s["cnn_calls_per_100"] / 100) if s["cnn_calls_per_100"] > 0 else float("nan")
         lines.append(f"| {name} | " + " | ".join(_f(x, "{:.1f}") for x in (*parts, rest, s["ms_per_frame"]))
                      + f" | {_f(s['cnn_calls_per_100'], '{:.0f}')} | {_f(per_call, '{:.1f}')} |")
     return "\n".join(lines)

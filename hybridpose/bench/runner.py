@@ -21,7 +21,7 @@ import numpy as np
 
 from ..estimator import HybridConfig
 from ..io import atomic_write_json, read_json
-from .modes import load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg
+from .modes import COMPONENTS, load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg
 
 MODES = ("tracker", "cnn", "hybrid")
 
@@ -296,7 +296,7 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "recover_never": sum(n is None for n in rec),
             "recover_frames_max": max((n for n in rec if n is not None), default=None),
             "ms_per_frame": float(np.mean([r["ms_per_frame"] for r in rs])),
-            **{key: _nanmean([r.get(key, np.nan) for r in rs]) for key in ("ms_tracker", "ms_regressor", "ms_fusion")},
+            **{f"ms_{part}": _nanmean([r.get(f"ms_{part}", np.nan) for r in rs]) for part in COMPONENTS},
             "cnn_calls_per_100": float(np.mean([r["cnn_calls_per_100"] for r in rs])),
         }
     return out

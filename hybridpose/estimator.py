@@ -28,7 +28,7 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   (not lost: under the arm the CNN can repeat the same wrong answer, but the edges do not match);
   then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
   from the prediction each frame and takes up again by itself when its fit is good and inside the
-  gate (``tracker_resumes``).
+  gate (``tracker_resumes``); the fusion then starts over from that fit.
 
 Every threshold is a field of :class:`HybridConfig`, its default chosen on the tuning seeds of the
 suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).
@@ -242,6 +242,10 @@ class HybridEstimator:
             m = self._track_from(frame, prior.pose, timings)
             self.last_tracker = m
             if not m.lost and self._timed(timings, "fusion", self.fusion.update, m):
+                # inside the gate: taken up, but the fusion starts over from the fit (zero twist, its
+                # initial uncertainty) — the twist coasted through the loss is a guess, and after one
+                # update its spread still lets the next CNN check pull the track off by centimetres
+                self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp)
                 self.status = "tracking"
                 self._n = _Counters()
                 return self._estimate("tracking", (m.source,))

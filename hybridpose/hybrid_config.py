@@ -25,7 +25,8 @@ class HybridConfig:
             and the edges keep agreeing on poses that do not hold, a view both get wrong (0: off).
         tracker_resumes: while lost, the tracker also tries every frame from the fusion's
             prediction and takes up again by itself when its fit is not lost and passes the gate
-            (the honest quality keeps it from taking up on the arm); False: only the CNN restarts it.
+            (the honest quality keeps it from taking up on the arm), and the fusion starts over from
+            that fit with zero twist; False: only the CNN restarts it.
         lost_after_tracker_losses: consecutive frames the tracker reports lost that declare the
             object lost (before that the estimate coasts on the fusion's prediction).
         reacquire_chi2: squared Mahalanobis distance below which two consecutive CNN answers agree

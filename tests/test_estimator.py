@@ -400,6 +400,8 @@ def test_the_tracker_takes_up_again_by_itself_after_a_short_dropout():
     out = run(est, 25)
     assert [e.status for e in out[15:19]] == ["lost", "lost", "lost", "tracking"]
     assert out[18].sources == ("tracker:scripted",) and rotation_error_deg(out[-1].pose, truth(24)) < 0.3
+    # the fusion starts over from the fit: the twist coasted through the dropout is not kept
+    assert out[18].pose.allclose(truth(18)) and np.allclose(out[18].velocity, 0)
 
 
 def test_restarts_close_together_are_not_trusted_until_tracking_settles():

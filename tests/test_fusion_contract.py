@@ -65,6 +65,20 @@ def test_constant_motion_is_followed_with_the_right_velocity(name):
     assert pose_mahalanobis2(ahead.pose, ahead.covariance, START.retract(twist * 60 / FPS), np.zeros((6, 6))) < 12.6
 
 
+@pytest.mark.parametrize("name", [n for n in FUSIONS if n != "none"])  # "none" holds the last pose
+def test_the_default_motion_model_keeps_a_braking_approach_inside_the_gate(name):
+    # the distance sweep's braking: 3 m/s² along the line of sight, seen by a tracker whose pose is
+    # good to 0.2 mm and 0.05°; a motion model too quiet for it refuses every measurement
+    cov = np.diag([np.radians(0.05) ** 2] * 3 + [0.0002**2] * 3)
+    f = create("fusion", name)
+    f.reset(START, cov, 0.0, twist=np.r_[0, 0, 0, START.R.T @ [0, 0, -1.2]])  # body twist: -1.2 m/s in depth
+    for k in range(1, 30):
+        t = k / FPS
+        f.predict(t)
+        depth = START.t[2] - 1.2 * t + 0.5 * 3.0 * t**2
+        assert f.update(_meas(Pose(START.R, np.r_[START.t[:2], depth]), t, cov)), (k, f.last_mahalanobis2)
+
+
 @pytest.mark.parametrize("name", FUSIONS)
 def test_a_gross_outlier_is_rejected(name):
     rng = np.random.default_rng(1)

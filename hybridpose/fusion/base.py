@@ -53,7 +53,8 @@ class Fusion(ABC):
     Args:
         angular_accel_rad_s2: spectral density (as a standard deviation) of the angular acceleration
             that drives the twist, rad/s² per √Hz.
-        linear_accel_m_s2: the same for the linear acceleration, m/s² per √Hz.
+        linear_accel_m_s2: the same for the linear acceleration, m/s² per √Hz (the default follows
+            an approach braking at a few m/s² without refusing a 0.2-mm-accurate tracker).
         initial_twist_sigma: (2,) standard deviations of the twist at ``reset``: rad/s, m/s.
         gate_chi2: a measurement whose squared Mahalanobis distance from the prediction (with both
             covariances) exceeds this is rejected (default: the 99.9 % point of χ²₆, 22.5);
@@ -62,7 +63,7 @@ class Fusion(ABC):
 
     name = "fusion"
 
-    def __init__(self, angular_accel_rad_s2: float = 0.5, linear_accel_m_s2: float = 0.1,
+    def __init__(self, angular_accel_rad_s2: float = 0.5, linear_accel_m_s2: float = 0.5,
                  initial_twist_sigma: tuple[float, float] = (0.3, 0.1), gate_chi2: float = DEFAULT_GATE_CHI2) -> None:
         for name, value in (("angular_accel_rad_s2", angular_accel_rad_s2), ("linear_accel_m_s2", linear_accel_m_s2),
                             ("gate_chi2", gate_chi2)):

@@ -12,14 +12,15 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
   error), confirms it (not lost); the tracker's fit starts the fusion.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
-  gated (Mahalanobis) and fused. Every ``check_period`` frames the CNN runs on a crop around the
+  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_quality``: an arm
+  covering half the object lowers a right fit's quality under the tracker's own threshold). Every ``check_period`` frames the CNN runs on a crop around the
   predicted projection, and the tracker fits the edges from the CNN pose too. The check disagrees
   when the CNN pose is far from the fused one (``disagreement_chi2`` with both covariances) or when
   the fit from the CNN pose lands elsewhere and matches the image better than the current track
   (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
   at once) restart everything from that fit — the drift the tracker did not flag. A check whose CNN
-  pose the edges cannot fit at all (typically its end-for-end twin) while the track fits well
-  (``check_below_quality`` or better) does not count. A CNN pose that agrees is fused. A tracker
+  pose the edges cannot fit at all (typically its end-for-end twin) while the track fits better
+  (by ``switch_quality_margin``) does not count. A CNN pose that agrees is fused. A tracker
   measurement the gate refuses calls a check at once; where the CNN and the edges from its pose
   vouch for it, the fusion (not the tracker) was wrong and starts over there.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
@@ -90,10 +91,12 @@ class HybridEstimator:
             raise TypeError(f"config: expected a HybridConfig, got {type(config).__name__}")
         self.object: ObjectModel | None = getattr(tracker, "object", None)
         # a tracker whose track() takes search_px searches further from a CNN pose than frame to frame
+        # and one that takes lost_quality keeps an established track through a partial occlusion
         try:
-            self._widens = "search_px" in inspect.signature(tracker.track).parameters
+            params = inspect.signature(tracker.track).parameters
         except (TypeError, ValueError):
-            self._widens = False
+            params = {}
+        self._widens, self._keeps = "search_px" in params, "lost_quality" in params
         self.regressor_calls = 0  # since construction: the CNN's share of the work
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.reset()
@@ -176,7 +179,7 @@ class HybridEstimator:
 
     def _track(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
-        m = self._track_from(frame, prior.pose, timings)
+        m = self._track_from(frame, prior.pose, timings, lost_quality=self._keep_quality())
         previous, self.last_tracker = self.last_tracker, m
         sources = []
         rejected = False
@@ -215,9 +218,10 @@ class HybridEstimator:
                           > self.config.disagreement_chi2)
                 stayed = fit.pose is not None and _mahalanobis2(
                     c.pose, c.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2
-                if (far or better) and fit.lost and not m.lost and m.quality >= self.config.check_below_quality:
+                backed = not m.lost and m.quality >= fit.quality + self.config.switch_quality_margin
+                if (far or better) and fit.lost and backed:
                     # the model's edges find nothing to hold at the CNN pose (typically its end-for-end
-                    # twin) while the track fits well: the image backs the track, the check is an outlier
+                    # twin) while the track fits better: the image backs the track, the check is an outlier
                     self._n.disagreements = 0
                 elif far or better:
                     self._n.disagreements += 1
@@ -328,16 +332,27 @@ class HybridEstimator:
         return (fit.pose is not None and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= chi2
                 and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
 
-    def _track_from(self, frame: Frame, start: Pose, timings: dict, search_px: float | None = None) -> Measurement:
+    def _track_from(self, frame: Frame, start: Pose, timings: dict, search_px: float | None = None,
+                    lost_quality: float | None = None) -> Measurement:
         """The tracker's measurement searched from ``start`` (up to ``search_px`` pixels away where the
-        tracker can widen its search); lost where the tracker refuses that start (a prediction coasting
+        tracker can widen its search; lost below ``lost_quality`` where given, else below the
+        tracker's own threshold); lost where the tracker refuses that start (a prediction coasting
         while lost can leave the view or pass behind the camera)."""
+        kw = {k: v for k, v in (("search_px", search_px), ("lost_quality", lost_quality)) if v is not None}
         try:
-            if search_px is None:
-                return self._timed(timings, "tracker", self.tracker.track, frame, start)
-            return self._timed(timings, "tracker", lambda: self.tracker.track(frame, start, search_px=search_px))
+            return self._timed(timings, "tracker", lambda: self.tracker.track(frame, start, **kw))
         except ValueError:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
+
+    def _keep_quality(self) -> float | None:
+        """The tracker's lost threshold for the next frame-to-frame fit: ``keep_quality`` (never above
+        the tracker's own) once the track has run ``keep_after`` frames since its start, where the
+        tracker takes a threshold per call; else None (the tracker's own)."""
+        keep = self.config.keep_quality
+        if not self._keeps or keep is None or self._n.since_start < self.config.keep_after:
+            return None
+        own = getattr(self.tracker, "lost_quality", None)
+        return keep if own is None else min(keep, float(own))
 
     def _cnn_search_px(self) -> float | None:
         """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` where the tracker can widen

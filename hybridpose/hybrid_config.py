@@ -61,6 +61,12 @@ class HybridConfig:
             for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
             0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
             the previous frame's pose does.
+        keep_quality, keep_after: once a track has run ``keep_after`` frames since its (re)start, the
+            tracker's frame-to-frame fit counts as lost only below ``keep_quality`` (never above the
+            tracker's own threshold; where the tracker takes one per call, ``track(...,
+            lost_quality=)``). An arm covering half the object lowers the honest quality of a right
+            fit to 0.45–0.5, under the edge trackers' 0.5; starts, checks and resumes keep the
+            tracker's own threshold (a young track may be a wrong start). None: off.
         restart_unconfirmed: when checks disagree with the track and the tracker started from the
             CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
             lost until the CNN and the edges agree again (False: such restarts were wrong in every
@@ -92,9 +98,11 @@ class HybridConfig:
     start_depth_span: float = 0.12
     restart_unconfirmed: bool = False
     cnn_search_px: float = 12.0
+    keep_quality: float | None = 0.4
+    keep_after: int = 5
 
     def __post_init__(self) -> None:
-        for name in ("check_period", "probation_frames", "unstable_window", "settle_frames"):
+        for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "keep_after"):
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")
@@ -105,6 +113,8 @@ class HybridConfig:
         for name in ("disagreement_chi2", "reacquire_chi2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
+        if self.keep_quality is not None and not 0 <= self.keep_quality <= 1:
+            raise ValueError(f"keep_quality: expected a tracker quality in [0, 1] or None, got {self.keep_quality}")
         if not 0 <= self.start_quality <= 1:
             raise ValueError(f"start_quality: expected a tracker quality in [0, 1], got {self.start_quality}")
         if not 0 <= self.switch_quality_margin <= 1:

@@ -1,6 +1,8 @@
 """HybridEstimator: the policy with scripted backends (what it does with a silent drift, a CNN outlier,
 a loss), user-defined and plug-in backends, bad input; and the real backends on a rendered
 arm-occlusion sequence with no ground truth given."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -279,6 +281,50 @@ def test_repeated_cnn_twins_that_the_edges_cannot_fit_do_not_restart_a_good_trac
     out = run(est, 30)
     assert all(e.status == "tracking" for e in out[1:]), [e.status for e in out]
     assert max(rotation_error_deg(e.pose, truth(k)) for k, e in enumerate(out)) < 0.3
+
+
+class HalfCoveredTracker(EdgesOnlyAtTheTruth):
+    """Right from within 90° of the truth, but its quality falls to 0.45 (under its own 0.5 lost
+    threshold) on ``covered`` frames, as the edges' honest quality does with half the object behind
+    the arm; takes a per-call threshold like the library's trackers."""
+
+    lost_quality = 0.5
+
+    def __init__(self, covered, **kw):
+        super().__init__(**kw)
+        self.covered = set(covered)
+
+    def track(self, frame, prior=None, lost_quality=None):
+        m = super().track(frame, prior)
+        if m.lost:
+            return m
+        quality = 0.45 if frame.index in self.covered else m.quality
+        if quality < (self.lost_quality if lost_quality is None else lost_quality):
+            return Measurement(None, np.eye(6), quality, m.source, frame.timestamp)
+        return Measurement(m.pose, m.covariance, quality, m.source, frame.timestamp)
+
+
+def test_an_established_track_is_kept_through_a_partial_occlusion():
+    # the CNN answers with the end-for-end twin throughout the occlusion; the edges cannot fit it
+    twins = set(range(20, 30))
+    config = HybridConfig(check_period=10, probation_frames=0, keep_quality=0.4, keep_after=5)
+    est = HybridEstimator(HalfCoveredTracker(covered=range(20, 30)), OracleRegressor(outliers=twins),
+                          registry.create("fusion", "ukf"), config)
+    out = run(est, 35)
+    assert all(e.status == "tracking" for e in out[1:]), [e.status for e in out]
+    assert max(rotation_error_deg(e.pose, truth(k)) for k, e in enumerate(out)) < 0.3
+    # a young track (fewer than keep_after frames since its start) keeps the tracker's own threshold
+    est = HybridEstimator(HalfCoveredTracker(covered=range(2, 6)), OracleRegressor(),
+                          registry.create("fusion", "ukf"), config)
+    assert run(est, 3)[2].status == "lost"
+    # and None turns it off
+    est = HybridEstimator(HalfCoveredTracker(covered=range(20, 30)), OracleRegressor(),
+                          registry.create("fusion", "ukf"), replace(config, keep_quality=None))
+    assert run(est, 21)[20].status == "lost"
+    with pytest.raises(ValueError, match="keep_quality"):
+        HybridConfig(keep_quality=1.2)
+    with pytest.raises(ValueError, match="keep_after"):
+        HybridConfig(keep_after=-1)
 
 
 def test_loss_then_reacquisition_by_two_agreeing_cnn_answers():

@@ -101,6 +101,15 @@ def test_bad_input_gets_clear_errors_and_never_nan(name, truss, tumble):
     for bad in (0, -3, float("nan")):
         with pytest.raises(ValueError, match="search_px"):
             trk.track(frame1, prior=pose0, search_px=bad)
+    # a per-call lost threshold replaces the backend's own for that call only
+    good = trk.track(frame1, prior=pose0)
+    assert trk.track(frame1, prior=pose0, lost_quality=1.0).lost or good.quality == 1.0
+    kept = trk.track(frame1, prior=pose0, lost_quality=0.0)
+    assert not kept.lost and rotation_error_deg(kept.pose, pose1) < 1.0
+    assert trk.lost_quality == type(trk)(truss).lost_quality
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="lost_quality"):
+            trk.track(frame1, prior=pose0, lost_quality=bad)
     trk.reset()
     with pytest.raises(RuntimeError, match="before init"):
         trk.track(frame0)

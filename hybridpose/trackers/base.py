@@ -50,12 +50,17 @@ class Tracker(ABC):
         self._init(frame, pose)
         self.pose, self.frame = pose, frame
 
-    def track(self, frame: Frame, prior: Pose | None = None, search_px: float | None = None) -> Measurement:
+    def track(self, frame: Frame, prior: Pose | None = None, search_px: float | None = None,
+              lost_quality: float | None = None) -> Measurement:
         """Pose in ``frame``, searched around ``prior`` (default: the last pose).
 
         ``search_px``: how far (pixels) the object may lie from its projection at ``prior`` when that
         is further than the backend's own frame-to-frame range: a coarse prior such as a CNN pose. A
         backend with a fixed range ignores it.
+
+        ``lost_quality``: this call's threshold in place of the backend's own (0..1): a caller that
+        knows more, such as an estimator holding a long, consistent track through a partial
+        occlusion, may accept a lower quality.
 
         Returns a :class:`Measurement` with quality in 0..1. When quality falls below
         ``lost_quality`` or the solve fails, ``lost`` is True and ``pose`` is None (the contract of
@@ -72,6 +77,9 @@ class Tracker(ABC):
             self._check_pose(prior, "prior")
         if search_px is not None and not (np.isfinite(search_px) and search_px > 0):
             raise ValueError(f"search_px: expected a positive number of pixels or None, got {search_px}")
+        if lost_quality is not None and not 0.0 <= lost_quality <= 1.0:
+            raise ValueError(f"lost_quality: expected a quality in [0, 1] or None, got {lost_quality}")
+        threshold = self.lost_quality if lost_quality is None else float(lost_quality)
         try:
             if search_px is None:
                 pose, cov, quality = self._track(frame, start)
@@ -83,7 +91,7 @@ class Tracker(ABC):
         if not finite or pose.t[2] <= MIN_DEPTH_M:
             pose, quality = None, 0.0
         quality = float(np.clip(quality, 0.0, 1.0))
-        if pose is None or quality < self.lost_quality:
+        if pose is None or quality < threshold:
             m = Measurement(pose=None, covariance=LOST_COVARIANCE, quality=quality, source=f"tracker:{self.name}",
                             timestamp=frame.timestamp, lost=True)
         else:

@@ -13,8 +13,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   error), confirms it (not lost); the tracker's fit starts the fusion.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
   gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_quality``: an arm
-  covering half the object lowers a right fit's quality under the tracker's own threshold). Every ``check_period`` frames the CNN runs on a crop around the
-  predicted projection, and the tracker fits the edges from the CNN pose too. The check disagrees
+  covering half the object lowers a right fit's quality under the tracker's own threshold). Every
+  ``check_period`` frames the CNN runs on a crop around the predicted projection, and the tracker
+  fits the edges from the CNN pose too. The check disagrees
   when the CNN pose is far from the fused one (``disagreement_chi2`` with both covariances) or when
   the fit from the CNN pose lands elsewhere and matches the image better than the current track
   (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows

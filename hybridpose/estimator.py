@@ -389,11 +389,15 @@ class HybridEstimator:
 
     def _roi(self, pose: Pose, camera: Camera) -> tuple[int, int, int, int] | None:
         """Box (x, y, w, h) px of the object's projection at ``pose``, grown by ``check_roi_margin``;
-        None when it does not overlap the image."""
+        None (the CNN then takes the whole image) when it does not overlap the image or the box reaches
+        behind the camera (a prediction coasting ever closer: the object would overflow the view)."""
         obj = self.object
         if obj is None or pose is None:
             return None
-        uv = camera.project(obj.bbox_corners, pose)
+        corners_cam = pose @ obj.bbox_corners
+        if np.any(corners_cam[:, 2] <= 1e-3):
+            return None
+        uv = camera.project_cam(corners_cam)
         (x0, y0), (x1, y1) = uv.min(0), uv.max(0)
         m = self.config.check_roi_margin
         x0, x1 = x0 - m * (x1 - x0), x1 + m * (x1 - x0)

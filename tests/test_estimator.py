@@ -327,6 +327,13 @@ def test_an_established_track_is_kept_through_a_partial_occlusion():
         HybridConfig(keep_after=-1)
 
 
+def test_a_check_crop_at_a_pose_reaching_behind_the_camera_is_the_whole_image(truss):
+    est = HybridEstimator(ScriptedTracker(object=truss), OracleRegressor(), registry.create("fusion", "ukf"))
+    assert est._roi(Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM) is not None
+    # the truss (0.38 m long) end-on, centred 0.1 m in front of the camera, reaches behind it
+    assert est._roi(Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1]), CAM) is None
+
+
 def test_loss_then_reacquisition_by_two_agreeing_cnn_answers():
     trk = ScriptedTracker(lost_frames=range(15, 25))
     reg = OracleRegressor(blind=range(15, 24))

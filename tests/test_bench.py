@@ -178,3 +178,17 @@ def test_the_results_page_block_is_replaced_appended_or_made(smoke, tmp_path):
     assert kept.count("<!-- mine:begin -->") == 1
     write_results_page(page, result, block="other")                      # another block: appended at the end
     assert page.read_text().startswith(kept) and page.read_text().rstrip().endswith("<!-- other:end -->")
+
+
+def test_the_edge_distance_of_a_pose_reaching_behind_the_camera_is_infinite():
+    from hybridpose.bench.modes import _edge_distance_px
+    from hybridpose.geometry import Camera, Pose
+
+    cam = Camera.default()
+    pts = np.array([[-0.19, 0.0, 0.0], [0.19, 0.0, 0.0], [0.0, 0.1, 0.0]])
+    truth = Pose.from_rotvec_t([0.2, 0.1, 0.0], [0.0, 0.0, 0.6])
+    assert _edge_distance_px(cam, pts, truth, truth) == pytest.approx(0.0)
+    nudged = Pose(truth.R, truth.t + [0.001, 0.0, 0.0])  # 1 mm at 0.6 m: 1 px at fx 600
+    assert _edge_distance_px(cam, pts, nudged, truth) == pytest.approx(1.0, rel=0.05)
+    end_on = Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1])  # one end behind the camera
+    assert _edge_distance_px(cam, pts, end_on, truth) == float("inf")

@@ -133,6 +133,15 @@ def trusted_errors_deg(seq: list[SequenceFrame], records: list[FrameRecord], sym
 ADD_AUC_MAX_M = 0.1  # the ADD(-S) AUC's largest threshold (PoseCNN / YCB-Video)
 
 
+def _edge_distance_px(cam, edge_pts: np.ndarray, pose, truth) -> float:
+    """Mean image distance (px) of the model's edge points at ``pose`` from where they are at
+    ``truth``; inf where ``pose`` puts one of them at or behind the camera (a grossly wrong pose)."""
+    at_pose = pose @ edge_pts
+    if np.any(at_pose[:, 2] <= 0):
+        return float("inf")
+    return float(np.linalg.norm(cam.project_cam(at_pose) - cam.project(edge_pts, truth), axis=1).mean())
+
+
 def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=None) -> dict:
     """Per-sequence figures of one mode.
 
@@ -187,9 +196,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
                 in_basin += int(err <= BASIN_DEG and pct[-1] <= BASIN_PCT)
                 speed.append(errors["speed"])
                 if edge_pts is not None:
-                    cam = s.frame.camera
-                    edge_px.append(float(np.linalg.norm(cam.project(edge_pts, r.pose) - cam.project(edge_pts, truth),
-                                                        axis=1).mean()))
+                    edge_px.append(_edge_distance_px(s.frame.camera, edge_pts, r.pose, truth))
                 if r.covariance is not None:
                     xi = r.pose.local(truth)
                     try:

@@ -139,6 +139,10 @@ def test_config_fields_are_parsed_by_their_type():
     cfg = parse_config("start_quality=0.5, restart_unconfirmed=true,check_period=5,tracker_resumes=0")
     assert (cfg.start_quality, cfg.restart_unconfirmed, cfg.check_period, cfg.tracker_resumes) == (0.5, True, 5, False)
     assert isinstance(cfg.check_period, int) and isinstance(cfg.restart_unconfirmed, bool)
+    assert parse_config("keep_quality=none").keep_quality is None
+    assert parse_config("keep_quality=0.3, keep_after=8").keep_quality == 0.3
+    with pytest.raises(ValueError, match="start_quality: expected a number"):
+        parse_config("start_quality=none")
 
 
 def test_user_data_must_be_bop_and_the_regressor_must_fit_the_object(tmp_path, capsys):

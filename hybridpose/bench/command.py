@@ -4,10 +4,12 @@ Every input is checked before any long work starts; the rows of an interrupted r
 """
 from __future__ import annotations
 
+
 import platform
 import subprocess
 import time
 from dataclasses import dataclass, replace
+from dataclasses import fields as dataclass_fields
 from importlib import metadata
 from pathlib import Path
 from typing import Callable
@@ -108,8 +110,10 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
 
 def parse_config(text: str) -> HybridConfig:
     """``"probation_frames=2,check_below_quality=0.7"`` → the default :class:`HybridConfig` with those
-    fields; ValueError naming ``--config`` and the known fields otherwise."""
+    fields (``none`` or ``off`` for a field that may be None, such as ``keep_quality``); ValueError
+    naming ``--config`` and the known fields otherwise."""
     fields = HybridConfig().__dict__
+    optional = {f.name for f in dataclass_fields(HybridConfig) if "None" in str(f.type)}
     changes = {}
     for item in (t.strip() for t in text.split(",") if t.strip()):
         key, _, value = item.partition("=")
@@ -120,6 +124,9 @@ def parse_config(text: str) -> HybridConfig:
             if value.strip().lower() not in ("true", "false", "1", "0"):
                 raise ValueError(f"--config: {key}: expected true or false, got {value!r}")
             changes[key] = value.strip().lower() in ("true", "1")
+            continue
+        if key in optional and value.strip().lower() in ("none", "off"):
+            changes[key] = None
             continue
         try:
             changes[key] = type(fields[key])(float(value)) if isinstance(fields[key], int) else float(value)

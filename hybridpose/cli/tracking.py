@@ -197,7 +197,7 @@ def add_commands(sub) -> None:
     b.add_argument("--check-periods", default="", help="comma list of CNN check periods to ablate (frames)")
     b.add_argument("--config", action="append", default=[],
                    help="one more hybrid run with these HybridConfig fields, e.g. probation_frames=2,check_period=5 "
-                        "(repeatable)")
+                        "or keep_quality=none (repeatable)")
     b.add_argument("--workers", type=int, default=1, help="parallel processes (one sequence each)")
     b.add_argument("--ray", default=None, help="run on Ray: an address, 'auto' or 'local' (pip install 'hybridpose[ray]')")
     b.add_argument("--video", default=None, help="also write the hybrid's overlay video of this sequence")

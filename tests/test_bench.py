@@ -140,6 +140,9 @@ def test_config_fields_are_parsed_by_their_type():
     assert (cfg.start_quality, cfg.restart_unconfirmed, cfg.check_period, cfg.tracker_resumes) == (0.5, True, 5, False)
     assert isinstance(cfg.check_period, int) and isinstance(cfg.restart_unconfirmed, bool)
     assert parse_config("keep_quality=none").keep_quality is None
+    from hybridpose.bench.runner import RunSpec
+    label = RunSpec(mode="hybrid", config=parse_config("keep_quality=none, check_period=5")).label
+    assert label == "hybrid (edges+default+ukf, check_period=5, keep_quality=none)"
     assert parse_config("keep_quality=0.3, keep_after=8").keep_quality == 0.3
     with pytest.raises(ValueError, match="start_quality: expected a number"):
         parse_config("start_quality=none")

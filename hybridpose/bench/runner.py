@@ -62,7 +62,7 @@ class RunSpec:
 
     def _config_diff(self) -> str:
         base, mine = asdict(HybridConfig()), asdict(self.config)
-        return ", ".join(f"{k}={v:g}" for k, v in mine.items() if v != base[k])
+        return ", ".join(f"{k}={'none' if v is None else format(v, 'g')}" for k, v in mine.items() if v != base[k])
 
 
 def spec_dict(spec: RunSpec) -> dict:

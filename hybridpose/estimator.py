@@ -15,9 +15,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_quality``: an arm
   covering half the object lowers a right fit's quality under the tracker's own threshold). Every
   ``check_period`` frames the CNN runs on a crop around the predicted projection, and the tracker
-  fits the edges from the CNN pose too. The check disagrees
-  when the CNN pose is far from the fused one (``disagreement_chi2`` with both covariances) or when
-  the fit from the CNN pose lands elsewhere and matches the image better than the current track
+  fits the edges from the CNN pose too. The check disagrees when the CNN pose is far from the fused
+  one (``disagreement_chi2`` with both covariances) or when the fit from the CNN pose lands
+  elsewhere and matches the image better than the current track
   (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
   at once) restart everything from that fit — the drift the tracker did not flag. A check whose CNN
   pose the edges cannot fit at all (typically its end-for-end twin) while the track fits better

@@ -199,3 +199,5 @@ def test_the_edge_distance_of_a_pose_reaching_behind_the_camera_is_infinite():
     assert _edge_distance_px(cam, pts, nudged, truth) == pytest.approx(1.0, rel=0.05)
     end_on = Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1])  # one end behind the camera
     assert _edge_distance_px(cam, pts, end_on, truth) == float("inf")
+    grazing = Pose(np.eye(3), [0.19, 0.0, 1e-7])  # one point a hair in front of the camera plane
+    assert _edge_distance_px(cam, pts, grazing, truth) == float("inf")

@@ -233,3 +233,13 @@ def test_unit_direction_check_normalises_and_names_the_argument():
     for bad in ([0.0, 0.0], [0.0, 0.0, 0.0], [1.0, np.nan, 0.0], "up"):
         with pytest.raises(ValueError, match=r"sun: expected a non-zero, finite \(3,\) direction it travels, got"):
             as_unit_direction(bad, "sun", "it travels")
+
+
+def test_in_front_says_which_points_project_cam_takes():
+    cam = Camera.default()
+    pts = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 1e-7], [0.0, 0.1, -0.2]])
+    assert cam.in_front(pts).tolist() == [True, False, False]
+    cam.project_cam(pts[cam.in_front(pts)])
+    for p in pts[~cam.in_front(pts)]:
+        with pytest.raises(ValueError, match="behind the camera"):
+            cam.project_cam(p[None])

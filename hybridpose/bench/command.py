@@ -4,7 +4,6 @@ Every input is checked before any long work starts; the rows of an interrupted r
 """
 from __future__ import annotations
 
-
 import platform
 import subprocess
 import time

@@ -137,7 +137,7 @@ def _edge_distance_px(cam, edge_pts: np.ndarray, pose, truth) -> float:
     """Mean image distance (px) of the model's edge points at ``pose`` from where they are at
     ``truth``; inf where ``pose`` puts one of them at or behind the camera (a grossly wrong pose)."""
     at_pose = pose @ edge_pts
-    if np.any(at_pose[:, 2] <= 0):
+    if not np.all(cam.in_front(at_pose)):
         return float("inf")
     return float(np.linalg.norm(cam.project_cam(at_pose) - cam.project(edge_pts, truth), axis=1).mean())
 

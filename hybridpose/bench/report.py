@@ -62,7 +62,7 @@ def cost_table(summary: dict[str, dict]) -> str:
     heads = {"tracker": "tracker ms", "regressor": "CNN ms", "fusion": "fusion ms"}
     lines = ["| run | " + " | ".join(heads[p] for p in COMPONENTS)
              + " | rest ms | total ms/frame | CNN calls / 100 fr. | CNN ms / call |",
-             "|---|---|---|---|---|---|---|---|"]
+             "|---" * (len(COMPONENTS) + 5) + "|"]
     for name, s in summary.items():
         parts = [s.get(f"ms_{p}", float("nan")) for p in COMPONENTS]
         rest = s["ms_per_frame"] - float(np.nansum(parts)) if np.any(np.isfinite(parts)) else float("nan")

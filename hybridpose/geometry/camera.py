@@ -157,10 +157,16 @@ class Camera:
         points_obj = as_points3d(points_obj, "points_obj")
         return self.project_cam(T_cam_obj @ points_obj)
 
+    @staticmethod
+    def in_front(points_cam) -> np.ndarray:
+        """(N,) bool: which of the (N, 3) camera-frame points (metres) :meth:`project_cam` can project
+        (in front of the camera plane)."""
+        return as_points3d(points_cam, "points_cam")[:, 2] > _MIN_DEPTH_M
+
     def project_cam(self, points_cam) -> np.ndarray:
         """Project (N, 3) camera-frame points (metres) to (N, 2) pixels; z must be > 0."""
         p = as_points3d(points_cam, "points_cam")
-        if p.shape[0] and p[:, 2].min() <= _MIN_DEPTH_M:
+        if not np.all(self.in_front(p)):
             raise ValueError(
                 f"points: {int((p[:, 2] <= _MIN_DEPTH_M).sum())} of {len(p)} points are behind the camera "
                 "(z ≤ 0 in the camera frame); check T_cam_obj (t_z must be positive, in metres)"

@@ -8,14 +8,14 @@ vs hybrid on sequences of it in front of a real photo the fit never saw.
    procedural clutter, half cut from the photos that ship with scikit-image — astronaut, coffee, cat,
    motorcycles, rocket, textures: ``pip install hybridpose[bench]``; ``--train-photos none`` for
    procedural backgrounds only);
-3. renders six 60-frame sequences (tumble, approach, fly-around; with and without the arm passing in
-   front) over crops of ``grace_hopper.jpg`` — a photograph that ships with matplotlib and that no
-   training view used — one look per sequence;
+3. renders thirty 60-frame sequences — tumble, approach, fly-around, with and without the arm passing in
+   front, five seeds each — over crops of ``grace_hopper.jpg`` — a photograph that ships with matplotlib
+   and that no training view used — one look per sequence;
 4. ``hybridpose bench --data`` on them with the fitted checkpoint, and rewrites the ``own-object`` block
    of ``benchmarks/RESULTS.md``.
 
-Every step resumes. Seeds: the fit's 0 (training views) and 1 (held-out views); the sequences' 1–6.
-Nothing here was tuned on these sequences.
+Every step resumes. Seeds: the fit's 0 (training views) and 1 (held-out views); the sequences' 1–30.
+Nothing here was tuned on these sequences (the box's tuning sequences are seeds 101–106 over other photos).
 """
 from __future__ import annotations
 
@@ -27,8 +27,12 @@ from pathlib import Path
 
 import matplotlib
 
-SEQUENCES = (("tumble", "none", 1), ("tumble", "arm-full", 2), ("approach", "none", 3),
-             ("approach", "arm-partial", 4), ("fly-around", "none", 5), ("fly-around", "arm-full", 6))
+KINDS = (("tumble", "none"), ("tumble", "arm-full"), ("approach", "none"), ("approach", "arm-partial"),
+         ("fly-around", "none"), ("fly-around", "arm-full"))
+SEEDS_PER_KIND = 5  # the spread over seeds (median, p90, worst of each kind), not one sequence a kind
+# round r renders every kind once, kind k with seed 6·r + k + 1: seeds 1–30, the first round 1–6
+SEQUENCES = tuple((trajectory, occlusion, len(KINDS) * r + k + 1)
+                  for r in range(SEEDS_PER_KIND) for k, (trajectory, occlusion) in enumerate(KINDS))
 BOX_MM = (180.0, 110.0, 70.0)
 
 

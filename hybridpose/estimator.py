@@ -45,9 +45,11 @@ from pathlib import Path
 import numpy as np
 
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
+from .fusion.base import adjoint
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
 from .hybrid_config import HybridConfig
+from .metrics import rotation_error_rad
 from .objects import ObjectModel
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -62,6 +64,20 @@ class _Counters:
     rejections: int = 0
     tracker_losses: int = 0
     last_cnn: Measurement | None = None
+
+
+def nearest_equivalent_measurement(m: Measurement, near: Pose, symmetries) -> Measurement:
+    """``m`` restated as the equivalent pose ``m.pose @ S`` (``S`` one of the object's ``symmetries``,
+    or the identity) nearest ``near`` in rotation, its right-perturbation covariance carried along:
+    ``T·Exp(ξ)·S = (T·S)·Exp(Ad(S⁻¹)·ξ)``, so ``Σ' = Ad(S⁻¹) Σ Ad(S⁻¹)ᵀ``. ``m`` itself when it has no
+    pose, the object no symmetry, or the identity is nearest."""
+    if m.pose is None or near is None or not symmetries:
+        return m
+    best = min(symmetries, key=lambda S: rotation_error_rad(m.pose @ S, near))
+    if rotation_error_rad(m.pose @ best, near) >= rotation_error_rad(m.pose, near):
+        return m
+    A = adjoint(best.inverse())
+    return replace(m, pose=m.pose @ best, covariance=A @ np.asarray(m.covariance) @ A.T)
 
 
 class HybridEstimator:
@@ -205,7 +221,7 @@ class HybridEstimator:
         if due:
             self._n.since_check = 0
             fused = self.fusion.estimate
-            c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings)
+            c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings, near=fused.pose)
             if c.pose is not None:
                 far = _mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
                 fit = self._track_from(frame, c.pose, timings, self._cnn_search_px())
@@ -258,8 +274,9 @@ class HybridEstimator:
         if self._n.since_check < self.config.lost_check_period:
             return self._estimate("lost", ())
         self._n.since_check = 0
-        m = self._cnn(frame, None, timings)
-        previous, self._n.last_cnn = self._n.last_cnn, m
+        previous = self._n.last_cnn
+        m = self._cnn(frame, None, timings, near=previous.pose if previous is not None else None)
+        self._n.last_cnn = m
         if m.pose is not None and previous is not None and previous.pose is not None:
             dt = m.timestamp - previous.timestamp
             motion = getattr(self.fusion, "initial_twist_covariance", np.zeros((6, 6))) * dt**2
@@ -276,7 +293,7 @@ class HybridEstimator:
         self.status = "lost"
         self._n = _Counters()
         # the CNN starts looking at once; its answer here is the first of the two that must agree
-        self._n.last_cnn = self._cnn(frame, None, timings)
+        self._n.last_cnn = self._cnn(frame, None, timings, near=self.fusion.estimate.pose)
         return self._estimate("lost", ())
 
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
@@ -380,9 +397,14 @@ class HybridEstimator:
         return (self.config.settle_frames > 0 and len(r) >= 2 and r[-1] - r[-2] <= self.config.unstable_window
                 and self._frames - r[-1] <= self.config.settle_frames)
 
-    def _cnn(self, frame: Frame, roi, timings: dict) -> Measurement:
+    def _cnn(self, frame: Frame, roi, timings: dict, near: Pose | None = None) -> Measurement:
+        """The regressor's measurement in ``frame``; for a symmetric object, as the equivalent pose
+        nearest ``near`` (where given): its answer may be any of the poses that look the same, and
+        only the one nearest the track can be compared with it or fused into it."""
         self.regressor_calls += 1
-        return self._timed(timings, "regressor", self.regressor.predict, frame, roi)
+        m = self._timed(timings, "regressor", self.regressor.predict, frame, roi)
+        symmetries = self.object.symmetries if self.object is not None else ()
+        return m if near is None else nearest_equivalent_measurement(m, near, symmetries)
 
     def _estimate(self, status: str, sources: tuple[str, ...]) -> Estimate:
         return replace(self.fusion.estimate, status=status, sources=sources)

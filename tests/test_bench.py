@@ -85,6 +85,19 @@ def test_rows_made_by_other_code_are_made_again(smoke, monkeypatch):
     assert {json.loads(p.read_text())["code"] for p in kept} == {"other-code"}
 
 
+def test_a_checkpoint_changed_under_the_same_path_makes_other_rows(tmp_path):
+    from hybridpose.bench.runner import RunSpec
+
+    ckpt = tmp_path / "best.pt"
+    ckpt.write_bytes(b"weights, calibration 1")
+    cnn, tracker = RunSpec("cnn", regressor=str(ckpt)), RunSpec("tracker", regressor=str(ckpt))
+    before = cnn.key, tracker.key
+    ckpt.write_bytes(b"weights, calibration 2")  # re-calibrated in place
+    assert cnn.key != before[0], "a CNN row of the old file is not this file's"
+    assert tracker.key == before[1], "the tracker alone never runs the CNN"
+    assert RunSpec("cnn", regressor="default").key == RunSpec("cnn", regressor="default").key
+
+
 def test_ray_gives_the_local_results(smoke, tmp_path):
     pytest.importorskip("ray")
     out = tmp_path / "ray"

@@ -523,3 +523,49 @@ def test_a_start_the_tracker_refuses_counts_as_lost():
     out = run(est, 20)
     assert [e.status for e in out[10:14]] == ["lost"] * 4
     assert out[-1].status == "tracking" and rotation_error_deg(out[-1].pose, truth(19)) < 0.3
+
+
+def test_a_symmetric_objects_cnn_answer_is_restated_as_the_equivalent_pose_nearest_the_track():
+    """Oracle: Monte Carlo. ``T·Exp(ξ)·S`` seen from ``T·S`` is ``Exp(ξ')`` with ``ξ'`` spread as the carried covariance."""
+    from hybridpose.estimator import nearest_equivalent_measurement
+
+    rng = np.random.default_rng(4)
+    S = Pose.from_rotvec_t([0.0, 0.0, np.pi], [0.01, -0.02, 0.0])  # a half-turn about an axis off the origin
+    T = truth(3)
+    cov = np.diag([np.radians(2.0) ** 2, np.radians(1.0) ** 2, np.radians(0.5) ** 2, 0.004**2, 0.002**2, 0.001**2])
+    m = Measurement(T, cov, 0.9, "regressor:oracle", 0.1)
+    near = T @ S
+    got = nearest_equivalent_measurement(m, near.retract(np.radians([1.0, 0, 0, 0, 0, 0])), (S,))
+    assert rotation_error_deg(got.pose, near) < 1e-9 and got.quality == m.quality
+    xi = rng.multivariate_normal(np.zeros(6), cov, 20000)
+    moved = np.array([near.local(T.retract(x) @ S) for x in xi])
+    assert np.allclose(np.cov(moved.T), got.covariance, atol=0.03 * np.abs(got.covariance).max())
+    assert nearest_equivalent_measurement(m, T, (S,)) is m, "already the nearest: unchanged"
+    assert nearest_equivalent_measurement(m, near, ()) is m, "an asymmetric object: unchanged"
+
+
+class EquivalentRegressor(OracleRegressor):
+    """A symmetric object's CNN: from frame 1 on it answers with the half-turned pose, which looks the same."""
+
+    def __init__(self, half_turn):
+        super().__init__()
+        self.half_turn = half_turn
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return m if frame.index == 0 else replace(m, pose=m.pose @ self.half_turn)
+
+
+def test_checks_of_a_symmetric_object_compare_the_equivalent_pose_nearest_the_track():
+    import trimesh
+
+    from hybridpose.objects import ObjectModel
+
+    box = ObjectModel("box", trimesh.creation.box((0.2, 0.12, 0.08)))
+    half_turn = next(S for S in box.symmetries if rotation_error_deg(S, Pose.identity()) > 179)
+    trk = ScriptedTracker(object=box)
+    est = HybridEstimator(trk, EquivalentRegressor(half_turn), registry.create("fusion", "ukf"), HybridConfig(check_period=3))
+    out = run(est, 40)
+    assert set(trk.inits) == {0}, "a half-turned answer is the same look, not a disagreement"
+    assert all(e.status == "tracking" for e in out[1:])
+    assert max(rotation_error_deg(e.pose, truth(k)) for k, e in enumerate(out)) < 0.5

@@ -97,6 +97,45 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
         fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None)
 
 
+def test_a_symmetric_parts_covariance_is_calibrated_on_its_errors_to_the_nearest_equivalent_pose(
+        box_mesh, tmp_path, monkeypatch):
+    """A regressor that answers each view with one of the box's equivalent poses (no image tells them
+    apart), 0.2° and 1 mm off it, is calibrated as one that answers with the true pose: before, the
+    errors counted to the true pose put the half-turns' 180° into the covariance."""
+    from hybridpose.core import Measurement
+    from hybridpose.datasets.bop import BopScene
+    from hybridpose.regressors import evaluate
+    from hybridpose.regressors.predictor import CheckpointRegressor
+
+    cam = Camera.default().scaled((320, 240))
+    box = load_object(str(box_mesh), scale=0.001)
+    plan = FitPlan(budget_min=2.0, train_views=32, test_views=120, epochs=1, train_min=1.0, render_s_per_view=0.05,
+                   train_s_per_view=0.05, distance_range_m=working_distances(box, cam))
+    out = tmp_path / "fit"
+    fit(box_mesh, out, camera=cam, scale=0.001, seed=5, plan=plan, progress=lambda *_: None)
+    truths = {}
+    for scene in (BopScene(p) for p in sorted((out / "data" / "calib").glob("*/*")) if p.is_dir()):
+        truths.update({im_id: scene.image(im_id).pose for im_id in scene.image_ids})
+    rng = np.random.default_rng(0)
+    cov = np.diag([np.radians(0.2) ** 2] * 3 + [0.001 ** 2] * 3)
+
+    def answer(equivalent: bool):
+        def predict(self, frame, roi=None, sun_direction_cam=None):
+            pose = truths[frame.index].retract(rng.multivariate_normal(np.zeros(6), cov))
+            if equivalent:
+                pose = pose @ box.symmetries[frame.index % len(box.symmetries)]
+            return Measurement(pose, cov, 0.9, "regressor:scripted", frame.timestamp)
+        return predict
+
+    scales = []
+    for equivalent in (False, True):
+        monkeypatch.setattr(CheckpointRegressor, "predict", answer(equivalent))
+        rec = evaluate.calibrate_checkpoint(out / "best.pt", out / "data" / "calib", tmp_path / f"cal{equivalent}.pt",
+                                            by_quality=False)
+        scales.append(rec["scale"])
+    assert scales[1] == pytest.approx(scales[0], rel=0.5)
+
+
 def test_fit_command_refuses_bad_input_with_a_message(box_mesh, tmp_path, capsys):
     assert main(["fit", str(box_mesh), "--out", str(tmp_path / "a"), "--budget", "60m"]) == 2
     assert "--scale 0.001" in capsys.readouterr().err

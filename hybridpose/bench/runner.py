@@ -8,6 +8,7 @@ code the rows are made again, never mixed with the old ones.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import multiprocessing
@@ -68,7 +69,25 @@ class RunSpec:
 def spec_dict(spec: RunSpec) -> dict:
     d = asdict(spec)
     d.pop("threads")
+    if spec.mode != "tracker" and spec._is_file() and Path(spec.regressor).is_file():
+        # a checkpoint re-trained or re-calibrated under the same path makes other rows
+        d["regressor_sha1"] = _file_sha1(str(Path(spec.regressor).resolve()), *_stamp(spec.regressor))
     return d
+
+
+def _stamp(path) -> tuple[int, int]:
+    st = Path(path).stat()
+    return st.st_mtime_ns, st.st_size
+
+
+@functools.lru_cache(maxsize=32)
+def _file_sha1(path: str, mtime_ns: int, size: int) -> str:
+    """sha1 of a file's bytes (cached while its time stamp and size stay)."""
+    h = hashlib.sha1()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 _parts: dict = {}

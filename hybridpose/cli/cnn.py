@@ -58,7 +58,7 @@ def cmd_calibrate(args) -> int:
           f"{fp['coverage']:.0%} ellipsoid; covariance ×{fp['factor']:.3f} → {args.out}")
     bands = cal.get("quality_scale")
     if bands:
-        print("  then by quality band: " + ", ".join(f"≥ {e:.1f}: ×{f:.2f} ({n} poses)" for e, f, n in
+        print("  then by quality band: " + ", ".join(f"≥ {e:.1f}: ×{f:.3g} ({n} poses)" for e, f, n in
                                                      zip(bands["edges"], bands["factors"], bands["poses"])))
     from ..regressors.int8_file import stale_int8
 

@@ -29,7 +29,8 @@ from .keypoint_pnp import solve_pnp
 COVERAGE = 0.9
 # quality bands of the covariance factor (lower edges): the quality the regressor reports (PnP inlier
 # share × reprojection term × twin belief) is mostly 0.2–0.6, and its errors spread ten times wider
-# below 0.3 than above 0.4
+# below 0.3 than above 0.4. Bands up to 0.9 were tried for fitted parts (whose quality is mostly
+# 0.5–0.95) and not adopted (docs/decisions.md)
 QUALITY_EDGES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 MIN_BAND_POSES = 50  # a band with fewer poses is merged into the next one up
 SIGMA_FLOOR_PX = 0.5
@@ -141,7 +142,8 @@ def calibrate(model, loader, predict_batch, twins=(), device=None) -> dict:
         model: the trained network (eval mode is set here).
         loader: validation batches (held out from training).
         predict_batch: ``(model, batch) → (t, q)`` for direct models.
-        twins: symmetry poses the keypoint model was trained up to (errors to the nearest twin).
+        twins: poses the keypoint model was trained up to — its box twins, or a symmetric object's
+            symmetries — (errors to the nearest of them: no measurement can say which it is).
         device: where ``model`` lives (default CPU); PnP and statistics run on the CPU.
     """
     model.eval()

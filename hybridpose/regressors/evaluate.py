@@ -235,7 +235,7 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     rendered with another seed than the training and test sets — and multiplies the covariance by
     the factor that puts ``coverage`` of the errors to the nearest box twin inside the χ²₆
     ellipsoid of that probability (the quality, not the covariance, says when a pose may be turned
-    end for end). Both directions: a path more precise than its training calibration gets a smaller
+    end for end; a symmetric object's errors count to its nearest equivalent pose). Both directions: a path more precise than its training calibration gets a smaller
     covariance.
 
     ``by_quality`` (keypoint models): also a factor per band of the measurements' quality
@@ -264,12 +264,17 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     cal = {k: v for k, v in (ck.get("calibration") or uncalibrated_record(reg.kind)).items() if k != "quality_scale"}
     reg.calibration = cal
     items = [(sc, i) for sc in (BopScene(p) for p in find_scenes(data)) for i in sc.image_ids][:limit]
+    from ..datasets.bop import dataset_object
+
+    symmetries = dataset_object(data).symmetries
     values, qualities = [], []
     for k, (scene, im_id) in enumerate(items):
         gt = scene.image(im_id)
         m = reg.predict(Frame(scene.rgb(im_id), gt.camera, float(im_id), im_id))
         if m.pose is not None:
-            values.append(covariance_nees(m, gt.pose, reg.twins)["nees_twin"])
+            # a symmetric object's error to its nearest equivalent pose, as the evaluation scores it
+            truth = nearest_equivalent(m.pose, gt.pose, symmetries)
+            values.append(covariance_nees(m, truth, reg.twins)["nees_twin"])
             qualities.append(m.quality)
         if progress:
             progress(k + 1, len(items))

@@ -373,7 +373,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         bar.close()
     best_path = out / "best.pt"
     if main_process and best_path.exists():
-        _calibrate_checkpoint(best_path, model, val_loader, device, twins)
+        # a symmetric object's errors count to its nearest equivalent pose (no image tells them apart)
+        _calibrate_checkpoint(best_path, model, val_loader, device, twins or (obj.symmetries if obj is not None else ()))
     if world > 1:
         import torch.distributed as dist
 

@@ -223,7 +223,9 @@ class HybridEstimator:
             fused = self.fusion.estimate
             c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings, near=fused.pose)
             if c.pose is not None:
-                far = _mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
+                far = (_mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
+                       or (self.config.disagreement_deg is not None
+                           and np.degrees(rotation_error_rad(fused.pose, c.pose)) > self.config.disagreement_deg))
                 fit = self._track_from(frame, c.pose, timings, self._cnn_search_px())
                 if rejected and self.config.check_on_rejection and self._vouched(m, c, fit):
                     # the edges from the CNN pose land on the refused measurement: the motion model

@@ -16,6 +16,12 @@ class HybridConfig:
         check_period: frames between CNN checks while tracking (0: never check).
         disagreement_chi2: squared Mahalanobis distance (fused pose vs CNN pose, both covariances)
             above which a CNN check disagrees.
+        disagreement_deg: a CNN check whose rotation is further than this from the fused pose (°)
+            disagrees too, whatever the covariances say: twice a tracker's basin is another pose, not
+            noise. A regressor whose calibration had to cover gross errors (a part's 60-minute fit puts a
+            quarter of its held-out views outside a tracker's basin) reports covariances no track lies
+            outside.
+            None: the Mahalanobis test alone.
         confirm_checks: consecutive disagreeing checks that re-initialise from the CNN (1: trust
             every check; 2 or more: a single CNN outlier is ignored).
         lost_after_rejections: consecutive tracker measurements refused by the fusion's gate that
@@ -100,6 +106,7 @@ class HybridConfig:
     cnn_search_px: float = 12.0
     keep_quality: float | None = 0.4
     keep_after: int = 5
+    disagreement_deg: float | None = 20.0
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "keep_after"):
@@ -113,6 +120,8 @@ class HybridConfig:
         for name in ("disagreement_chi2", "reacquire_chi2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
+        if self.disagreement_deg is not None and not 0 < self.disagreement_deg <= 180:
+            raise ValueError(f"disagreement_deg: expected an angle in (0, 180] degrees or None, got {self.disagreement_deg}")
         if self.keep_quality is not None and not 0 <= self.keep_quality <= 1:
             raise ValueError(f"keep_quality: expected a tracker quality in [0, 1] or None, got {self.keep_quality}")
         if not 0 <= self.start_quality <= 1:

@@ -123,6 +123,42 @@ def test_a_slow_silent_drift_is_caught_by_the_periodic_checks():
     assert all(rotation_error_deg(e.pose, truth(k)) < 0.5 for k, e in enumerate(out) if k >= 31)
 
 
+class Creeping(ScriptedTracker):
+    """1° more off every frame from frame 12, fully confident, until initialised again; a fit started
+    within 1° of the truth (a CNN check's) finds the truth."""
+
+    def track(self, frame, prior=None):
+        k = frame.index
+        off = 1.0 * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
+        if off > 2.0 and prior is not None and rotation_error_deg(prior, truth(k)) < 1.0:
+            off = 0.0
+        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
+        return Measurement(tilt(truth(k), off), cov, 0.85, "tracker:scripted", frame.timestamp)
+
+
+class Vague(OracleRegressor):
+    """Right every time, but with a covariance that says nothing (100° and 1 m): a regressor whose
+    calibration had to cover gross errors."""
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return replace(m, covariance=np.diag([np.radians(100.0) ** 2] * 3 + [1.0] * 3))
+
+
+@pytest.mark.parametrize("disagreement_deg", [20.0, None])
+def test_a_cnn_far_beyond_the_trackers_basin_disagrees_whatever_its_covariance(disagreement_deg):
+    assert HybridConfig().disagreement_deg == 20.0
+    est = HybridEstimator(Creeping(), Vague(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=5, probation_frames=0, disagreement_deg=disagreement_deg))
+    out = run(est, 60)
+    reinit = [k for k, e in enumerate(out) if e.status == "reinit"]
+    if disagreement_deg is None:  # inside the vague covariance, never far: the drift goes on
+        assert reinit == [] and rotation_error_deg(out[-1].pose, truth(59)) > 40
+    else:  # the checks of frames 35 and 36 see 24° and 25°: the second confirms
+        assert reinit == [36], [e.status for e in out]
+        assert all(rotation_error_deg(e.pose, truth(k)) < 0.5 for k, e in enumerate(out) if k >= 36)
+
+
 class Stubborn(ScriptedTracker):
     """0.5° more off every frame from frame 12, fully confident, wherever it is started (a fit from
     the CNN pose lands back on the drift) until initialised again."""

@@ -17,11 +17,11 @@ class HybridConfig:
         disagreement_chi2: squared Mahalanobis distance (fused pose vs CNN pose, both covariances)
             above which a CNN check disagrees.
         disagreement_deg: a CNN check whose rotation is further than this from the fused pose (°)
-            disagrees too, whatever the covariances say: twice a tracker's basin is another pose, not
-            noise. A regressor whose calibration had to cover gross errors (a part's 60-minute fit puts a
-            quarter of its held-out views outside a tracker's basin) reports covariances no track lies
-            outside.
-            None: the Mahalanobis test alone.
+            disagrees too, whatever the covariances say (e.g. 20: twice a tracker's basin is another
+            pose, not noise). A regressor whose calibration had to cover gross errors (a part's
+            60-minute fit puts a quarter of its held-out views outside a tracker's basin) reports
+            covariances no track lies outside, so its checks never switch a wrong start; but its
+            gross errors then switch right tracks too. None (default): the Mahalanobis test alone.
         confirm_checks: consecutive disagreeing checks that re-initialise from the CNN (1: trust
             every check; 2 or more: a single CNN outlier is ignored).
         lost_after_rejections: consecutive tracker measurements refused by the fusion's gate that
@@ -106,7 +106,7 @@ class HybridConfig:
     cnn_search_px: float = 12.0
     keep_quality: float | None = 0.4
     keep_after: int = 5
-    disagreement_deg: float | None = 20.0
+    disagreement_deg: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "keep_after"):

@@ -147,7 +147,7 @@ class Vague(OracleRegressor):
 
 @pytest.mark.parametrize("disagreement_deg", [20.0, None])
 def test_a_cnn_far_beyond_the_trackers_basin_disagrees_whatever_its_covariance(disagreement_deg):
-    assert HybridConfig().disagreement_deg == 20.0
+    assert HybridConfig().disagreement_deg is None
     est = HybridEstimator(Creeping(), Vague(), registry.create("fusion", "ukf"),
                           HybridConfig(check_period=5, probation_frames=0, disagreement_deg=disagreement_deg))
     out = run(est, 60)

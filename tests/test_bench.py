@@ -72,6 +72,10 @@ def test_a_rerun_resumes_from_the_kept_rows(smoke, capsys):
     after = {p: p.stat().st_mtime_ns for p in rows_dir.rglob("*.json")}
     assert set(after) == set(kept)
     assert [p for p in kept if after[p] != kept[p]] == [victim]  # only the missing row was computed again
+    result = json.loads((smoke / "out" / "results.json").read_text())
+    assert result["rows_reused"] == len(kept) - 1
+    # its seconds time only the missing row: the report says so
+    assert f"({len(kept) - 1} of {len(kept)} rows kept from an earlier run" in (smoke / "out" / "report.md").read_text()
 
 
 def test_rows_made_by_other_code_are_made_again(smoke, monkeypatch):

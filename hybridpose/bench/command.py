@@ -183,13 +183,15 @@ def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Calla
     log(f"bench: {len(specs)} runs × {len(scenes)} sequences, {req.workers} worker(s)"
         + (f" on Ray ({req.ray})" if req.ray else ""))
     t0 = time.time()
-    rows = run_all(scenes, specs, out=out, workers=req.workers, ray_address=req.ray, progress=progress)
+    stats: dict = {}
+    rows = run_all(scenes, specs, out=out, workers=req.workers, ray_address=req.ray, progress=progress, stats=stats)
     seeds = None if req.data else list(TUNING_SEEDS if req.split == "tuning" else REPORT_SEEDS)
     result = {"config": {"suite": req.suite if req.data is None else None, "data": req.data, "split": req.split,
                          "seeds": seeds, "sequences": sorted(scenes), "workers": req.workers, "ray": req.ray,
                          "runs": [s.label for s in specs], "object": req.object, "scale": req.scale,
                          "hybrid_config": HybridConfig().__dict__},
-              "versions": _versions(), "commit": _commit(), "seconds": time.time() - t0, "rows": rows}
+              "versions": _versions(), "commit": _commit(), "seconds": time.time() - t0,
+              "rows_reused": stats.get("reused", 0), "rows": rows}
     atomic_write_json(out / "results.json", result)
     plots = write_plots(out, result)
     atomic_write_text(out / "report.md", report_markdown(result, plots))

@@ -184,7 +184,7 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
             + (f"; edge-on tumbles: seeds {edge_on[0]}–{edge_on[-1]}" if edge_on else "") + ")")
     lines = [
         what + f", commit `{result['commit']}`, "
-        f"{cfg['workers']} worker(s), {result['seconds']:.0f} s. Tracker-only starts from the true first pose and is "
+        f"{cfg['workers']} worker(s), {result['seconds']:.0f} s{_reused(result)}. Tracker-only starts from the true first pose and is "
         "never re-initialised; CNN-only runs on every frame with no prior; the hybrid gets no ground truth. "
         "Errors over the frames where the object is ≥ 50 % visible and the run gave a trusted pose (for a "
         "symmetric object, to the nearest equivalent of the truth); in basin: share of those half-visible frames "
@@ -293,3 +293,10 @@ def write_plots(out: Path, result: dict) -> list[str]:
             names.append(f"error_over_time_{seq}.png")
             plot_sequence(out / names[-1], shown, seq)
     return names
+
+
+def _reused(result: dict) -> str:
+    """`` (R of N rows kept from an earlier run of the same code)`` where a run resumed, else ``""``: its
+    seconds then time only the rest."""
+    reused, total = result.get("rows_reused", 0), len(result["rows"])
+    return f" ({reused} of {total} rows kept from an earlier run of the same code)" if reused else ""

@@ -180,7 +180,7 @@ def _kept(out: Path | None, name: str, spec: RunSpec, code: str) -> dict | None:
 
 
 def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: int = 1, ray_address: str | None = None,
-            progress: Callable[[str], None] | None = None) -> list[dict]:
+            progress: Callable[[str], None] | None = None, stats: dict | None = None) -> list[dict]:
     """Every spec on every sequence ``{name: scene_dir}``; rows in (name, spec) order.
 
     Args:
@@ -189,6 +189,7 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
         workers: local worker processes (1: this process).
         ray_address: run the sequences as Ray tasks on this cluster (``"auto"``, ``"local"`` or an
             address) instead of local processes; needs ``pip install "hybridpose[ray]"``.
+        stats: a dict that gets ``reused``: how many rows came from ``out`` instead of being run.
     """
     out = Path(out) if out is not None else None
     code = code_fingerprint()
@@ -204,6 +205,8 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
                 done[(name, s.key)] = row
         if missing:
             todo[name] = missing
+    if stats is not None:
+        stats["reused"] = len(done)
 
     def keep(rows: list[dict], name: str) -> None:
         for r in rows:

@@ -16,7 +16,8 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   covering half the object lowers a right fit's quality under the tracker's own threshold). Every
   ``check_period`` frames the CNN runs on a crop around the predicted projection, and the tracker
   fits the edges from the CNN pose too. The check disagrees when the CNN pose is far from the fused
-  one (``disagreement_chi2`` with both covariances) or when the fit from the CNN pose lands
+  one (``disagreement_chi2`` with both covariances; optionally ``disagreement_deg`` apart whatever
+  the covariances) or when the fit from the CNN pose lands
   elsewhere and matches the image better than the current track
   (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
   at once) restart everything from that fit — the drift the tracker did not flag. A check whose CNN
@@ -31,6 +32,10 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
   from the prediction each frame and takes up again by itself when its fit is good and inside the
   gate (``tracker_resumes``); the fusion then starts over from that fit.
+
+For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose
+nearest the track (or, while lost, nearest the previous answer): the CNN may give any of the poses that
+look the same, and only that one can be compared with the track or fused into it.
 
 Every threshold is a field of :class:`HybridConfig`, its default chosen on the tuning seeds of the
 suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).

@@ -101,39 +101,31 @@ def test_a_silent_drift_is_caught_by_the_cnn_checks_and_reinitialises():
     assert all(rotation_error_deg(e.pose, truth(k)) < 0.5 for k, e in enumerate(out) if k >= reinit[0])
 
 
+class Creeping(ScriptedTracker):
+    """``rate_deg`` more off every frame from frame 12, fully confident, until initialised again; a fit
+    started within 1° of the truth (a CNN check's) finds the truth once the drift is plain (> 2°)."""
+
+    def __init__(self, rate_deg: float, **kw):
+        super().__init__(**kw)
+        self.rate_deg = rate_deg
+
+    def track(self, frame, prior=None):
+        k = frame.index
+        off = self.rate_deg * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
+        if off > 2.0 and prior is not None and rotation_error_deg(prior, truth(k)) < 1.0:
+            off = 0.0
+        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
+        return Measurement(tilt(truth(k), off), cov, 0.85, "tracker:scripted", frame.timestamp)
+
+
 def test_a_slow_silent_drift_is_caught_by_the_periodic_checks():
-    class Creeping(ScriptedTracker):
-        """0.5° more off every frame from frame 12, fully confident, until initialised again; a fit
-        started within 1° of the truth (a CNN check's) finds the truth once the drift is plain."""
-
-        def track(self, frame, prior=None):
-            k = frame.index
-            off = 0.5 * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
-            if off > 2.0 and prior is not None and rotation_error_deg(prior, truth(k)) < 1.0:
-                off = 0.0
-            cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
-            return Measurement(tilt(truth(k), off), cov, 0.85, "tracker:scripted", frame.timestamp)
-
-    est = HybridEstimator(Creeping(), OracleRegressor(), registry.create("fusion", "ukf"),
+    est = HybridEstimator(Creeping(0.5), OracleRegressor(), registry.create("fusion", "ukf"),
                           HybridConfig(check_period=10, confirm_checks=2, probation_frames=0))
     out = run(est, 40)
     # at the check of frame 20 the drift (4.5°) is inside the 99.9 % gate of a 1° CNN; at frame 30
     # (9.5°) it is not, and frame 31 confirms it
     assert [k for k, e in enumerate(out) if e.status == "reinit"] == [31]
     assert all(rotation_error_deg(e.pose, truth(k)) < 0.5 for k, e in enumerate(out) if k >= 31)
-
-
-class Creeping(ScriptedTracker):
-    """1° more off every frame from frame 12, fully confident, until initialised again; a fit started
-    within 1° of the truth (a CNN check's) finds the truth."""
-
-    def track(self, frame, prior=None):
-        k = frame.index
-        off = 1.0 * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
-        if off > 2.0 and prior is not None and rotation_error_deg(prior, truth(k)) < 1.0:
-            off = 0.0
-        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
-        return Measurement(tilt(truth(k), off), cov, 0.85, "tracker:scripted", frame.timestamp)
 
 
 class Vague(OracleRegressor):
@@ -148,7 +140,7 @@ class Vague(OracleRegressor):
 @pytest.mark.parametrize("disagreement_deg", [20.0, None])
 def test_a_cnn_far_beyond_the_trackers_basin_disagrees_whatever_its_covariance(disagreement_deg):
     assert HybridConfig().disagreement_deg is None
-    est = HybridEstimator(Creeping(), Vague(), registry.create("fusion", "ukf"),
+    est = HybridEstimator(Creeping(1.0), Vague(), registry.create("fusion", "ukf"),
                           HybridConfig(check_period=5, probation_frames=0, disagreement_deg=disagreement_deg))
     out = run(est, 60)
     reinit = [k for k, e in enumerate(out) if e.status == "reinit"]

@@ -54,7 +54,7 @@ from .fusion.base import adjoint
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
 from .hybrid_config import HybridConfig
-from .metrics import rotation_error_rad
+from .metrics import rotation_error_deg, rotation_error_rad
 from .objects import ObjectModel
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -78,8 +78,9 @@ def nearest_equivalent_measurement(m: Measurement, near: Pose, symmetries) -> Me
     pose, the object no symmetry, or the identity is nearest."""
     if m.pose is None or near is None or not symmetries:
         return m
-    best = min(symmetries, key=lambda S: rotation_error_rad(m.pose @ S, near))
-    if rotation_error_rad(m.pose @ best, near) >= rotation_error_rad(m.pose, near):
+    identity = Pose.identity()
+    best = min((identity, *symmetries), key=lambda S: rotation_error_rad(m.pose @ S, near))  # first on a tie
+    if best is identity:
         return m
     A = adjoint(best.inverse())
     return replace(m, pose=m.pose @ best, covariance=A @ np.asarray(m.covariance) @ A.T)
@@ -230,7 +231,7 @@ class HybridEstimator:
             if c.pose is not None:
                 far = (_mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
                        or (self.config.disagreement_deg is not None
-                           and np.degrees(rotation_error_rad(fused.pose, c.pose)) > self.config.disagreement_deg))
+                           and rotation_error_deg(fused.pose, c.pose) > self.config.disagreement_deg))
                 fit = self._track_from(frame, c.pose, timings, self._cnn_search_px())
                 if rejected and self.config.check_on_rejection and self._vouched(m, c, fit):
                     # the edges from the CNN pose land on the refused measurement: the motion model

@@ -235,8 +235,8 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     rendered with another seed than the training and test sets — and multiplies the covariance by
     the factor that puts ``coverage`` of the errors to the nearest box twin inside the χ²₆
     ellipsoid of that probability (the quality, not the covariance, says when a pose may be turned
-    end for end; a symmetric object's errors count to its nearest equivalent pose). Both directions: a path more precise than its training calibration gets a smaller
-    covariance.
+    end for end; a symmetric object's errors count to its nearest equivalent pose). Both directions:
+    a path more precise than its training calibration gets a smaller covariance.
 
     ``by_quality`` (keypoint models): also a factor per band of the measurements' quality
     (:func:`~hybridpose.regressors.calibration.quality_scale`, stored as ``quality_scale``), so that

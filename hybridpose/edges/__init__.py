@@ -1,6 +1,7 @@
 """Model edges against image edges, below both the trackers and the regressors (roles never import
 each other): which model edges are visible at a pose (:class:`ModelView`), the search for image edges
-along their normals, the moving-edge fit (:func:`fit_edges`) and how much of the image it explains
+along their normals, the moving-edge fit (:func:`fit_edges`; coarse to fine over an image pyramid:
+:func:`coarse_to_fine`) and how much of the image it explains
 (:func:`explained_edge_share`, and of its lit pixels: :func:`explained_lit_share`). The edge trackers follow the object with it; the CNN regressor
 refines its pose and chooses between end-for-end twins with it.
 """
@@ -14,7 +15,8 @@ from .fit import (
     to_gray,
 )
 from .model_view import EdgeSamples, ModelView
+from .pyramid import coarse_to_fine, projected_diagonal_px
 from .silhouette import explained_lit_share
 
-__all__ = ["EdgeFit", "EdgeSamples", "ModelView", "explained_edge_share", "explained_lit_share", "fit_edges", "fit_from_proposals",
-           "honest_quality", "search_edges", "to_gray"]
+__all__ = ["EdgeFit", "EdgeSamples", "ModelView", "coarse_to_fine", "explained_edge_share", "explained_lit_share",
+           "fit_edges", "fit_from_proposals", "honest_quality", "projected_diagonal_px", "search_edges", "to_gray"]

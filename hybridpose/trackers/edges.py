@@ -10,12 +10,23 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import Frame
-from ..edges import ModelView, fit_edges, honest_quality, to_gray
+from ..edges import (
+    ModelView,
+    coarse_to_fine,
+    fit_edges,
+    honest_quality,
+    projected_diagonal_px,
+    to_gray,
+)
 from ..edges.fit import TRACKING_POLISH, check_polish
 from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
+
+# objects whose projected box at a wide search's start is this large (diagonal, px) get the
+# coarse-to-fine retry: the truss overflowing a 640×480 view (0.3–0.6 m); chosen on the tuning seeds
+COARSE_MIN_PX = 600.0
 
 
 @register("tracker", "edges")
@@ -34,6 +45,11 @@ class EdgeTracker(Tracker):
             object the model explains (:func:`honest_quality`); False: the fit's quality alone.
         polish: the fit's last iterations with each sample's search stopped halfway to the nearest
             other model edge (:func:`~hybridpose.edges.fit_edges`; 0: none).
+        coarse_min_px: where a wide search (``track(..., search_px=)``, a start from a coarse pose)
+            is lost and the object's projected box at the start is at least this large (diagonal,
+            px), the fit is tried again from a coarse-to-fine pass over the shrunk frame
+            (:func:`~hybridpose.edges.pyramid.coarse_to_fine`) and kept where its quality is higher
+            (0: never).
     """
 
     name = "edges"
@@ -42,9 +58,12 @@ class EdgeTracker(Tracker):
 
     def __init__(self, object: ObjectModel, search_px: int = 8, max_samples: int = 400,
                  lost_quality: float | None = None, covariance_scale: float = 4.0, explain: bool = True,
-                 polish: int = TRACKING_POLISH) -> None:
+                 polish: int = TRACKING_POLISH, coarse_min_px: float = COARSE_MIN_PX) -> None:
         super().__init__(object, lost_quality)
         self.polish = check_polish(polish)
+        if not (np.isfinite(coarse_min_px) and coarse_min_px >= 0):
+            raise ValueError(f"coarse_min_px: expected a projected size ≥ 0 pixels (0: off), got {coarse_min_px!r}")
+        self.coarse_min_px = float(coarse_min_px)
         if search_px < 1:
             raise ValueError(f"search_px: expected ≥ 1 pixel, got {search_px}")
         self.view = ModelView(object)
@@ -74,4 +93,12 @@ class EdgeTracker(Tracker):
         return fit.pose, fit.covariance, quality
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):
-        return self._track(frame, start, search_px=max(self.search_px, int(np.ceil(search_px))))
+        wide = max(self.search_px, int(np.ceil(search_px)))
+        pose, cov, quality = self._track(frame, start, search_px=wide)
+        if (quality < self.lost_quality and self.coarse_min_px > 0
+                and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
+            # an object this large may lie beyond any full-resolution search: fit the shrunk frames first
+            coarse = self._track(frame, coarse_to_fine(self.view, frame, start), search_px=wide)
+            if coarse[2] > quality:
+                return coarse
+        return pose, cov, quality

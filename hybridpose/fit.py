@@ -40,6 +40,7 @@ IMAGE_SIZE = 128
 # (1.5e-4 left a 40-minute box fit at 127° on its validation views after 3 epochs)
 FIT_LR = 1e-3
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
+OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
@@ -166,7 +167,7 @@ def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: flo
 
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
         backgrounds=None, workers: int = 1, init_from="default", progress=print,
-        plan: FitPlan | None = None, bar=None) -> dict:
+        plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE) -> dict:
     """Render, train, calibrate and evaluate a ``default`` keypoint regressor for ``mesh``.
 
     Args:
@@ -180,6 +181,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         workers: render processes.
         init_from: the checkpoint the training starts from (its matching weights): ``"default"``
             (the shipped truss network's features), a path, or None (from scratch).
+        occluded_share: share of the training views with the arm partly in front of the part
+            (:func:`~hybridpose.datasets.render_random_dataset`); held-out views have none.
         plan: views and epochs fixed by the caller instead of measured for ``budget`` (its
             ``budget_min`` is then not checked against the minimum: for tests and small trials).
         progress: called with one line per stage. bar: ``bar(description)`` → a ``(done, total)``
@@ -202,11 +205,15 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     record_path = out / "fit.json"
     request = {"mesh": str(mesh), "scale": float(scale), "camera": camera.to_dict(), "budget_min": budget_min,
                "seed": int(seed), "backgrounds": None if backgrounds is None else str(backgrounds),
-               "init_from": None if init_from is None else str(init_from)}
+               "init_from": None if init_from is None else str(init_from),
+               # recorded only when set, so that fits made before the option still resume
+               **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)})}
+    if not 0.0 <= occluded_share <= 1.0:
+        raise ValueError(f"occluded_share: expected a share of the training views in [0, 1], got {occluded_share}")
     if record_path.is_file():
         record = read_json(record_path)
         if record["request"] != request:
-            diff = sorted(k for k in request if record["request"].get(k) != request[k])
+            diff = sorted(k for k in {*request, *record["request"]} if record["request"].get(k) != request.get(k))
             raise ValueError(f"out: {out} holds a fit with other settings ({', '.join(diff)}); choose another --out")
         plan = FitPlan(**{**record["plan"], "distance_range_m": tuple(record["plan"]["distance_range_m"])})
         progress(f"fit: resuming in {out}")
@@ -237,7 +244,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     half = max(1, plan.test_views // 2)
     stage("render", lambda: (
         render_random_dataset(out / "data" / "train", obj, camera, plan.train_views, seed=seed,
-                              progress=tick("render training views"), **common),
+                              progress=tick("render training views"), occluded_share=occluded_share, **common),
         render_random_dataset(out / "data" / "calib", obj, camera, half, seed=seed + 2,
                               progress=tick("render calibration views"), **common),
         render_random_dataset(out / "data" / "test", obj, camera, plan.test_views - half, seed=seed + 1,
@@ -296,7 +303,9 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"Mesh `{req['mesh']}` (×{req['scale']:g} → metres, {obj.diameter:.3f} m across), camera "
         f"{req['camera']['width']}×{req['camera']['height']}, budget {p['budget_min']:g} min, seed {req['seed']}.", "",
         f"- Rendered {p['train_views']} training and {p['test_views']} held-out views (random backgrounds, "
-        f"lights and colours; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away).",
+        f"lights and colours; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away"
+        + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views"
+           if req.get("occluded_share") else "") + ").",
         f"- Trained the `default` network ({IMAGE_SIZE} px, {FULL_VIEW:.0%} whole-frame crops"
         + (f"; one unlabelled heatmap of its {len(obj.keypoints)} keypoints, which look alike under its symmetries"
            if obj.symmetric else "") + f") for up to "

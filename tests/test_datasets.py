@@ -133,6 +133,23 @@ def test_random_dataset_records_each_images_sun(truss, tmp_path):
         render_random_dataset(tmp_path / "bad", truss, CAM, count=2, sun_cone_deg=200.0)
 
 
+def test_random_views_with_the_arm_in_front_are_seeded_recorded_and_cover_part_of_the_object(truss, tmp_path):
+    out = render_random_dataset(tmp_path / "occ", truss, CAM, count=8, seed=4, in_view=True, occluded_share=0.5)
+    cfg = json.loads((tmp_path / "occ" / "hybridpose.json").read_text())
+    assert cfg["occluded_share"] == 0.5
+    visible = [e[0]["visib_fract"] for e in json.loads((out / "scene_gt_info.json").read_text()).values()]
+    plain = [e[0]["visib_fract"] for e in json.loads(
+        (render_random_dataset(tmp_path / "plain", truss, CAM, count=8, seed=4, in_view=True) / "scene_gt_info.json")
+        .read_text()).values()]
+    # the same poses (the occluders draw from a stream of their own); some views now partly covered
+    assert BopScene(out).image(3).pose.t == pytest.approx(BopScene(tmp_path / "plain" / "train" / "000000").image(3).pose.t)
+    covered = [v < p - 0.05 for v, p in zip(visible, plain)]
+    assert 1 <= sum(covered) <= 7 and min(visible) > 0.0, visible
+    assert "occluded_share" not in json.loads((tmp_path / "plain" / "hybridpose.json").read_text())
+    with pytest.raises(ValueError, match="occluded_share"):
+        render_random_dataset(tmp_path / "bad", truss, CAM, count=2, occluded_share=1.5)
+
+
 def test_sequence_dataset_has_timestamps_and_occlusion(truss, tmp_path):
     spec = SequenceSpec("tumble", frames=12, fps=10, occlusion="arm-full", seed=2)
     scene_dir = render_sequence_dataset(tmp_path / "seq", truss, CAM, spec)

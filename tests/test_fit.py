@@ -69,7 +69,8 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     plan = FitPlan(budget_min=2.0, train_views=32, test_views=44, epochs=1, train_min=1.0, render_s_per_view=0.05,
                    train_s_per_view=0.05, distance_range_m=working_distances(box, cam))
     out = tmp_path / "fit"
-    record = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None)
+    record = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None,
+                 occluded_share=0.25)
     assert record["done"] == ["render", "train", "calibrate", "evaluate"]
     assert (out / "best.pt").is_file() and (out / "eval" / "report.json").is_file()
     acc = record["accuracy"]
@@ -80,6 +81,10 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     # the rendered views have random looks, not black space
     cfg = json.loads((out / "data" / "train" / "hybridpose.json").read_text())
     assert cfg["appearance"]["kind"] == "random"
+    # the arm in front of a quarter of the training views, never in the held-out ones
+    assert cfg["occluded_share"] == 0.25 and record["request"]["occluded_share"] == 0.25
+    assert "the arm partly in front of it in 25% of the training views" in report
+    assert "occluded_share" not in json.loads((out / "data" / "test" / "hybridpose.json").read_text())
     # the checkpoint finds the part itself (trained with whole-frame crops)
     from hybridpose.regressors.predictor import CheckpointRegressor
 
@@ -91,10 +96,13 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     assert reg.net.unlabelled and reg.passes.unlabelled is not None and reg.twins == [] and not reg.has_twin_head
     # a second run resumes: nothing is done again
     stamp = (out / "best.pt").stat().st_mtime_ns
-    again = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None)
+    again = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None,
+                occluded_share=0.25)
     assert again["minutes"] == record["minutes"] and (out / "best.pt").stat().st_mtime_ns == stamp
     with pytest.raises(ValueError, match="other settings.*seed"):
-        fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None)
+        fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None, occluded_share=0.25)
+    with pytest.raises(ValueError, match="other settings.*occluded_share"):
+        fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None)
 
 
 def test_a_symmetric_parts_covariance_is_calibrated_on_its_errors_to_the_nearest_equivalent_pose(
@@ -141,6 +149,8 @@ def test_fit_command_refuses_bad_input_with_a_message(box_mesh, tmp_path, capsys
     assert "--scale 0.001" in capsys.readouterr().err
     assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "b"), "--budget", "1m"]) == 2
     assert "too little" in capsys.readouterr().err
+    assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--occluded-share", "2"]) == 2
+    assert "occluded_share" in capsys.readouterr().err
     assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--budget", "soon"]) == 2
     assert "budget: expected a time" in capsys.readouterr().err
 

@@ -26,7 +26,8 @@ def cmd_render(args) -> int:
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
                                       progress=progress("render"), sun_cone_deg=args.sun_cone,
                                       sun_scale_range=args.sun_range, in_view=args.in_view, workers=args.workers,
-                                      elevation_range_deg=args.elevation, appearance=looks)
+                                      elevation_range_deg=args.elevation, appearance=looks,
+                                      occluded_share=args.occluded_share)
     else:
         spec = SequenceSpec(trajectory=args.trajectory, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                             lighting=args.lighting, seed=args.seed)
@@ -91,7 +92,9 @@ def add_commands(sub) -> None:
     r.add_argument("--near", type=float, default=0.3, help="random: nearest object distance, m")
     r.add_argument("--far", type=float, default=1.2, help="random: farthest object distance, m")
     r.add_argument("--trajectory", default="tumble", choices=registry.available("trajectory"))
-    r.add_argument("--occlusion", default="none", choices=OCCLUSIONS)
+    r.add_argument("--occlusion", default="none", choices=OCCLUSIONS, help="sequence: the arm passing in front")
+    r.add_argument("--occluded-share", type=float, default=0.0, metavar="SHARE",
+                   help="random: share of the views with the arm partly in front of the object (seeded per view)")
     r.add_argument("--lighting", default="constant", choices=LIGHTINGS)
     r.add_argument("--frames", type=int, default=300)
     r.add_argument("--fps", type=float, default=30.0)

@@ -84,7 +84,8 @@ def cmd_fit(args) -> int:
     camera = load_camera(args.camera) if args.camera else None
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
         backgrounds=args.backgrounds, workers=args.workers,
-        init_from=None if args.init_from == "none" else args.init_from, bar=progress)
+        init_from=None if args.init_from == "none" else args.init_from, bar=progress,
+        occluded_share=args.occluded_share)
     return 0
 
 
@@ -165,6 +166,8 @@ def cmd_demo(args) -> int:
 
 def add_commands(sub) -> None:
     """Add this module's subcommands to the ``hybridpose`` parser's ``sub``."""
+    from ..fit import OCCLUDED_SHARE
+
     k = sub.add_parser("track", help="track your object through a video or image folder (the hybrid: the CNN "
                                      "initialises; --init-pose: the tracker alone from that pose)")
     k.add_argument("source", help="video file (.mp4/.avi/...) or folder of images")
@@ -223,6 +226,9 @@ def add_commands(sub) -> None:
     f.add_argument("--workers", type=int, default=1, help="render processes")
     f.add_argument("--init-from", default="default",
                    help="checkpoint to start from: 'default' (the shipped network's weights), a path, or 'none'")
+    f.add_argument("--occluded-share", type=float, default=OCCLUDED_SHARE, metavar="SHARE",
+                   help="share of the training views with the arm partly in front of the part "
+                        f"(default {OCCLUDED_SHARE:g})")
     f.set_defaults(func=cmd_fit)
 
     d = sub.add_parser("demo", help="render an arm-occlusion sequence, run tracker-only, CNN-only and the hybrid "

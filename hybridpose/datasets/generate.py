@@ -20,7 +20,7 @@ from ..io import atomic_write_json, read_json
 from ..objects import ObjectModel
 from ..render import Renderer, SensorModel, SpaceLighting, random_poses
 from ..render.appearance import AppearanceSpec
-from ..render.occluder import ArmState
+from ..render.occluder import ArmState, arm_state
 from ..render.sequences import SequenceSpec, make_sequence
 from .bop import BopSceneWriter, write_camera_json, write_models
 from .labels import Label, write_labels
@@ -166,6 +166,7 @@ def render_random_dataset(
     workers: int = 1,
     elevation_range_deg: tuple[float, float] | None = None,
     appearance: AppearanceSpec | None = None,
+    occluded_share: float = 0.0,
 ) -> Path:
     """``count`` random views within arm's reach (split ``train``) + ``labels.csv``; resumable.
 
@@ -180,11 +181,16 @@ def render_random_dataset(
     ``workers`` > 1 renders in that many processes (identical images: each image's noise is seeded
     by its index). ``appearance`` ``AppearanceSpec("random", backgrounds=DIR)`` draws each image's
     background, ambient and fill lights and part colour (:mod:`hybridpose.render.appearance`): data
-    for a part on a bench or in a hand rather than in space. Returns the scene directory.
+    for a part on a bench or in a hand rather than in space. ``occluded_share`` of the views (a
+    seeded draw per view) have the arm's tool and forearm in front of part of the object
+    (:func:`random_partial_occluder`): a network that has seen the part cut by something in front
+    of it still finds it when a hand or the arm covers it. Returns the scene directory.
     """
     appearance = appearance or AppearanceSpec()
     if count < 1:
         raise ValueError(f"count: expected ≥ 1 images, got {count}")
+    if not 0.0 <= occluded_share <= 1.0:
+        raise ValueError(f"occluded_share: expected a share of the views in [0, 1], got {occluded_share}")
     if not 0 <= sun_cone_deg <= 180:
         raise ValueError(f"sun_cone_deg: expected 0..180 degrees (180: the sun anywhere), got {sun_cone_deg}")
     lo, hi = sun_scale_range
@@ -198,7 +204,8 @@ def render_random_dataset(
               # recorded only when set, so that datasets written before the option still resume
               **({} if elevation_range_deg is None
                  else {"elevation_range_deg": [float(v) for v in elevation_range_deg]}),
-              **({} if appearance == AppearanceSpec() else {"appearance": asdict(appearance)}))
+              **({} if appearance == AppearanceSpec() else {"appearance": asdict(appearance)}),
+              **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)}))
     poses = random_poses(count, camera, distance_range_m, rng=seed, in_view_points=obj.bbox_corners if in_view else None,
                          elevation_range_deg=elevation_range_deg, obj=obj)
     # lighting draws use their own stream so that the poses of a seed never change
@@ -206,7 +213,11 @@ def render_random_dataset(
     dirs = (sun_directions_in_cone(lighting.sun_direction_cam, sun_cone_deg, count, sun_rng)
             if sun_cone_deg > 0 else [None] * count)
     scales = sun_rng.uniform(lo, hi, count) if hi > lo else np.full(count, lo)
-    items = [(p, None, float(k), d) for p, k, d in zip(poses, scales, dirs)]
+    # occluders from a stream of their own too: the poses and suns of a seed stay as they were
+    occ_rng = np.random.default_rng([seed, 11])
+    arms = [random_partial_occluder(p, obj.diameter / 2, camera, occ_rng) if occ_rng.random() < occluded_share else None
+            for p in poses] if occluded_share > 0 else [None] * len(poses)
+    items = [(p, a, float(k), d) for p, a, k, d in zip(poses, arms, scales, dirs)]
     scene_dir = _run_job(out, "train", obj, camera, items, seed, lighting, sensor, progress, workers, appearance)
     default_dir = list(lighting.sun_direction_cam)
     # Each image's sun, so that an evaluation can report error against the lighting geometry
@@ -215,6 +226,16 @@ def render_random_dataset(
                      "sun_scale": float(k)} for i, (_, _, k, d) in enumerate(items)}
     atomic_write_json(scene_dir / "scene_meta.json", {"frames": meta})
     return scene_dir
+
+
+def random_partial_occluder(pose: Pose, object_radius_m: float, camera: Camera, rng: np.random.Generator) -> ArmState:
+    """The arm somewhere on its way in front of the object at ``pose`` (T_cam_obj): the partial
+    occlusion's tool (about half the object's apparent size, beside its centre), from the left or
+    the right, at 30–70 % of the object's distance, between parked beside the view and holding
+    (:func:`~hybridpose.render.occluder.arm_state`); it may miss the object altogether."""
+    return arm_state(pose.t, object_radius_m, progress=float(rng.uniform(0.1, 0.5)), coverage="partial",
+                     side=int(rng.choice((-1, 1))), depth_fraction=float(rng.uniform(0.3, 0.7)),
+                     hfov_deg=camera.hfov_deg)
 
 
 def render_sequence_dataset(

@@ -425,7 +425,7 @@ class HybridEstimator:
         if obj is None or pose is None:
             return None
         corners_cam = pose @ obj.bbox_corners
-        if np.any(corners_cam[:, 2] <= 1e-3):
+        if not np.all(camera.in_front(corners_cam)):
             return None
         uv = camera.project_cam(corners_cam)
         (x0, y0), (x1, y1) = uv.min(0), uv.max(0)

@@ -26,7 +26,7 @@ def projected_diagonal_px(view: ModelView, pose: Pose, camera: Camera) -> float:
     """Diagonal (px) of the image box of the object's bounding-box corners at ``pose``; ``inf`` where a
     corner is not in front of the camera (an object that close overflows any view)."""
     corners = pose @ view.object.bbox_corners
-    if np.any(corners[:, 2] <= 1e-3):
+    if not np.all(camera.in_front(corners)):
         return float("inf")
     uv = camera.project_cam(corners)
     return float(np.linalg.norm(uv.max(0) - uv.min(0)))

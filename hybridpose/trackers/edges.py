@@ -3,7 +3,8 @@
 Each frame is one edge fit (:func:`hybridpose.edges.fit_edges`) from the caller's prior; the quality
 is the fit's, capped by how much of the image's edges and, on a dark background, of its lit pixels
 the model explains (:func:`hybridpose.edges.honest_quality`). Below ``lost_quality`` (default 0.5) →
-``lost``.
+``lost``. A wide search (a start from a CNN pose) that comes out lost on an object filling the view is
+tried again from edge fits on the shrunk frame (:func:`hybridpose.edges.coarse_to_fine`).
 """
 from __future__ import annotations
 

@@ -50,9 +50,27 @@ def close_views(truss, camera):
 def test_a_close_start_far_off_is_found_by_the_coarse_retry(truss, close_views):
     direct = wide_track_errors(truss, close_views, 0.0, deg=8.0, mm=30.0)
     retried = wide_track_errors(truss, close_views, 600.0, deg=8.0, mm=30.0)
-    # measured: 1 of 12 views within 1° from the direct fit, 4 with the retry
+    # measured: none of the 12 views within 1° from the direct fit, 3 with the retry
     assert np.sum(retried <= 1.0) >= np.sum(direct <= 1.0) + 2, (direct, retried)
     assert np.all(retried[direct <= 1.0] <= 1.0)  # the retry runs only where the direct fit was lost
+
+
+def test_a_track_from_a_prediction_off_in_depth_is_found_by_the_coarse_retry(truss, close_views):
+    """A prediction that coasted through an occlusion close up: 1° off, its distance 10 % off."""
+    def errors(coarse_min_px):
+        tracker = create("tracker", "edges", object=truss, coarse_min_px=coarse_min_px)
+        out = []
+        for k, (frame, truth) in enumerate(close_views):
+            tracker.init(frame, truth)
+            for scale in (0.9, 1.1):
+                m = tracker.track(frame, off(Pose(truth.R, truth.t * scale), 1.0, 0.0, k))
+                out.append(np.inf if m.lost else rotation_error_deg(m.pose, truth))
+        return np.array(out)
+
+    direct, retried = errors(0.0), errors(600.0)
+    # measured: 5 of 24 within 1° from the direct fit, 14 with the retry
+    assert np.sum(retried <= 1.0) >= np.sum(direct <= 1.0) + 4, (direct, retried)
+    assert np.all(retried[direct <= 1.0] <= 1.0)
 
 
 def test_the_retry_leaves_objects_of_ordinary_size_alone(truss, camera):

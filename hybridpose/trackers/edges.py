@@ -3,8 +3,8 @@
 Each frame is one edge fit (:func:`hybridpose.edges.fit_edges`) from the caller's prior; the quality
 is the fit's, capped by how much of the image's edges and, on a dark background, of its lit pixels
 the model explains (:func:`hybridpose.edges.honest_quality`). Below ``lost_quality`` (default 0.5) →
-``lost``. A wide search (a start from a CNN pose) that comes out lost on an object filling the view is
-tried again from edge fits on the shrunk frame (:func:`hybridpose.edges.coarse_to_fine`).
+``lost``. A fit that comes out lost on an object filling the view is tried again from edge fits on
+the shrunk frame (:func:`hybridpose.edges.coarse_to_fine`).
 """
 from __future__ import annotations
 
@@ -46,11 +46,11 @@ class EdgeTracker(Tracker):
             object the model explains (:func:`honest_quality`); False: the fit's quality alone.
         polish: the fit's last iterations with each sample's search stopped halfway to the nearest
             other model edge (:func:`~hybridpose.edges.fit_edges`; 0: none).
-        coarse_min_px: where a wide search (``track(..., search_px=)``, a start from a coarse pose)
-            is lost and the object's projected box at the start is at least this large (diagonal,
-            px), the fit is tried again from a coarse-to-fine pass over the shrunk frame
-            (:func:`~hybridpose.edges.pyramid.coarse_to_fine`) and kept where its quality is higher
-            (0: never).
+        coarse_min_px: where a fit comes out lost and the object's projected box at its start is at
+            least this large (diagonal, px), the fit is tried again from a coarse-to-fine pass over
+            the shrunk frame (:func:`~hybridpose.edges.pyramid.coarse_to_fine`) and kept where its
+            quality is higher (0: never): a CNN pose a few degrees off, or a prediction that coasted
+            through an occlusion, close up.
     """
 
     name = "edges"
@@ -84,6 +84,16 @@ class EdgeTracker(Tracker):
                          polish=self.polish)
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
+        pose, cov, quality = self._fit_once(frame, start, search_px)
+        if (quality < self.lost_quality and self.coarse_min_px > 0
+                and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
+            # an object this large may lie beyond any full-resolution search: fit the shrunk frames first
+            coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), search_px)
+            if coarse[2] > quality:
+                return coarse
+        return pose, cov, quality
+
+    def _fit_once(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray = to_gray(frame.image)  # one conversion for the fit and the quality
         # the range halves at each outer iteration: a wider start takes as many more to reach the usual end
         extra = 0 if search_px is None else max(0, int(np.ceil(np.log2(search_px / self.search_px))))
@@ -94,12 +104,4 @@ class EdgeTracker(Tracker):
         return fit.pose, fit.covariance, quality
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):
-        wide = max(self.search_px, int(np.ceil(search_px)))
-        pose, cov, quality = self._track(frame, start, search_px=wide)
-        if (quality < self.lost_quality and self.coarse_min_px > 0
-                and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
-            # an object this large may lie beyond any full-resolution search: fit the shrunk frames first
-            coarse = self._track(frame, coarse_to_fine(self.view, frame, start), search_px=wide)
-            if coarse[2] > quality:
-                return coarse
-        return pose, cov, quality
+        return self._track(frame, start, search_px=max(self.search_px, int(np.ceil(search_px))))

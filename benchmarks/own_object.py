@@ -15,7 +15,8 @@ vs hybrid on sequences of it in front of a real photo the fit never saw.
    of ``benchmarks/RESULTS.md``.
 
 Every step resumes. Seeds: the fit's 0 (training views) and 1 (held-out views); the sequences' 1–30.
-Nothing here was tuned on these sequences (the box's tuning sequences are seeds 101–106 over other photos).
+Nothing here was tuned on these sequences (the box's tuning sequences: seeds 101–130, the same six kinds over
+other photos).
 """
 from __future__ import annotations
 

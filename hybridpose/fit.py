@@ -40,7 +40,7 @@ IMAGE_SIZE = 128
 # (1.5e-4 left a 40-minute box fit at 127° on its validation views after 3 epochs)
 FIT_LR = 1e-3
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
-OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object
+OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)

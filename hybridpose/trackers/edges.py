@@ -25,7 +25,7 @@ from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 
-# objects whose projected box at a wide search's start is this large (diagonal, px) get the
+# objects whose projected box at a lost fit's start is this large (diagonal, px) get the
 # coarse-to-fine retry: the truss overflowing a 640×480 view (0.3–0.6 m); chosen on the tuning seeds
 COARSE_MIN_PX = 600.0
 
@@ -84,17 +84,17 @@ class EdgeTracker(Tracker):
                          polish=self.polish)
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
-        pose, cov, quality = self._fit_once(frame, start, search_px)
+        gray = to_gray(frame.image)  # one conversion for the fits and their qualities
+        pose, cov, quality = self._fit_once(frame, start, gray, search_px)
         if (quality < self.lost_quality and self.coarse_min_px > 0
                 and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
             # an object this large may lie beyond any full-resolution search: fit the shrunk frames first
-            coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), search_px)
+            coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), gray, search_px)
             if coarse[2] > quality:
                 return coarse
         return pose, cov, quality
 
-    def _fit_once(self, frame: Frame, start: Pose, search_px: int | None = None):
-        gray = to_gray(frame.image)  # one conversion for the fit and the quality
+    def _fit_once(self, frame: Frame, start: Pose, gray: np.ndarray, search_px: int | None = None):
         # the range halves at each outer iteration: a wider start takes as many more to reach the usual end
         extra = 0 if search_px is None else max(0, int(np.ceil(np.log2(search_px / self.search_px))))
         fit = self._fit(frame, start, outer=3 + extra, gray=gray, search_px=search_px)

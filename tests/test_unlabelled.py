@@ -142,7 +142,7 @@ def test_the_unlabelled_network_runs_alike_on_torch_and_onnxruntime(box):
 
 
 def test_the_linked_cluster_keeps_the_chain_from_the_strongest_detection():
-    from hybridpose.regressors.keypoint_passes import linked_cluster
+    from hybridpose.regressors.network_detection import linked_cluster
 
     points = np.array([[10.0, 10.0], [100.0, 100.0], [14.0, 12.0], [18.0, 15.0], [21.0, 30.0], [104.0, 99.0]])
     assert linked_cluster(points, 6.0).tolist() == [[10.0, 10.0], [14.0, 12.0], [18.0, 15.0]]

@@ -20,7 +20,6 @@ from ..geometry import Camera, Pose
 from ..geometry.crops import crop_box, crop_image
 from .calibration import PNP_THRESHOLD
 from .detection import CROP_MARGIN
-from .keypoint_net import HEATMAP_STRIDE
 from .keypoint_pnp import PnPResult, solve_pnp
 from .options import KeypointOptions
 from .unlabelled import detections, solve_pnp_unlabelled
@@ -43,25 +42,6 @@ SIZE_RATIO_MAX = 3.0
 # and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (a test written before those views were rendered).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
 TURNS_BELOW_INLIERS = 0.8
-# a whole-frame pass of an unlabelled network whose detections PnP cannot use (a part a few cells across)
-# still says where the part is: the detections linked to the strongest one (each within CLUSTER_LINK of
-# the crop side of another; clutter elsewhere stays out), boxed at least MIN_BOX_CELLS heatmap cells wide.
-# Where PnP has a pose, its projection boxes the part better (tuning sequences over photos: CNN-only
-# within a tracker's basin 38 vs 17 % of the frames; the procedural views favoured the linked box)
-CLUSTER_LINK = 0.2  # procedural calibration views, whole path > 10° off: 0.12 / 0.2 / 0.3 → 47 / 27 / 30 %
-MIN_BOX_CELLS = 4
-
-
-def linked_cluster(points: np.ndarray, link: float) -> np.ndarray:
-    """The points (M, 2) joined to the first one by a chain of steps shorter than ``link`` (single
-    linkage), first one included."""
-    inside = np.zeros(len(points), bool)
-    inside[0] = True
-    while True:
-        near = (np.linalg.norm(points[:, None] - points[inside][None], axis=2) < link).any(1) & ~inside
-        if not near.any():
-            return points[inside]
-        inside |= near
 
 
 def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:
@@ -104,6 +84,11 @@ def wants_second_pass(passes, res, prob) -> bool:
 
 def _to_tensor(img: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float().div_(255.0)[None]
+
+
+def _row(batch, i: int):
+    """Row ``i`` of a batched network output, None where the network has no such output."""
+    return None if batch is None else batch[i]
 
 
 def image_batch(*images: np.ndarray) -> torch.Tensor:
@@ -198,21 +183,40 @@ class KeypointPasses:
         for i, A in enumerate(turns):
             back = np.linalg.inv(A)
             uv = uv_all[i].float().cpu().numpy().astype(np.float64) @ back[:2, :2].T + back[:2, 2]
-            if self.unlabelled is not None:
-                planes, gauge = self.unlabelled
-                uv = detections(uv, score_all[i].float().cpu().numpy())
-                res = solve_pnp_unlabelled(uv, self.keypoints_m, planes, gauge, K_crop, PNP_THRESHOLD * self.image_size)
-            else:
-                res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size,
-                                outliers=outliers)
-            order, prob = list(range(len(self.twins) + 1)), None
-            if self.has_twin_head:
-                prob = torch.softmax(twin[i].float(), 0).cpu().numpy()
-                order = [int(k) for k in np.argsort(-prob, kind="stable")]
-                if res is not None and order[0] > 0:  # undo the twin the keypoints follow (half-turns are their own inverses)
-                    res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
-            out.append((res, uv, order, prob))
+            out.append(self._solve(uv, _row(score_all, i), _row(twin, i), K_crop, outliers))
         return out
+
+    def solve_boxes(self, image: np.ndarray, K: np.ndarray, boxes) -> list:
+        """One network pass on each of ``boxes`` [(cx, cy, side), …] pixels of ``image`` (intrinsics ``K``
+        (3, 3)), all in one batch, then PnP: [(result or None, keypoints (N, 2) in crop pixels, crop K
+        (3, 3), twin order, twin probabilities)] per box."""
+        crops, Ks = zip(*(crop_image(image, K, *box, (self.image_size, self.image_size)) for box in boxes))
+        uv_all, score_all, twin = self.engine(image_batch(*crops))
+        out = []
+        for i, K_crop in enumerate(Ks):
+            uv = uv_all[i].float().cpu().numpy().astype(np.float64)
+            res, uv, order, prob = self._solve(uv, _row(score_all, i), _row(twin, i), K_crop, self.options.pnp_outliers)
+            out.append((res, uv, K_crop, order, prob))
+        return out
+
+    def _solve(self, uv: np.ndarray, score, twin_logits, K_crop: np.ndarray, outliers: str) -> tuple:
+        """PnP on one pass's keypoints ``uv`` (N, 2) crop pixels (an unlabelled network's peaks, scored by
+        ``score``): (result in the twin head's most likely twin or None, keypoints or detections,
+        twin order, twin probabilities)."""
+        if self.unlabelled is not None:
+            planes, gauge = self.unlabelled
+            uv = detections(uv, score.float().cpu().numpy())
+            res = solve_pnp_unlabelled(uv, self.keypoints_m, planes, gauge, K_crop, PNP_THRESHOLD * self.image_size)
+        else:
+            res = solve_pnp(uv, self.keypoints_m, K_crop, threshold_px=PNP_THRESHOLD * self.image_size,
+                            outliers=outliers)
+        order, prob = list(range(len(self.twins) + 1)), None
+        if self.has_twin_head:
+            prob = torch.softmax(twin_logits.float(), 0).cpu().numpy()
+            order = [int(k) for k in np.argsort(-prob, kind="stable")]
+            if res is not None and order[0] > 0:  # undo the twin the keypoints follow (half-turns are their own inverses)
+                res = replace(res, pose=res.pose @ self.twins[order[0] - 1])
+        return res, uv, order, prob
 
     def estimate_in(self, image: np.ndarray, cam: Camera, seen, sun_turn: float = 0.0) -> KeypointEstimate | None:
         """The estimate from the box ``seen`` (x, y, w, h, pixels) where the object was found in the
@@ -233,31 +237,6 @@ class KeypointPasses:
         if self.max_depth_m is not None and res.pose.t[2] > self.max_depth_m:
             return None
         return KeypointEstimate(res, order, prob, self.image_size)
-
-    def network_box(self, image: np.ndarray, cam: Camera):
-        """Box (x, y, w, h) pixels of the keypoints' projection at the pose one network pass on the whole
-        frame gives (coarse: the object may be a few dozen pixels of the network's input), or None."""
-        whole = ((cam.width - 1) / 2, (cam.height - 1) / 2, float(max(cam.width, cam.height)))
-        res, found, K_crop = self.network_pass(image, cam.K, whole)[:3]
-        if self.unlabelled is not None and res is None:
-            if len(found) == 0:
-                return None
-            A = cam.K @ np.linalg.inv(K_crop)
-            uv = linked_cluster(found, CLUSTER_LINK * self.image_size) @ A[:2, :2].T + A[:2, 2]
-            centre, half = 0.5 * (uv.min(0) + uv.max(0)), 0.5 * (uv.max(0) - uv.min(0))
-            half = np.maximum(half, MIN_BOX_CELLS * HEATMAP_STRIDE * A[0, 0] / 2)
-            uv = np.stack([centre - half, centre + half])
-        elif res is None:
-            return None
-        else:
-            pts = res.pose @ self.keypoints_m
-            if np.any(pts[:, 2] <= 0.05):
-                return None
-            uv = cam.project(self.keypoints_m, res.pose)
-        (x0, y0), (x1, y1) = np.maximum(uv.min(0), 0.0), np.minimum(uv.max(0), [cam.width - 1.0, cam.height - 1.0])
-        if x1 - x0 < 2 or y1 - y0 < 2:
-            return None
-        return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
 
     def _box_around(self, pose: Pose | None, uv, K_crop, K) -> tuple[float, float, float] | None:
         """Crop box (cx, cy, side) in frame pixels around the projected keypoints."""

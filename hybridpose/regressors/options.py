@@ -76,9 +76,11 @@ class KeypointOptions:
             twin of both estimates (falls back to ``"quality"`` without edge
             fits or a twin head); ``"replace"``: the expert's estimate replaces the first one.
         detection: without a ``roi``: how the object is found: ``"bright"`` (the
-            sunlit pixels on black space, :mod:`.detection`), ``"network"`` (one network pass on the
-            whole frame, then the crop around the pose it gives: for a checkpoint trained with
-            ``--full-view`` on cluttered backgrounds; the bright detection where it finds nothing),
+            sunlit pixels on black space, :mod:`.detection`), ``"network"`` (network passes on the
+            whole frame and on overlapping tiles of it, then an estimate in the crop around each pose
+            they give, the one PnP fits best kept (:mod:`.network_detection`): for a checkpoint
+            trained with ``--full-view`` on cluttered backgrounds; the bright detection where they
+            find nothing),
             ``"auto"`` (default): ``"network"`` for such a checkpoint, else ``"bright"``.
         dim_fallback: without a ``roi``: where :func:`detect_bright_object` finds
             nothing, or its box gives no plausible pose, look for a faintly lit object

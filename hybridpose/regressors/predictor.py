@@ -36,6 +36,7 @@ from .detection import detect_bright_object, detect_dim_object
 from .direct import bounded_image, direct_pose
 from .engines import ENGINES, keypoint_engine
 from .keypoint_passes import KeypointEstimate, KeypointPasses, image_batch, pnp_quality
+from .network_detection import network_boxes
 from .options import KeypointOptions
 from .twin_choice import TwinChoice, twin_starts
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
@@ -411,8 +412,10 @@ class CheckpointRegressor(PoseRegressor):
 
     def _estimates(self, image: np.ndarray, cam: Camera, roi, sun_turn: float = 0.0) -> list[KeypointEstimate]:
         """:meth:`keypoint_estimates` on the undistorted ``image`` (camera ``cam``), ``sun_turn`` in °."""
-        seen = roi if roi is not None else self._detect(image, cam)
-        est = None if seen is None else self.passes.estimate_in(image, cam, seen, sun_turn)
+        if roi is not None:
+            seen, est = roi, self.passes.estimate_in(image, cam, roi, sun_turn)
+        else:
+            seen, est = self._detect(image, cam, sun_turn)
         if est is None and roi is None and self.options.dim_fallback:
             # nothing bright, or its box gave no plausible pose: the faintly lit object, if any
             dim = detect_dim_object(image)
@@ -429,13 +432,20 @@ class CheckpointRegressor(PoseRegressor):
             return [est]
         return [other] if self.options.expert_rule == "replace" else [est, other]
 
-    def _detect(self, image: np.ndarray, cam: Camera):
-        """Box (x, y, w, h) px where the object is, without a prior (``detection``), or None."""
-        if self.detection == "network":
-            box = self.passes.network_box(image, cam)
-            if box is not None:
-                return box
-        return detect_bright_object(image)
+    def _detect(self, image: np.ndarray, cam: Camera, sun_turn: float) -> tuple:
+        """(box (x, y, w, h) px where the object is, its estimate or None) without a prior
+        (``detection``); (None, None) where nothing is found. With the network's several proposals
+        (:func:`~.network_detection.network_boxes`) the estimate PnP fits best, the first proposal's
+        box where none gives an estimate."""
+        proposals = network_boxes(self.passes, image, cam) if self.detection == "network" else []
+        if not proposals:
+            seen = detect_bright_object(image)
+            return seen, None if seen is None else self.passes.estimate_in(image, cam, seen, sun_turn)
+        found = [(box, self.passes.estimate_in(image, cam, box, sun_turn)) for box in proposals]
+        found = [(box, est) for box, est in found if est is not None]
+        if not found:
+            return proposals[0], None
+        return max(found, key=lambda box_est: pnp_quality(box_est[1]))  # the first of equals: the whole frame's
 
     def twin_candidates(self, frame: Frame, roi=None, sun_direction_cam=None):
         """The box twins the twin choice weighs, before any edge fit: (poses T_cam_obj, head

@@ -1,0 +1,114 @@
+"""Where a keypoint network finds its object in a whole frame, with no prior (``detection="network"``).
+
+The network looks at the whole frame and at overlapping square tiles of it (one batch); each pass
+whose PnP gives a pose proposes the box of that pose's projected keypoints. The regressor then
+estimates in every distinct proposal and keeps the estimate PnP fits best
+(:func:`~.keypoint_passes.pnp_quality`). Why tiles: on a cluttered photo the whole frame, shrunk to
+the network's input, leaves a part a few dozen pixels across among corners of clutter; there the
+whole-frame box missed the part (IoU < 0.5) on 38 % of the frames of the box's tuning sequences, and
+a second look at a finer scale finds it (docs/decisions.md).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..geometry import Camera
+from .keypoint_net import HEATMAP_STRIDE
+
+# tiles: squares this share of the frame's long side, overlapping by at least half a tile (640 × 480:
+# two 480-px squares). Box tuning sequences, CNN-only in a tracker's basin with the frame alone 71 %;
+# with 0.75: 1 × 1 86 %, 2 × 1 88 %, 3 × 1 89 %; 0.6 (2 × 2) 85 %, 0.5 (3 × 2) 84 %, 0.4 (3 × 2) 71 %:
+# small tiles cut the part and find clutter that PnP fits well.
+TILE_SIDE = 0.75
+# proposals whose boxes overlap more than this (intersection over union) are one proposal
+SAME_BOX_IOU = 0.7
+# a whole-frame pass of an unlabelled network whose detections PnP cannot use (a part a few cells across)
+# still says where the part is: the detections linked to the strongest one (each within CLUSTER_LINK of
+# the crop side of another; clutter elsewhere stays out), boxed at least MIN_BOX_CELLS heatmap cells wide.
+# Where PnP has a pose, its projection boxes the part better (tuning sequences over photos: CNN-only
+# within a tracker's basin 38 vs 17 % of the frames; the procedural views favoured the linked box)
+CLUSTER_LINK = 0.2  # procedural calibration views, whole path > 10° off: 0.12 / 0.2 / 0.3 → 47 / 27 / 30 %
+MIN_BOX_CELLS = 4
+
+
+def linked_cluster(points: np.ndarray, link: float) -> np.ndarray:
+    """The points (M, 2) joined to the first one by a chain of steps shorter than ``link`` (single
+    linkage), first one included."""
+    inside = np.zeros(len(points), bool)
+    inside[0] = True
+    while True:
+        near = (np.linalg.norm(points[:, None] - points[inside][None], axis=2) < link).any(1) & ~inside
+        if not near.any():
+            return points[inside]
+        inside |= near
+
+
+def tile_boxes(width: int, height: int, side_share: float = TILE_SIDE) -> list[tuple[float, float, float]]:
+    """Square tiles (cx, cy, side) pixels covering a ``width`` × ``height`` frame: each ``side_share``
+    of the long side (at most the short one), as few per axis as keep neighbours overlapping by at least
+    half a tile, spread evenly from edge to edge."""
+    side = min(side_share * max(width, height), float(min(width, height)))
+
+    def centres(extent: int) -> np.ndarray:
+        n = 1 + math.ceil(max(extent - side, 0.0) / (side / 2) - 1e-9)
+        return np.linspace(side / 2, extent - side / 2, n) if n > 1 else np.array([extent / 2])
+
+    return [(float(x), float(y), float(side)) for y in centres(height) for x in centres(width)]
+
+
+def box_iou(a, b) -> float:
+    """Intersection over union of two boxes (x, y, w, h)."""
+    iw = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    return inter / (a[2] * a[3] + b[2] * b[3] - inter) if inter > 0 else 0.0
+
+
+def _clip(uv: np.ndarray, cam: Camera):
+    """Box (x, y, w, h) of the points ``uv`` (N, 2) clipped to the frame, or None under 2 px."""
+    (x0, y0), (x1, y1) = np.maximum(uv.min(0), 0.0), np.minimum(uv.max(0), [cam.width - 1.0, cam.height - 1.0])
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
+
+
+def _pose_box(passes, pose, cam: Camera):
+    """Box of the keypoints projected at ``pose`` (T_cam_obj), None for one behind or at the camera."""
+    if np.any((pose @ passes.keypoints_m)[:, 2] <= 0.05):
+        return None
+    return _clip(cam.project(passes.keypoints_m, pose), cam)
+
+
+def _cluster_box(passes, found: np.ndarray, K_crop: np.ndarray, cam: Camera):
+    """Box around an unlabelled network's detections ``found`` (M, 2) crop pixels, strongest first, that
+    link to the strongest one, at least ``MIN_BOX_CELLS`` heatmap cells wide; None without detections."""
+    if len(found) == 0:
+        return None
+    A = cam.K @ np.linalg.inv(K_crop)
+    uv = linked_cluster(found, CLUSTER_LINK * passes.image_size) @ A[:2, :2].T + A[:2, 2]
+    centre, half = 0.5 * (uv.min(0) + uv.max(0)), 0.5 * (uv.max(0) - uv.min(0))
+    half = np.maximum(half, MIN_BOX_CELLS * HEATMAP_STRIDE * A[0, 0] / 2)
+    return _clip(np.stack([centre - half, centre + half]), cam)
+
+
+def network_boxes(passes, image: np.ndarray, cam: Camera, tiles: bool = True) -> list[tuple]:
+    """Boxes (x, y, w, h) pixels where a keypoint network sees its object in the undistorted ``image``
+    (camera ``cam``), the whole frame's first: the projected keypoints of each pass's PnP pose on the
+    whole frame and (``tiles``) on :func:`tile_boxes`, one per place (``SAME_BOX_IOU``). Where the
+    whole-frame pass of an unlabelled network gives no pose, the box of its linked detections takes its
+    place. ``passes``: the network's :class:`~.keypoint_passes.KeypointPasses`. [] where nothing is found."""
+    whole = ((cam.width - 1) / 2, (cam.height - 1) / 2, float(max(cam.width, cam.height)))
+    views = [whole, *(tile_boxes(cam.width, cam.height) if tiles else [])]
+    boxes = []
+    for i, (res, found, K_crop, _, _) in enumerate(passes.solve_boxes(image, cam.K, views)):
+        if res is not None:
+            box = _pose_box(passes, res.pose, cam)
+        elif i == 0 and passes.unlabelled is not None:
+            box = _cluster_box(passes, found, K_crop, cam)
+        else:
+            box = None
+        if box is not None and all(box_iou(box, b) <= SAME_BOX_IOU for b in boxes):
+            boxes.append(box)
+    return boxes

@@ -3,7 +3,7 @@ hybrid estimator (no initial pose) or with a tracker alone from a given pose —
 
 Inputs are converted at this edge: video/image frames (BGR on disk) → RGB ``Frame``; an initial pose
 file in metres (``quat_wxyz`` + ``t_m``, or ``R`` + ``t_m``) or BOP (``cam_R_m2c`` + ``cam_t_m2c`` in
-mm) → ``Pose``. Outputs in ``out``, all written atomically: an overlay video of the model's edges at
+mm) or ViSP (``.pos``) → ``Pose``. Outputs in ``out``, all written atomically: an overlay video of the model's edges at
 the estimated pose (``overlay.webm``, or ``.mp4`` where OpenCV has H.264), ``poses.csv`` (metres,
 quaternion w, x, y, z; empty pose cells where there was none) and BOP ``scene_gt.json`` (mm, the
 frames with a trusted pose).
@@ -31,7 +31,7 @@ from .viz import draw_wireframe, put_label
 log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 POSE_FIELDS = ["frame", "timestamp_s", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m"]
 HYBRID_FIELDS = POSE_FIELDS + ["status", "sources", "ms"]
 TRACKER_FIELDS = POSE_FIELDS + ["quality", "lost"]
@@ -43,9 +43,13 @@ VIDEO_CODECS = (("avc1", ".mp4"), ("VP90", ".webm"), ("VP80", ".webm"), ("mp4v",
 # --- inputs ----------------------------------------------------------------------------------------
 def load_pose(path) -> Pose:
     """Initial ``T_cam_obj`` from JSON: ``{"quat_wxyz": [4], "t_m": [3]}``, ``{"R": [[3]×3], "t_m": [3]}``
-    or BOP ``{"cam_R_m2c": [9], "cam_t_m2c": [3] (mm)}``; errors name the file."""
+    or BOP ``{"cam_R_m2c": [9], "cam_t_m2c": [3] (mm)}``; or from a ViSP pose file (``.pos``: tx ty tz
+    in metres, then θu_x θu_y θu_z, the rotation vector in radians, of ``cMo`` = T_cam_obj); errors
+    name the file."""
     from .datasets.bop import pose_from_bop
 
+    if Path(path).suffix.lower() == ".pos":
+        return _load_visp_pose(Path(path))
     data = read_json(path)
     if isinstance(data, list) and data:
         data = data[0]  # a BOP scene_gt entry list
@@ -66,6 +70,18 @@ def load_pose(path) -> Pose:
                          "or BOP cam_R_m2c + cam_t_m2c in mm)") from None
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from exc
+
+
+def _load_visp_pose(path: Path) -> Pose:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: pose file not found")
+    try:
+        values = np.array(path.read_text().split(), dtype=np.float64)
+    except ValueError:
+        values = np.array([])
+    if values.shape != (6,) or not np.all(np.isfinite(values)):
+        raise ValueError(f"{path}: expected a ViSP pose, six numbers: tx ty tz (m) θux θuy θuz (rad)")
+    return Pose.from_rotvec_t(values[3:], values[:3])
 
 
 def read_frames(source, camera: Camera, fps: float | None = None) -> Iterator[Frame]:

@@ -170,13 +170,13 @@ def add_commands(sub) -> None:
 
     k = sub.add_parser("track", help="track your object through a video or image folder (the hybrid: the CNN "
                                      "initialises; --init-pose: the tracker alone from that pose)")
-    k.add_argument("source", help="video file (.mp4/.avi/...) or folder of images")
-    k.add_argument("--object", required=True, help="built-in name or mesh file (.obj/.ply/.stl)")
+    k.add_argument("source", help="video file (.mp4/.avi/...) or folder of images (.png/.jpg/.pgm/...)")
+    k.add_argument("--object", required=True, help="built-in name or mesh file (.obj/.ply/.stl, ViSP .cao)")
     k.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
     k.add_argument("--camera", required=True, help="camera file (.json/.yaml: width, height, K or fx/fy/cx/cy, dist)")
     k.add_argument("--init-pose", default=None,
                    help="tracker alone from this pose, no CNN, no fusion. JSON: quat_wxyz + t_m (metres), R + t_m, "
-                        "or BOP cam_R_m2c + cam_t_m2c (mm)")
+                        "or BOP cam_R_m2c + cam_t_m2c (mm); or a ViSP .pos file (tx ty tz in m, θu in rad)")
     k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
     k.add_argument("--fusion", default="ukf", help="fusion backend of the hybrid (ukf, isam2, none)")
     k.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")

@@ -1,4 +1,5 @@
-"""Load an :class:`ObjectModel` by built-in name or from a mesh file (anything trimesh reads)."""
+"""Load an :class:`ObjectModel` by built-in name or from a mesh file (anything trimesh reads, and
+ViSP's ``.cao`` models)."""
 from __future__ import annotations
 
 import logging
@@ -25,8 +26,15 @@ def load_builtin(name) -> ObjectModel | None:
     return registry.create("object", name) if name in registry.available("object") else None
 
 
+def _load_mesh(path: Path) -> trimesh.Trimesh:
+    try:
+        return trimesh.load(path, force="mesh")
+    except Exception as exc:  # noqa: BLE001 — any loader error becomes one message naming the file
+        raise ValueError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
+
+
 def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symmetries=None) -> ObjectModel:
-    """A built-in object (``"truss"``) or a mesh file (.obj, .ply, .stl, ...).
+    """A built-in object (``"truss"``) or a mesh file (.obj, .ply, .stl, ..., or a ViSP .cao model).
 
     Args:
         name_or_path: registered object name or path to a mesh file.
@@ -55,10 +63,12 @@ def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symme
             f"object: {key!r} is neither a built-in object ({', '.join(registry.available('object'))}) "
             "nor an existing mesh file"
         )
-    try:
-        mesh = trimesh.load(path, force="mesh")
-    except Exception as exc:  # noqa: BLE001 — any loader error becomes one message naming the file
-        raise ValueError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
+    if path.suffix.lower() == ".cao":
+        from .visp_cao import read_cao
+
+        mesh = read_cao(path)  # its errors name the file and line
+    else:
+        mesh = _load_mesh(path)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"{path}: no triangles found; expected a mesh file trimesh can read (.obj, .ply, .stl)")
     if not np.all(np.isfinite(mesh.vertices)):

@@ -1,0 +1,120 @@
+"""ViSP's files at the edge: ``.cao`` models (points, lines, faces from points or lines, ``load``
+includes, attributes) become meshes; ``.pos`` poses become ``Pose``; ``.pgm`` image folders are read."""
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from hybridpose.geometry import Camera
+from hybridpose.objects import load_object
+from hybridpose.objects.visp_cao import read_cao
+from hybridpose.tracking import load_pose, read_frames
+
+# ViSP's own mbt/cube.cao (visp-images-data), comments and all
+CUBE = """V1
+# 3D points
+8                    # Number of points (here 8 cube corners)
+ 0.000  0.000  0.000 # Point with index 0
+-0.084  0.000  0.000
+-0.084  0.084  0.000
+ 0.000  0.084  0.000
+ 0.000  0.000  0.084
+-0.084  0.000  0.084
+-0.084  0.084  0.084
+ 0.000  0.084  0.084 # point with index 7
+# 3D lines
+0                    # No 3D lines
+# 3D faces from lines
+0                    # No 3D faces from lines
+# 3D faces from points
+6                    # 6 faces to describe the cube
+4 0 4 5 1            # Face with index 0 defined by 3D point 0, 4, 5 and 1
+4 1 5 6 2
+4 6 7 3 2
+4 3 7 4 0
+4 0 1 2 3
+4 7 6 5 4            # Face with index 5
+# 3D cylinders
+0
+# 3D circle
+0                    # No 3D circle
+"""
+SIDE = 0.084
+
+
+def test_visps_cube_is_a_closed_outward_mesh_of_its_size(tmp_path):
+    (tmp_path / "cube.cao").write_text(CUBE)
+    obj = load_object(tmp_path / "cube.cao")
+    mesh = obj.mesh
+    assert len(mesh.faces) == 12 and mesh.is_watertight and mesh.volume == pytest.approx(SIDE ** 3)
+    np.testing.assert_allclose(mesh.bounds, [[-SIDE, 0, 0], [0, SIDE, SIDE]])
+    assert len(obj.symmetries) == 23  # a cube: 24 rotations that look the same, the identity left out
+    # the sharp edges are the cube's 12 edges (the faces' diagonals are not)
+    assert len(obj.sharp_edges) == 12
+
+
+def test_faces_from_lines_attributes_and_includes_give_the_same_solid(tmp_path):
+    corners = CUBE.split("# 3D lines")[0]
+    quads = [[0, 4, 5, 1], [1, 5, 6, 2], [6, 7, 3, 2], [3, 7, 4, 0], [0, 1, 2, 3], [7, 6, 5, 4]]
+    lines = sorted({tuple(sorted((q[k], q[(k + 1) % 4]))) for q in quads for k in range(4)})
+    rows = [f"{a} {b}" for a, b in lines]
+    faces = [f"4 {' '.join(str(lines.index(tuple(sorted((q[k], q[(k + 1) % 4]))))) for k in range(4))} name=\"face {i}\""
+             for i, q in enumerate(quads)]
+    text = corners + f"# lines\n{len(rows)}\n" + "\n".join(rows) + f"\n{len(faces)}\n" + "\n".join(faces) + "\n0\n0\n0\n"
+    (tmp_path / "by_lines.cao").write_text(text)
+    mesh = read_cao(tmp_path / "by_lines.cao")
+    assert mesh.is_watertight and mesh.volume == pytest.approx(SIDE ** 3)
+    # a file that loads the cube and adds a second one 0.2 m away: two solids
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "cube.cao").write_text(CUBE)
+    shifted = "\n".join(f"{float(x) + 0.2:.3f} {y} {z}" for x, y, z in
+                        (r.split("#")[0].split() for r in CUBE.splitlines()[3:11]))
+    second = CUBE.split("# 3D points")[0] + "# 3D points\n8\n" + shifted + "\n" + CUBE.split("# point with index 7\n")[1]
+    (tmp_path / "two.cao").write_text('V1\nload("parts/cube.cao")\n' + second.replace("V1\n", "", 1))
+    two = read_cao(tmp_path / "two.cao")
+    assert len(two.faces) == 24 and two.volume == pytest.approx(2 * SIDE ** 3)
+
+
+def test_a_non_convex_face_is_cut_into_triangles_that_keep_its_outline(tmp_path):
+    """An L-shaped prism: two L faces (non-convex hexagons) and six rectangles."""
+    L = [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)]
+    pts = [(x, y, 0.0) for x, y in L] + [(x, y, 0.5) for x, y in L]
+    faces = ["6 5 4 3 2 1 0", "6 6 7 8 9 10 11"] + [f"4 {k} {(k + 1) % 6} {(k + 1) % 6 + 6} {k + 6}" for k in range(6)]
+    text = f"V1\n{len(pts)}\n" + "\n".join(" ".join(map(str, p)) for p in pts) + f"\n0\n0\n{len(faces)}\n" + "\n".join(faces) + "\n0\n0\n"
+    (tmp_path / "l.cao").write_text(text)
+    mesh = read_cao(tmp_path / "l.cao")
+    assert mesh.is_watertight and mesh.volume == pytest.approx(3 * 0.5)  # L area 3 × height 0.5
+
+
+@pytest.mark.parametrize("text, match", [
+    (CUBE.replace("0                    # No 3D circle", "1\n0.01 0 1 2"), "cylinders and circles are not supported"),
+    (CUBE.replace("-0.084  0.084  0.000", "-0.084  oops  0.000"), r"cube.cao:6: cannot read this row of 3D points"),
+    (CUBE.replace("4 1 5 6 2", "4 1 5 6 42"), "needs ≥ 3 existing points"),
+    (CUBE.split("# 3D faces from points")[0] + "0\n0\n0\n", "no faces"),
+    ('V1\nload("missing.cao")\n' + CUBE.replace("V1\n", ""), "missing.cao: .cao file not found"),
+], ids=["circle", "bad-number", "missing-point", "no-faces", "missing-include"])
+def test_bad_cao_files_are_refused_naming_file_and_line(tmp_path, text, match):
+    (tmp_path / "cube.cao").write_text(text)
+    with pytest.raises((ValueError, FileNotFoundError), match=match):
+        load_object(tmp_path / "cube.cao")
+
+
+def test_a_visp_pose_file_is_translation_then_rotation_vector(tmp_path):
+    (tmp_path / "cube.0.pos").write_text("0.02231950571  \n0.1071368004  \n0.5071128378  \n2.100485509  \n"
+                                         "1.146812236  \n-0.4560126437  ")
+    pose = load_pose(tmp_path / "cube.0.pos")
+    np.testing.assert_allclose(pose.t, [0.02231950571, 0.1071368004, 0.5071128378])
+    np.testing.assert_allclose(pose.R, Rotation.from_rotvec([2.100485509, 1.146812236, -0.4560126437]).as_matrix(), atol=1e-12)
+    (tmp_path / "bad.pos").write_text("0 0 0.5 0 0")
+    with pytest.raises(ValueError, match="bad.pos: expected a ViSP pose, six numbers"):
+        load_pose(tmp_path / "bad.pos")
+
+
+def test_a_folder_of_pgm_images_is_read_as_rgb_frames(tmp_path):
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"image{i:04d}.pgm"), rng.integers(0, 255, (48, 64), dtype=np.uint8))
+    frames = list(read_frames(tmp_path, Camera.default().scaled((64, 48)), fps=25))
+    assert [f.index for f in frames] == [0, 1, 2] and frames[2].timestamp == pytest.approx(2 / 25)
+    assert frames[0].image.shape == (48, 64, 3)
+    np.testing.assert_array_equal(frames[1].image[..., 0], cv2.imread(str(tmp_path / "image0001.pgm"), cv2.IMREAD_GRAYSCALE))

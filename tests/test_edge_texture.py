@@ -79,3 +79,19 @@ def test_clutter_under_a_wrong_pose_does_not_pass_for_texture(cube, monkeypatch)
     beside = Pose(POSE.R, POSE.t + [0.07, 0.03, 0.0])
     assert explained_edge_share(view, frame, beside) == pytest.approx(_strict(view, frame, beside, monkeypatch))
     assert explained_edge_share(view, frame, POSE) > explained_edge_share(view, frame, beside) + 0.25
+
+
+def test_edge_distance_is_subpixel_on_the_part_and_grows_with_a_shift(cube):
+    """``edge_distances_px``: the plain cube's visible edges at its pose lie on the image's edges (the
+    faces are shaded apart); shifted 4 px sideways in the image, they lie ≈ 4 px off (at most the shift:
+    an edge can meet another one)."""
+    from hybridpose.edges import edge_distances_px
+
+    view, frame = ModelView(cube), _scene(cube, textured=False, cluttered=False)
+    at = edge_distances_px(view, frame, POSE)
+    assert len(at) > 50 and np.median(at) < 1.0
+    shift_m = 4.0 * POSE.t[2] / CAMERA.fx
+    moved = edge_distances_px(view, frame, Pose(POSE.R, POSE.t + [shift_m, 0.0, 0.0]))
+    assert 2.0 < np.percentile(moved, 75) <= 4.5
+    blank = Frame(np.full_like(frame.image, 90), CAMERA, 0.0, 0)
+    assert len(edge_distances_px(view, blank, POSE)) == 0  # no image edge: no distance

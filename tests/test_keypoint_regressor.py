@@ -296,7 +296,7 @@ def test_checkpoint_regressor_bad_input(tiny_checkpoint, truss, camera, tmp_path
     with pytest.raises(TypeError, match="Frame"):
         reg.predict(frame.image)
     big = ObjectModel("big", trimesh.creation.box((1.0, 0.5, 0.2)))
-    with pytest.raises(ValueError, match="trained on 'truss'"):
+    with pytest.raises(ValueError, match="trained on 'truss'.*hybridpose fit MESH"):
         CheckpointRegressor(tiny_checkpoint, object=big)
     with pytest.raises(ValueError, match="holds a 'default' model, not 'vgg16'"):
         create("regressor", "vgg16", checkpoint=tiny_checkpoint)

@@ -328,7 +328,8 @@ class CheckpointRegressor(PoseRegressor):
         if d is not None and abs(obj.diameter - d) > 0.01 * d:
             raise ValueError(
                 f"object: {self.path} was trained on {self.dataset.get('object')!r} (diameter {d:.3f} m), "
-                f"not on {obj.name!r} (diameter {obj.diameter:.3f} m); train a checkpoint for your object"
+                f"not on {obj.name!r} (diameter {obj.diameter:.3f} m); fit one for your object "
+                "(hybridpose fit MESH --out DIR) and pass its best.pt"
             )
 
     def _check_camera(self, camera: Camera) -> None:

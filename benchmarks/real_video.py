@@ -6,8 +6,9 @@ initial pose ``cube.0.pos`` that ViSP's tracker tutorials use), from Debian's / 
     sudo apt install visp-images-data          # or, without root:
     apt-get download visp-images-data && dpkg -x visp-images-data_*.deb visp
     python benchmarks/real_video.py --visp-images /usr/share/visp-images-data/ViSP-images
-    python benchmarks/real_video.py --visp-images visp/usr/share/visp-images-data/ViSP-images \\
-        --regressor runs/visp_cube/best.pt     # also the hybrid, no initial pose (hybridpose fit of cube.cao)
+    # cam.json: {"width": 640, "height": 480, "fx": px, "fy": py, "cx": u0, "cy": v0} of mbt/cube.xml
+    hybridpose fit DIR/mbt/cube.cao --camera cam.json --budget 40m --backgrounds PHOTOS --out runs/visp_cube
+    python benchmarks/real_video.py --visp-images DIR --regressor runs/visp_cube/best.pt   # + the hybrid
 
 Every tracker starts from ``cube.0.pos`` on the first frame and is never re-initialised; our
 backends (``edges``, ``klt-pnp``, ``rapid``, ``rapid-ols``, ``rapid-gos``: cv2.rapid's silhouette step

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,7 @@ IMAGE_SIZE = 128
 FIT_LR = 1e-3
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
+TEXTURED_SHARE = 0.0  # share of training views with a random print on the part (docs/decisions.md)
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
@@ -167,7 +168,8 @@ def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: flo
 
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
         backgrounds=None, workers: int = 1, init_from="default", progress=print,
-        plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE) -> dict:
+        plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE,
+        textured_share: float = TEXTURED_SHARE) -> dict:
     """Render, train, calibrate and evaluate a ``default`` keypoint regressor for ``mesh``.
 
     Args:
@@ -183,6 +185,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
             (the shipped truss network's features), a path, or None (from scratch).
         occluded_share: share of the training views with the arm partly in front of the part
             (:func:`~hybridpose.datasets.render_random_dataset`); held-out views have none.
+        textured_share: share of the training views whose part carries a random print (photo crops
+            or procedural clutter, :func:`~hybridpose.render.appearance.part_texture`): for a part
+            with a printed or painted surface; held-out views stay plain.
         plan: views and epochs fixed by the caller instead of measured for ``budget`` (its
             ``budget_min`` is then not checked against the minimum: for tests and small trials).
         progress: called with one line per stage. bar: ``bar(description)`` → a ``(done, total)``
@@ -207,9 +212,12 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                "seed": int(seed), "backgrounds": None if backgrounds is None else str(backgrounds),
                "init_from": None if init_from is None else str(init_from),
                # recorded only when set, so that fits made before the option still resume
-               **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)})}
+               **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)}),
+               **({} if textured_share == 0 else {"textured_share": float(textured_share)})}
     if not 0.0 <= occluded_share <= 1.0:
         raise ValueError(f"occluded_share: expected a share of the training views in [0, 1], got {occluded_share}")
+    if not 0.0 <= textured_share <= 1.0:
+        raise ValueError(f"textured_share: expected a share of the training views in [0, 1], got {textured_share}")
     if record_path.is_file():
         record = read_json(record_path)
         if record["request"] != request:
@@ -244,7 +252,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     half = max(1, plan.test_views // 2)
     stage("render", lambda: (
         render_random_dataset(out / "data" / "train", obj, camera, plan.train_views, seed=seed,
-                              progress=tick("render training views"), occluded_share=occluded_share, **common),
+                              progress=tick("render training views"), occluded_share=occluded_share,
+                              **{**common, "appearance": replace(looks, texture_share=textured_share)}),
         render_random_dataset(out / "data" / "calib", obj, camera, half, seed=seed + 2,
                               progress=tick("render calibration views"), **common),
         render_random_dataset(out / "data" / "test", obj, camera, plan.test_views - half, seed=seed + 1,
@@ -305,7 +314,9 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"- Rendered {p['train_views']} training and {p['test_views']} held-out views (random backgrounds, "
         f"lights and colours; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away"
         + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views"
-           if req.get("occluded_share") else "") + ").",
+           if req.get("occluded_share") else "")
+        + (f"; a random print on it in {req['textured_share']:.0%} of the training views"
+           if req.get("textured_share") else "") + ").",
         f"- Trained the `default` network ({IMAGE_SIZE} px, {FULL_VIEW:.0%} whole-frame crops"
         + (f"; one unlabelled heatmap of its {len(obj.keypoints)} keypoints, which look alike under its symmetries"
            if obj.symmetric else "") + f") for up to "

@@ -128,6 +128,12 @@ def test_render_command_takes_the_appearance_options(tmp_path, capsys):
     assert main(["render", "--kind", "random", "--count", "2", "--size", "96x72", "--backgrounds", str(tmp_path),
                  "--out", str(tmp_path / "b")]) == 2
     assert "only with appearance 'random'" in capsys.readouterr().err
+    assert main(["render", "--kind", "random", "--count", "2", "--size", "96x72", "--appearance", "random",
+                 "--texture-share", "0.5", "--out", str(tmp_path / "t")]) == 0
+    assert json.loads((tmp_path / "t" / "hybridpose.json").read_text())["appearance"]["texture_share"] == 0.5
+    assert main(["render", "--kind", "random", "--count", "2", "--size", "96x72", "--texture-share", "0.5",
+                 "--out", str(tmp_path / "u")]) == 2
+    assert "texture_share: a print on the part" in capsys.readouterr().err
 
 
 def test_the_edge_tracker_keeps_a_part_in_front_of_clutter(tmp_path):
@@ -159,3 +165,31 @@ def test_the_edge_tracker_keeps_a_part_in_front_of_clutter(tmp_path):
     trk.init(Frame(images[0], cam, 0.0, 0), poses[0])
     m = trk.track(Frame(images[1], cam, 1 / 30, 1), prior=poses[0])
     assert not m.lost and m.quality > 0.6 and rotation_error_deg(m.pose, poses[1]) < 1.0
+
+
+def test_a_print_on_the_part_changes_only_the_part_and_no_other_draw(renderer):
+    """``texture_share``: a share of the images get a print on the part, drawn from a stream of its own
+    (the background, lights and colour of each image stay what they were), multiplied into the shaded
+    part where it is seen; the config records it only where set."""
+    plain, printed = AppearanceSpec("random"), AppearanceSpec("random", texture_share=0.5)
+    looks = [(plain.draw(CAM.width, CAM.height, 3, i), printed.draw(CAM.width, CAM.height, 3, i)) for i in range(40)]
+    for a, b in looks:
+        assert np.array_equal(a.background, b.background) and a.ambient == b.ambient and a.object_rgb == b.object_rgb
+        assert a.object_texture is None
+    assert 10 <= sum(b.object_texture is not None for _, b in looks) <= 30
+    assert "texture_share" not in plain.record() and printed.record()["texture_share"] == 0.5
+
+    a, b = next((a, b) for a, b in looks if b.object_texture is not None)
+    bare = renderer.render(pose(), rng=0, appearance=a)
+    seen = renderer.render(pose(), rng=0, appearance=b)
+    away = ~cv2.dilate(bare.mask_visib.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert np.array_equal(bare.rgb[away], seen.rgb[away])                  # the background untouched
+    on = bare.mask_visib
+    assert (seen.rgb[on].astype(int) <= bare.rgb[on].astype(int) + 2).all()  # a print only darkens (sensor noise aside)
+    assert np.std(seen.rgb[on].astype(float) - bare.rgb[on]) > 3            # and varies over the part
+    with pytest.raises(ValueError, match="texture_share: a print on the part is drawn only with appearance 'random'"):
+        AppearanceSpec("space", texture_share=0.5)
+    with pytest.raises(ValueError, match=r"texture_share: expected a share of the images in \[0, 1\]"):
+        AppearanceSpec("random", texture_share=1.5)
+    with pytest.raises(ValueError, match="object_texture: expected an"):
+        Appearance(object_texture=np.zeros((4, 4), np.uint8))

@@ -70,7 +70,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
                    train_s_per_view=0.05, distance_range_m=working_distances(box, cam))
     out = tmp_path / "fit"
     record = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None,
-                 occluded_share=0.25)
+                 occluded_share=0.25, textured_share=0.5)
     assert record["done"] == ["render", "train", "calibrate", "evaluate"]
     assert (out / "best.pt").is_file() and (out / "eval" / "report.json").is_file()
     acc = record["accuracy"]
@@ -85,6 +85,10 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     assert cfg["occluded_share"] == 0.25 and record["request"]["occluded_share"] == 0.25
     assert "the arm partly in front of it in 25% of the training views" in report
     assert "occluded_share" not in json.loads((out / "data" / "test" / "hybridpose.json").read_text())
+    # a print on the part in half the training views, none in the held-out ones
+    assert cfg["appearance"]["texture_share"] == 0.5 and record["request"]["textured_share"] == 0.5
+    assert "a random print on it in 50% of the training views" in report
+    assert "texture_share" not in json.loads((out / "data" / "test" / "hybridpose.json").read_text())["appearance"]
     # the checkpoint finds the part itself (trained with whole-frame crops)
     from hybridpose.regressors.predictor import CheckpointRegressor
 
@@ -97,12 +101,15 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     # a second run resumes: nothing is done again
     stamp = (out / "best.pt").stat().st_mtime_ns
     again = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None,
-                occluded_share=0.25)
+                occluded_share=0.25, textured_share=0.5)
     assert again["minutes"] == record["minutes"] and (out / "best.pt").stat().st_mtime_ns == stamp
     with pytest.raises(ValueError, match="other settings.*seed"):
-        fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None, occluded_share=0.25)
+        fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None, occluded_share=0.25,
+            textured_share=0.5)
     with pytest.raises(ValueError, match="other settings.*occluded_share"):
-        fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None)
+        fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None, textured_share=0.5)
+    with pytest.raises(ValueError, match="other settings.*textured_share"):
+        fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None, occluded_share=0.25)
 
 
 def test_a_symmetric_parts_covariance_is_calibrated_on_its_errors_to_the_nearest_equivalent_pose(
@@ -151,6 +158,8 @@ def test_fit_command_refuses_bad_input_with_a_message(box_mesh, tmp_path, capsys
     assert "too little" in capsys.readouterr().err
     assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--occluded-share", "2"]) == 2
     assert "occluded_share" in capsys.readouterr().err
+    assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--textured-share", "-1"]) == 2
+    assert "textured_share: expected a share" in capsys.readouterr().err
     assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--budget", "soon"]) == 2
     assert "budget: expected a time" in capsys.readouterr().err
 

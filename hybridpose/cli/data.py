@@ -20,7 +20,8 @@ def cmd_render(args) -> int:
     lighting = SpaceLighting(sun_direction_cam=args.sun_dir, sun_intensity=args.sun, exposure=args.exposure,
                              background=args.background)
     sensor = SensorModel(blur_sigma_px=args.blur, noise_std=args.noise, gamma=args.gamma)
-    looks = AppearanceSpec(args.appearance, args.backgrounds, photo_share=args.photo_share)
+    looks = AppearanceSpec(args.appearance, args.backgrounds, photo_share=args.photo_share,
+                           texture_share=args.texture_share)
     if args.kind == "random":
         scene = render_random_dataset(args.out, obj, camera, args.count, seed=args.seed,
                                       distance_range_m=(args.near, args.far), lighting=lighting, sensor=sensor,
@@ -120,6 +121,9 @@ def add_commands(sub) -> None:
                    help="with --appearance random: a folder of photos to cut backgrounds from")
     r.add_argument("--photo-share", type=float, default=0.5,
                    help="with --backgrounds: the share of backgrounds cut from the photos (the rest procedural clutter)")
+    r.add_argument("--texture-share", type=float, default=0.0, metavar="SHARE",
+                   help="random appearance: share of the images with a random print on the part (photo crops "
+                        "or procedural clutter, seeded per image)")
     r.add_argument("--sun-range", type=float_pair, default=(1.0, 1.0),
                    help="random: per-image sun intensity factor drawn from LOW,HIGH")
     r.add_argument("--exposure", type=float, default=1.0)

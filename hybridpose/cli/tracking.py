@@ -85,7 +85,7 @@ def cmd_fit(args) -> int:
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
         backgrounds=args.backgrounds, workers=args.workers,
         init_from=None if args.init_from == "none" else args.init_from, bar=progress,
-        occluded_share=args.occluded_share)
+        occluded_share=args.occluded_share, textured_share=args.textured_share)
     return 0
 
 
@@ -166,7 +166,7 @@ def cmd_demo(args) -> int:
 
 def add_commands(sub) -> None:
     """Add this module's subcommands to the ``hybridpose`` parser's ``sub``."""
-    from ..fit import OCCLUDED_SHARE
+    from ..fit import OCCLUDED_SHARE, TEXTURED_SHARE
 
     k = sub.add_parser("track", help="track your object through a video or image folder (the hybrid: the CNN "
                                      "initialises; --init-pose: the tracker alone from that pose)")
@@ -229,6 +229,9 @@ def add_commands(sub) -> None:
     f.add_argument("--occluded-share", type=float, default=OCCLUDED_SHARE, metavar="SHARE",
                    help="share of the training views with the arm partly in front of the part "
                         f"(default {OCCLUDED_SHARE:g})")
+    f.add_argument("--textured-share", type=float, default=TEXTURED_SHARE, metavar="SHARE",
+                   help="share of the training views with a random print on the part: for a printed or "
+                        f"painted part (default {TEXTURED_SHARE:g})")
     f.set_defaults(func=cmd_fit)
 
     d = sub.add_parser("demo", help="render an arm-occlusion sequence, run tracker-only, CNN-only and the hybrid "

@@ -204,7 +204,7 @@ def render_random_dataset(
               # recorded only when set, so that datasets written before the option still resume
               **({} if elevation_range_deg is None
                  else {"elevation_range_deg": [float(v) for v in elevation_range_deg]}),
-              **({} if appearance == AppearanceSpec() else {"appearance": asdict(appearance)}),
+              **({} if appearance == AppearanceSpec() else {"appearance": appearance.record()}),
               **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)}))
     poses = random_poses(count, camera, distance_range_m, rng=seed, in_view_points=obj.bbox_corners if in_view else None,
                          elevation_range_deg=elevation_range_deg, obj=obj)
@@ -259,7 +259,7 @@ def render_sequence_dataset(
     lighting, sensor = lighting or SpaceLighting(), sensor or SensorModel()
     looks = replace(appearance, fixed=True) if appearance is not None else AppearanceSpec()
     _open_job(out, "sequence", obj, camera, lighting, sensor, spec=asdict(spec),
-              **({} if looks == AppearanceSpec() else {"appearance": asdict(looks)}))
+              **({} if looks == AppearanceSpec() else {"appearance": looks.record()}))
     frames = make_sequence(spec, obj, camera)
     items = [(f.pose, f.arm, f.sun_scale, None) for f in frames]
     scene_dir = _run_job(out, "test", obj, camera, items, spec.seed, lighting, sensor, progress, workers, looks)

@@ -1,5 +1,5 @@
 """Domain randomisation for the world outside space: what a training image may look like besides
-the pose — the background behind the object, ambient and extra lights, the part's colour.
+the pose — the background behind the object, ambient and extra lights, the part's colour and print.
 
 A CNN trained on one look (a grey part on black space) learns that look; one meant for a user's part on
 a bench, in a hand or against the Earth must see many. :func:`random_appearance` draws a seeded
@@ -8,7 +8,7 @@ shapes, distractor edges) and :class:`PhotoBackgrounds` cuts random crops from t
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -18,6 +18,7 @@ from ..geometry import as_unit_direction
 
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MAX_FILL_LIGHTS = 2  # lights besides the sun (the renderer's scene holds this many, off unless asked)
+TEXTURE_FLOOR = 0.3  # a printed part's darkest ink still reflects this share of the light
 
 
 @dataclass(frozen=True)
@@ -30,12 +31,17 @@ class Appearance:
         fill_lights: up to ``MAX_FILL_LIGHTS`` extra directional lights as ``(direction (3,) the light
             travels in the camera frame, intensity 0..1.5)``.
         background: (H, W, 3) uint8 RGB drawn behind the object, or None (the lighting's background).
+        object_texture: (H, W, 3) uint8 RGB print on the part, or None (plain): the shaded part is
+            multiplied by ``TEXTURE_FLOOR + (1 − TEXTURE_FLOOR) · texture / 255`` where it is seen. It
+            lies in the image, not on the surface (no perspective of its own): for single training
+            images, where what matters is that the part's faces carry edges no model edge explains.
     """
 
     ambient: float = 0.0
     object_rgb: tuple[float, float, float] | None = None
     fill_lights: tuple = ()
     background: np.ndarray | None = None
+    object_texture: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.ambient <= 1.0:
@@ -50,10 +56,10 @@ class Appearance:
             as_unit_direction(d, "fill_lights direction")
             if not 0.0 <= k <= 1.5:
                 raise ValueError(f"fill_lights: expected intensities in [0, 1.5], got {k!r}")
-        if self.background is not None and (self.background.ndim != 3 or self.background.shape[2] != 3
-                                            or self.background.dtype != np.uint8):
-            raise ValueError(f"background: expected an (H, W, 3) uint8 RGB image, got {self.background.shape} "
-                             f"{self.background.dtype}")
+        for name in ("background", "object_texture"):
+            img = getattr(self, name)
+            if img is not None and (img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8):
+                raise ValueError(f"{name}: expected an (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}")
 
 
 def clutter_background(width: int, height: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
@@ -149,6 +155,16 @@ def random_appearance(width: int, height: int, rng: np.random.Generator | int | 
     return Appearance(ambient=float(rng.uniform(lo, hi)), object_rgb=rgb, fill_lights=tuple(fills), background=bg)
 
 
+def part_texture(width: int, height: int, rng: np.random.Generator | int | None = None,
+                 photos: PhotoBackgrounds | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB print for the part (:attr:`Appearance.object_texture`): a crop of ``photos``
+    where given (half the draws) or procedural clutter, seeded."""
+    rng = np.random.default_rng(rng)
+    if photos is not None and rng.random() < 0.5:
+        return photos.draw(width, height, rng)
+    return clutter_background(width, height, rng)
+
+
 APPEARANCES = ("space", "random")
 
 
@@ -163,12 +179,15 @@ class AppearanceSpec:
         photo_share: the share of backgrounds cut from ``backgrounds`` (the rest procedural clutter).
         fixed: one look for every image (drawn for index 0): a video, where the background and the
             lights stay while the part moves; False: a new look per image (training data).
+        texture_share: the share of images whose part carries a print (:func:`part_texture`; drawn
+            from a stream of its own, so the other draws of a seed do not change); 0: plain parts.
     """
 
     kind: str = "space"
     backgrounds: str | None = None
     photo_share: float = 0.5
     fixed: bool = False
+    texture_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in APPEARANCES:
@@ -179,14 +198,32 @@ class AppearanceSpec:
             _photos(self.backgrounds)  # refuse a bad folder before any work starts
         if not 0.0 <= self.photo_share <= 1.0:
             raise ValueError(f"photo_share: expected a share in [0, 1], got {self.photo_share!r}")
+        if not 0.0 <= self.texture_share <= 1.0:
+            raise ValueError(f"texture_share: expected a share of the images in [0, 1], got {self.texture_share!r}")
+        if self.texture_share > 0 and self.kind != "random":
+            raise ValueError("texture_share: a print on the part is drawn only with appearance 'random'")
+
+    def record(self) -> dict:
+        """The spec as a dataset config records it (``texture_share`` only where set, so configs
+        written before it existed still match)."""
+        out = asdict(self)
+        if out["texture_share"] == 0:
+            del out["texture_share"]
+        return out
 
     def draw(self, width: int, height: int, seed: int, index: int) -> Appearance | None:
         """Image ``index``'s appearance (None for space), seeded by ``(seed, index)`` alone."""
         if self.kind == "space":
             return None
         photos = _photos(self.backgrounds) if self.backgrounds else None
-        return random_appearance(width, height, np.random.default_rng([seed, 0 if self.fixed else index, 13]),
+        key = 0 if self.fixed else index
+        look = random_appearance(width, height, np.random.default_rng([seed, key, 13]),
                                  photos=photos, photo_share=self.photo_share)
+        if self.texture_share > 0:
+            rng = np.random.default_rng([seed, key, 29])
+            if rng.random() < self.texture_share:
+                look = replace(look, object_texture=part_texture(width, height, rng, photos))
+        return look
 
 
 _PHOTO_FOLDERS: dict[str, PhotoBackgrounds] = {}

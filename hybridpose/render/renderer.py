@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 
 from ..geometry import Camera, Pose, as_unit_direction, matrix_to_quat_wxyz  # noqa: E402
 from ..objects import ObjectModel  # noqa: E402
-from .appearance import MAX_FILL_LIGHTS, Appearance  # noqa: E402
+from .appearance import MAX_FILL_LIGHTS, TEXTURE_FLOOR, Appearance  # noqa: E402
 from .lighting import SensorModel, SpaceLighting, earth_background  # noqa: E402
 from .occluder import ArmState  # noqa: E402
 
@@ -359,5 +359,13 @@ class Renderer:
         elif self.lighting.background == "earth":
             bg = earth_background(self.camera.width, self.camera.height, rng)
             rgb = np.where(hit[..., None], rgb, bg)
+        if appearance is not None and appearance.object_texture is not None:
+            tex = appearance.object_texture
+            if tex.shape[:2] != (self.camera.height, self.camera.width):
+                raise ValueError(f"appearance.object_texture: expected {self.camera.height}×{self.camera.width} px, "
+                                 f"got {tex.shape[0]}×{tex.shape[1]}")
+            gain = TEXTURE_FLOOR + (1.0 - TEXTURE_FLOOR) * tex[mask_visib].astype(np.float32) / 255.0
+            rgb = rgb.copy()
+            rgb[mask_visib] = np.clip(rgb[mask_visib].astype(np.float32) * gain, 0, 255).astype(np.uint8)
         rgb = self.sensor.apply(rgb, rng)
         return RenderResult(rgb=rgb, depth=depth, mask_visib=mask_visib, mask=mask)

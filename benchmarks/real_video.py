@@ -104,6 +104,7 @@ def main(argv=None) -> None:
     ap.add_argument("--visp-images", default=None, help="the ViSP-images folder (holds mbt/cube.cao)")
     ap.add_argument("--out", default="runs/real_video", help="overlay strips")
     ap.add_argument("--regressor", default=None, help="a checkpoint fitted for cube.cao: adds the hybrid, no initial pose")
+    ap.add_argument("--fusions", default="ukf,isam2,none", help="the hybrid's fusion backends, one row each")
     args = ap.parse_args(argv)
     import torch
 
@@ -139,13 +140,14 @@ def main(argv=None) -> None:
         rows.append(run(f"{name} (raw cv2)", frames, obj,
                         tracker_step(create("tracker", name, object=obj, refine=False)), out))
         print(f"{name} raw: {rows[-1]['tracked']} of {rows[-1]['frames']} frames, {rows[-1]['edge_px_median']} px", flush=True)
-    if args.regressor:
-        est = HybridEstimator.from_names(object=obj, regressor=args.regressor)
+    for fusion in (args.fusions.split(",") if args.regressor else []):
+        est = HybridEstimator.from_names(object=obj, regressor=args.regressor, fusion=fusion)
 
-        def hybrid_step(frame):
+        def hybrid_step(frame, est=est):
             e = est.step(frame)
             return (None, True) if e.pose is None or e.status == "lost" else (e.pose, False)
-        rows.append(run("hybrid (edges + fitted CNN, no initial pose)", frames, obj, hybrid_step, out))
+        rows.append(run(f"hybrid (edges + fitted CNN + {fusion}, no initial pose)", frames, obj, hybrid_step, out))
+        print(f"hybrid {fusion}: {rows[-1]['tracked']} of {rows[-1]['frames']} frames", flush=True)
     # the picture on the results page: our default tracker above the raw cv2 run that strayed most
     raw = [r for r in rows if r["run"].endswith("(raw cv2)") and r["edge_px_median"] is not None]
     pair = [rows[0], max(raw, key=lambda r: r["edge_px_median"])] if raw else [rows[0]]

@@ -159,9 +159,9 @@ def main(argv=None) -> None:
     tmp.replace(picture_path)
     payload = {"environment": environment(), "sequence": str(mbt / "cube"), "camera": camera.to_dict(), "rows": rows}
     lines = [f"ViSP's cube sequence (`visp-images-data`, `mbt/cube`: {len(frames)} real frames, 640 × 480 grey), "
-             f"commit `{payload['environment']['git']}`, one thread. Trackers start from `cube.0.pos` and are "
-             "never re-initialised; per frame, the median distance (px) from the model's visible edges to the "
-             "image's edges; over the frames each run tracked (not flagged lost).", "",
+             f"commit `{payload['environment']['git']}`, one thread. Trackers alone start from `cube.0.pos` and are "
+             "never re-initialised; hybrid rows get no pose at all; per frame, the median distance (px) from the "
+             "model's visible edges to the image's edges; over the frames each run tracked (not flagged lost).", "",
              "| run | frames tracked | edge px: median / p90 / worst frame | ms/frame |", "|---|---|---|---|"]
     for r in rows:
         px = "—" if r["edge_px_median"] is None else f"{r['edge_px_median']:.2f} / {r['edge_px_p90']:.2f} / {r['edge_px_worst']:.2f}"

@@ -229,6 +229,7 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     edge explains are left out. ``ids``: the view's facet ids of ``pose``, where the caller has them.
     """
     cam = frame.camera
+    ids = view.facet_ids(pose, cam) if ids is None else ids  # one raster for the samples and the faces
     idx = view.visible_index(pose, cam, margin_px=2, ids=ids)
     if len(idx) < 6:
         return float("nan")
@@ -244,7 +245,7 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     full = to_gray(frame.image) if gray is None else gray
     # one Canny for the box and the ring around it
     around, (X0, Y0) = _edges_around(full, (x0, y0, x1, y1))
-    edges = around[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0].copy()
+    edges = around[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0]
     found = edges.copy()  # every edge of the region: what texture is told from clutter by
     if _ring_density(around, (x0 - X0, y0 - Y0, x1 - X0, y1 - Y0)) > CLUTTER_EDGE_DENSITY:
         # a cluttered background (a bench, a photo, the Earth): only the image edges on the object's
@@ -259,13 +260,14 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     cv2.polylines(model, list(segments), False, 255, 1)
     k = 2 * EXPLAIN_TOLERANCE_PX + 1
     near = cv2.dilate(model, np.ones((k, k), np.uint8)) > 0
-    faces = _faces(view, pose, cam, ids, (x0, y0, x1, y1), model.shape)
+    faces = _faces(ids, cam, (x0, y0, x1, y1), model.shape)
     k = 2 * TEXTURE_CLEAR_PX + 1
     interior = faces & (cv2.dilate(model, np.ones((k, k), np.uint8)) == 0)
-    if interior.any() and found[interior].mean() > TEXTURE_EDGE_DENSITY:
+    density = found[interior].mean() if interior.any() else 0.0
+    if density > TEXTURE_EDGE_DENSITY:
         k = 2 * TEXTURE_BAND_PX + 1
         band = (cv2.dilate(faces.astype(np.uint8), np.ones((k, k), np.uint8)) > 0) & ~faces & ~near
-        if not band.any() or found[interior].mean() > TEXTURE_CONTRAST * found[band].mean():
+        if not band.any() or density > TEXTURE_CONTRAST * found[band].mean():
             edges &= ~faces | near  # on a textured surface only the model's own edges are the object's to explain
     n = int(edges.sum())
     if n == 0:
@@ -273,11 +275,10 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     return float((edges & near).sum()) / n
 
 
-def _faces(view: ModelView, pose: Pose, cam, ids: np.ndarray | None, box, shape) -> np.ndarray:
-    """(h, w) = ``shape`` bool over ``box`` (x0, y0, x1, y1 px): the pixels where a visible face of the
-    model lies at ``pose`` (from the facet-id raster ``ids``, rendered here when None)."""
+def _faces(ids: np.ndarray, cam, box, shape) -> np.ndarray:
+    """(h, w) = ``shape`` bool over ``box`` (x0, y0, x1, y1 px of ``cam``'s image): the pixels where a
+    visible face lies in the facet-id raster ``ids`` (:meth:`ModelView.facet_ids`, any scale)."""
     x0, y0, x1, y1 = box
-    ids = view.facet_ids(pose, cam) if ids is None else ids
     scale = ids.shape[1] / cam.width
     r0, r1 = int(y0 * scale), min(int(np.ceil(y1 * scale)), ids.shape[0])
     c0, c1 = int(x0 * scale), min(int(np.ceil(x1 * scale)), ids.shape[1])

@@ -43,10 +43,10 @@ DEFAULT_DIRS = ("/usr/share/visp-images-data/ViSP-images",)
 def find_visp_images(arg: str | None) -> Path:
     """The ViSP-images folder: ``arg``, else ``$VISP_INPUT_IMAGE_PATH/ViSP-images`` (ViSP's own
     convention), else the Debian package's; an error saying how to get it where none holds the cube."""
-    candidates = [arg] if arg else [*(os.path.join(p, "ViSP-images") for p in [os.environ.get("VISP_INPUT_IMAGE_PATH")] if p),
-                                    *DEFAULT_DIRS]
+    env = os.environ.get("VISP_INPUT_IMAGE_PATH")
+    candidates = [arg] if arg else [*([os.path.join(env, "ViSP-images")] if env else []), *DEFAULT_DIRS]
     for c in candidates:
-        if c and (Path(c) / "mbt" / "cube.cao").is_file():
+        if (Path(c) / "mbt" / "cube.cao").is_file():
             return Path(c)
     raise SystemExit(f"--visp-images: no ViSP-images folder with mbt/cube.cao among {candidates}; install "
                      "Debian's visp-images-data (apt install visp-images-data, or apt-get download visp-images-data "

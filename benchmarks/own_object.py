@@ -72,6 +72,9 @@ def main() -> None:
     ap.add_argument("--train-photos", choices=("skimage", "none"), default="skimage",
                     help="backgrounds of the training views: half from scikit-image's sample photos (default), "
                          "or procedural clutter only")
+    ap.add_argument("--textured-share", type=float, default=0.0,
+                    help="share of the training views with a random print on the box (hybridpose fit "
+                         "--textured-share; default 0)")
     args = ap.parse_args()
     import trimesh
 
@@ -81,9 +84,9 @@ def main() -> None:
     if not mesh.is_file():
         trimesh.creation.box(extents=BOX_MM).export(mesh)
     fit = out / "fit"
-    extra = []
+    extra = ["--textured-share", args.textured_share] if args.textured_share > 0 else []
     if args.train_photos == "skimage":
-        extra = ["--backgrounds", training_photos(out / "train_photos")]
+        extra += ["--backgrounds", training_photos(out / "train_photos")]
     hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, "--workers", args.workers, *extra)
     photos = out / "photos"
     photos.mkdir(exist_ok=True)

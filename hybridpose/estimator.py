@@ -25,6 +25,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   (by ``switch_quality_margin``) does not count. A CNN pose that agrees is fused. A tracker
   measurement the gate refuses calls a check at once; where the CNN and the edges from its pose
   vouch for it, the fusion (not the tracker) was wrong and starts over there.
+  Where the tracker loses the object from the prediction, an established track (``retry_after``)
+  tries once more from the tracker's previous pose and, found there, starts the fusion over from
+  that fit: a hand-held camera stops where a constant-velocity model runs on.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
   consecutive answers agree (``reacquire_chi2``) and the tracker, started from the latest, confirms it
@@ -204,6 +207,15 @@ class HybridEstimator:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
         m = self._track_from(frame, prior.pose, timings, lost_quality=self._keep_quality())
         previous, self.last_tracker = self.last_tracker, m
+        if m.lost and self._retries(previous):
+            retry = self._track_from(frame, previous.pose, timings, lost_quality=self._keep_quality())
+            if not retry.lost:
+                # the object is where the tracker last saw it, not where the motion model sent it (a
+                # hand-held camera that stopped): the fusion starts over from this fit, zero twist
+                self.last_tracker = retry
+                self._timed(timings, "fusion", self.fusion.reset, retry.pose, retry.covariance, frame.timestamp)
+                self._n = _Counters()
+                return self._estimate("tracking", (retry.source,))
         sources = []
         rejected = False
         if m.lost:
@@ -350,6 +362,14 @@ class HybridEstimator:
         if not 0 < dt <= MAX_TWIST_GAP_S:
             return None
         return previous.pose.local(m.pose) / dt
+
+    def _retries(self, previous: Measurement | None) -> bool:
+        """Whether a fit lost from the prediction is tried again from the tracker's ``previous`` pose:
+        the track has run ``retry_after`` frames since its last (re)start (a younger one may be a
+        wrong start that a second chance would keep alive)."""
+        after = self.config.retry_after
+        return (after is not None and previous is not None and previous.pose is not None
+                and self._n.since_start >= after)
 
     def _vouched(self, m: Measurement, c: Measurement, fit: Measurement) -> bool:
         """True when the CNN pose ``c`` and the tracker's fit started from it both agree with the

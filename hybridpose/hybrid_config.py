@@ -33,6 +33,12 @@ class HybridConfig:
             prediction and takes up again by itself when its fit is not lost and passes the gate
             (the honest quality keeps it from taking up on the arm), and the fusion starts over from
             that fit with zero twist; False: only the CNN restarts it.
+        retry_after: where the tracker loses the object from the fusion's prediction, a track that
+            has run this many frames since its last (re)start tries once more from the tracker's
+            previous pose; a fit there (not lost) starts the fusion over from it with zero twist. A
+            constant-velocity prediction runs on when a hand-held camera stops (ViSP's cube: 13 mm
+            ahead after 53 frames, the track lost); wrong starts on the truss's tuning seeds were
+            retried 1–2 frames after they began. None: never.
         lost_after_tracker_losses: consecutive frames the tracker reports lost that declare the
             object lost (before that the estimate coasts on the fusion's prediction).
         reacquire_chi2: squared Mahalanobis distance below which two consecutive CNN answers agree
@@ -90,6 +96,7 @@ class HybridConfig:
     lost_after_rejections: int = 3
     lost_after_tracker_losses: int = 1
     tracker_resumes: bool = True
+    retry_after: int | None = 3
     unstable_window: int = 20
     settle_frames: int = 0
     reacquire_chi2: float = DEFAULT_GATE_CHI2
@@ -113,6 +120,8 @@ class HybridConfig:
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")
+        if self.retry_after is not None and (int(self.retry_after) != self.retry_after or self.retry_after < 0):
+            raise ValueError(f"retry_after: expected a whole number of frames ≥ 0 or None, got {self.retry_after}")
         for name in ("confirm_checks", "lost_after_rejections", "lost_check_period", "lost_after_tracker_losses"):
             v = getattr(self, name)
             if int(v) != v or v < 1:

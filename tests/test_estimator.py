@@ -597,3 +597,49 @@ def test_checks_of_a_symmetric_object_compare_the_equivalent_pose_nearest_the_tr
     assert set(trk.inits) == {0}, "a half-turned answer is the same look, not a disagreement"
     assert all(e.status == "tracking" for e in out[1:])
     assert max(rotation_error_deg(e.pose, truth(k)) for k, e in enumerate(out)) < 0.5
+
+
+
+def swing(k: int) -> Pose:
+    """The truth until frame 20, then back the way it came (a hand-held camera swinging back)."""
+    return truth(k if k <= 20 else 40 - k)
+
+
+class NearSightedTracker(ScriptedTracker):
+    """Finds the object (``swing``) only from a prior within 1.2° and 4 mm of it: an edge search of
+    a few pixels."""
+
+    def track(self, frame, prior=None, lost_quality=None):
+        pose = swing(frame.index)
+        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
+        if prior is not None and (rotation_error_deg(prior, pose) > 1.2 or np.linalg.norm(prior.t - pose.t) > 0.004):
+            return Measurement(None, np.eye(6), 0.0, "tracker:scripted", frame.timestamp)
+        return Measurement(pose, cov, 0.85, "tracker:scripted", frame.timestamp)
+
+
+class SwingRegressor(OracleRegressor):
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return Measurement(swing(frame.index), m.covariance, m.quality, m.source, m.timestamp)
+
+
+@pytest.mark.parametrize("fusion", ["ukf", "isam2"])
+def test_a_track_whose_prediction_runs_on_when_the_motion_turns_is_found_where_it_was(fusion):
+    """The constant-velocity prediction overshoots when the motion turns back (1.7° off in a frame,
+    beyond the tracker's reach): an established track tries again from the tracker's last pose and
+    the fusion starts over there, where ``retry_after=None`` loses the object."""
+    config = HybridConfig(check_period=0, tracker_resumes=False)
+
+    def estimator(**changes):
+        return HybridEstimator(NearSightedTracker(), SwingRegressor(blind=range(21, 40)),
+                               registry.create("fusion", fusion), replace(config, **changes))
+
+    out = run(estimator(), 30)
+    assert all(e.status == "tracking" for e in out[1:]), [e.status for e in out]
+    assert max(rotation_error_deg(e.pose, swing(k)) for k, e in enumerate(out)) < 0.3
+    assert np.allclose(out[21].velocity, 0)  # the twist coasted past the turn is dropped
+    assert run(estimator(retry_after=None), 22)[21].status == "lost"
+    # a track younger than retry_after frames is not retried (a wrong start would live on)
+    assert run(estimator(retry_after=25), 22)[21].status == "lost"
+    with pytest.raises(ValueError, match="retry_after"):
+        HybridConfig(retry_after=-1)

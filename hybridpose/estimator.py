@@ -444,11 +444,10 @@ class HybridEstimator:
         obj = self.object
         if obj is None or pose is None:
             return None
-        corners_cam = pose @ obj.bbox_corners
-        if not np.all(camera.in_front(corners_cam)):
+        box = camera.image_box(obj.bbox_corners, pose)
+        if box is None:
             return None
-        uv = camera.project_cam(corners_cam)
-        (x0, y0), (x1, y1) = uv.min(0), uv.max(0)
+        x0, y0, x1, y1 = box
         m = self.config.check_roi_margin
         x0, x1 = x0 - m * (x1 - x0), x1 + m * (x1 - x0)
         y0, y1 = y0 - m * (y1 - y0), y1 + m * (y1 - y0)

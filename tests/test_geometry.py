@@ -243,3 +243,15 @@ def test_in_front_says_which_points_project_cam_takes():
     for p in pts[~cam.in_front(pts)]:
         with pytest.raises(ValueError, match="behind the camera"):
             cam.project_cam(p[None])
+
+
+def test_image_box_bounds_cv2_projections_and_refuses_points_behind_the_camera(rng):
+    cam = Camera(640, 480, 610.0, 590.0, 322.3, 237.9)
+    pts = rng.uniform(-0.2, 0.2, size=(30, 3))
+    pose = Pose.from_rotvec_t([0.3, -0.2, 0.5], [0.05, -0.02, 0.8])
+    ref, _ = cv2.projectPoints(pts, cv2.Rodrigues(pose.R)[0], pose.t, cam.K, None)
+    ref = ref.reshape(-1, 2)
+    np.testing.assert_allclose(cam.image_box(pts, pose), [*ref.min(0), *ref.max(0)], atol=1e-6)
+    # the box is not clipped to the image, and a point at or behind the camera plane gives none
+    assert cam.image_box(pts, Pose(np.eye(3), [3.0, 0.0, 0.8]))[0] > cam.width
+    assert cam.image_box(pts, Pose(np.eye(3), [0.0, 0.0, 0.1])) is None

@@ -26,11 +26,8 @@ COARSE_SEARCH_PX = (16, 12)   # the search range at each level (pixels of that l
 def projected_diagonal_px(view: ModelView, pose: Pose, camera: Camera) -> float:
     """Diagonal (px) of the image box of the object's bounding-box corners at ``pose``; ``inf`` where a
     corner is not in front of the camera (an object that close overflows any view)."""
-    corners = pose @ view.object.bbox_corners
-    if not np.all(camera.in_front(corners)):
-        return float("inf")
-    uv = camera.project_cam(corners)
-    return float(np.linalg.norm(uv.max(0) - uv.min(0)))
+    box = camera.image_box(view.object.bbox_corners, pose)
+    return float("inf") if box is None else float(np.hypot(box[2] - box[0], box[3] - box[1]))
 
 
 def coarse_to_fine(view: ModelView, frame: Frame, start: Pose, levels=COARSE_LEVELS,

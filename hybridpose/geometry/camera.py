@@ -163,6 +163,17 @@ class Camera:
         (in front of the camera plane)."""
         return as_points3d(points_cam, "points_cam")[:, 2] > _MIN_DEPTH_M
 
+    def image_box(self, points_obj, T_cam_obj: Pose) -> tuple[float, float, float, float] | None:
+        """Box (x0, y0, x1, y1) px, not clipped to the image, of the (N, 3) object-frame points
+        (metres) projected at ``T_cam_obj``; None where one of them is not in front of the camera
+        (an object reaching behind the camera has no image box)."""
+        points_cam = T_cam_obj @ as_points3d(points_obj, "points_obj")
+        if not np.all(self.in_front(points_cam)):
+            return None
+        uv = self.project_cam(points_cam)
+        (x0, y0), (x1, y1) = uv.min(0), uv.max(0)
+        return float(x0), float(y0), float(x1), float(y1)
+
     def project_cam(self, points_cam) -> np.ndarray:
         """Project (N, 3) camera-frame points (metres) to (N, 2) pixels; z must be > 0."""
         p = as_points3d(points_cam, "points_cam")

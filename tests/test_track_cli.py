@@ -116,3 +116,30 @@ def test_track_without_an_initial_pose_runs_the_hybrid(clip, tmp_path, capsys):
                                                 [float(r[k]) for k in ("tx_m", "ty_m", "tz_m")]), t) for r, t in trusted]
     assert len(errs) >= 10 and np.median(errs) < 1.0
     assert len(list(out.glob("overlay.*"))) == 1 and "with the hybrid" in capsys.readouterr().out
+
+
+def test_tracker_options_reach_the_tracker(clip, tmp_path, capsys):
+    root, _ = clip
+    args = ["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+            "--init-pose", str(root / "pose.json"), "--tracker", "edges", "--max-frames", "4"]
+    # no fit reaches quality 1: every frame after the first (the given initial pose) flagged lost
+    assert main([*args, "--tracker-option", "lost_quality=1", "--tracker-option", "explain=false",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert "3 flagged lost" in capsys.readouterr().out
+    assert main([*args, "--tracker-option", "search=3", "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert "--tracker-option: expected NAME=VALUE with a name among search_px" in err and "explain" in err
+    assert main([*args, "--tracker-option", "explain=maybe", "--out", str(tmp_path / "q")]) == 2
+    assert "explain: expected true or false" in capsys.readouterr().err
+
+
+def test_backend_options_read_values_as_the_defaults_types():
+    from hybridpose.cli.common import backend_options
+    from hybridpose.registry import get
+
+    opts = backend_options(["explain=0", "search_px=12", "lost_quality=0.45", "covariance_scale=2"], get("tracker", "edges"), "-o")
+    assert opts == {"explain": False, "search_px": 12, "lost_quality": 0.45, "covariance_scale": 2.0}
+    assert isinstance(opts["search_px"], int) and isinstance(opts["covariance_scale"], float)
+    assert backend_options(["lost_quality=none"], get("tracker", "edges"), "-o") == {"lost_quality": None}
+    with pytest.raises(ValueError, match="-o: search_px: expected a number"):
+        backend_options(["search_px=wide"], get("tracker", "edges"), "-o")

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import Camera
-from .common import counter, names, progress
+from .common import backend_options, counter, names, progress
 from .data import verify_dataset
 
 
@@ -17,7 +17,8 @@ def cmd_track(args) -> int:
     from ..registry import create, get
     from ..tracking import load_pose, read_frames, track_sequence
 
-    get("tracker", args.tracker), get("fusion", args.fusion)
+    tracker_kw = backend_options(args.tracker_option, get("tracker", args.tracker), "--tracker-option")
+    get("fusion", args.fusion)
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
     frames = read_frames(args.source, camera, args.fps)
@@ -26,14 +27,14 @@ def cmd_track(args) -> int:
         from ..tracking import run_hybrid_on_frames
 
         est = HybridEstimator.from_names(object=obj, tracker=args.tracker, regressor=args.regressor,
-                                         fusion=args.fusion)
+                                         fusion=args.fusion, tracker_kw=tracker_kw)
         res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"))
         print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}; "
               f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
               f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
         return 0
     pose0 = load_pose(args.init_pose)
-    tracker = create("tracker", args.tracker, object=obj)
+    tracker = create("tracker", args.tracker, object=obj, **tracker_kw)
     res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=counter("track"))
     print(f"track: {res.frames} frames with {args.tracker} ({res.ms_per_frame:.1f} ms/frame, {res.lost} flagged lost) → "
           f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
@@ -180,6 +181,9 @@ def add_commands(sub) -> None:
     k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
     k.add_argument("--fusion", default="ukf", help="fusion backend of the hybrid (ukf, isam2, none)")
     k.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")
+    k.add_argument("--tracker-option", action="append", metavar="NAME=VALUE",
+                   help="a keyword of the tracker (repeatable), e.g. explain=false or lost_quality=0.4 for "
+                        "edges; an unknown name lists the ones it takes")
     k.add_argument("--fps", type=float, default=None, help="frame rate for image folders (default 30)")
     k.add_argument("--max-frames", type=int, default=None)
     k.add_argument("--out", required=True, help="folder for the overlay video, poses.csv, scene_gt.json")

@@ -45,12 +45,15 @@ class EdgeSamples:
 class ModelView:
     """Edge samples and facets of an :class:`ObjectModel`, precomputed once per tracker.
 
+    The samples lie along the sharp edges (two faces meeting at more than ``SHARP_EDGE_ANGLE_DEG``)
+    and along the outline of open surfaces (an edge of a single face: a model of separate polygons).
+
     Args:
         object: the model (metres).
-        step_m: spacing of samples along the sharp edges, metres.
+        step_m: spacing of samples along those edges, metres.
 
     Raises:
-        ValueError: the mesh has no sharp edge (nothing an edge tracker could follow).
+        ValueError: the mesh has no sharp edge and no open outline (nothing an edge tracker could follow).
     """
 
     def __init__(self, object: ObjectModel, step_m: float = DEFAULT_STEP_M) -> None:
@@ -59,14 +62,17 @@ class ModelView:
             raise ValueError(f"step_m: expected a positive sample spacing in metres, got {step_m}")
         self.step_m = float(step_m)
         sharp = mesh.face_adjacency_angles > np.radians(SHARP_EDGE_ANGLE_DEG)
-        if not np.any(sharp):
+        open_edges, open_faces = _open_edges(mesh)
+        if not np.any(sharp) and not len(open_edges):
             raise ValueError(
-                f"object: {object.name!r} has no sharp edges (no faces meeting at > {SHARP_EDGE_ANGLE_DEG}°); "
-                "an edge tracker has nothing to follow — use the klt-pnp tracker"
+                f"object: {object.name!r} has no sharp edges (no faces meeting at > {SHARP_EDGE_ANGLE_DEG}° "
+                "and no open outline); an edge tracker has nothing to follow — use the klt-pnp tracker"
             )
         verts = np.asarray(mesh.vertices, dtype=np.float64)
-        edges = verts[mesh.face_adjacency_edges[sharp]]          # (E, 2, 3)
-        faces = mesh.face_adjacency[sharp]                        # (E, 2)
+        # creases between two faces, and the outline of open surfaces (a CAD model of separate
+        # polygons, as ViSP's .cao files often are) with its one face on both sides
+        edges = verts[np.concatenate([mesh.face_adjacency_edges[sharp], open_edges])]      # (E, 2, 3)
+        faces = np.concatenate([mesh.face_adjacency[sharp], np.stack([open_faces, open_faces], 1)])  # (E, 2)
         length = np.linalg.norm(edges[:, 1] - edges[:, 0], axis=1)
         n_per = np.maximum(1, np.ceil(length / step_m).astype(int))
         e_idx = np.repeat(np.arange(len(edges)), n_per)
@@ -175,3 +181,14 @@ class ModelView:
         if margin_px is not None and not keep.all():
             index, uv, normals = index[keep], uv[keep], normals[keep]
         return EdgeSamples(index=index, points_m=self.points[index], uv=uv, normals=normals)
+
+
+def _open_edges(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's boundary edges (B, 2) vertex indices (edges of a single face) and that face (B,)."""
+    inverse = np.asarray(mesh.edges_unique_inverse)
+    counts = np.bincount(inverse, minlength=len(mesh.edges_unique))
+    first = np.empty(len(mesh.edges_unique), np.int64)
+    first[inverse[::-1]] = np.arange(len(inverse))[::-1]  # each unique edge's first occurrence
+    boundary = np.nonzero(counts == 1)[0]
+    return (np.asarray(mesh.edges_unique[boundary], dtype=np.int64).reshape(-1, 2),
+            np.asarray(mesh.edges_face[first[boundary]], dtype=np.int64))

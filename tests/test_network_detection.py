@@ -9,7 +9,8 @@ import pytest
 from hybridpose.geometry import Camera, Pose
 from hybridpose.regressors.keypoint_passes import KeypointEstimate, pnp_quality
 from hybridpose.regressors.keypoint_pnp import PnPResult
-from hybridpose.regressors.network_detection import box_iou, network_boxes, tile_boxes
+from hybridpose.regressors.network_detection import FINE_TILE_SIDE, box_iou, network_boxes, tile_boxes
+from hybridpose.regressors.options import KeypointOptions
 from hybridpose.regressors.predictor import CheckpointRegressor
 
 CORNERS = np.array([[x, y, z] for x in (-0.09, 0.09) for y in (-0.055, 0.055) for z in (-0.035, 0.035)])
@@ -64,6 +65,7 @@ class FakePasses:
 
     def solve_boxes(self, image, K, views):
         self.views = list(views)
+        self.calls = getattr(self, "calls", 0) + 1
         return [(self.seen.get(i), np.zeros((0, 2)), np.eye(3), [0], None) for i in range(len(views))]
 
 
@@ -98,11 +100,48 @@ def test_the_regressor_keeps_the_estimate_pnp_fits_best():
             return estimates[i]
 
         passes.estimate_in = estimate_in
-        box, est = CheckpointRegressor._detect(SimpleNamespace(detection="network", passes=passes), image, cam, 0.0)
+        box, est = CheckpointRegressor._detect(SimpleNamespace(detection="network", passes=passes, options=KeypointOptions()), image, cam, 0.0)
         assert est is estimates[expect] and pnp_quality(est) == max(pnp_quality(e) for e in estimates.values())
         np.testing.assert_allclose(box[:2], cam.project(CORNERS, poses[expect]).min(0), atol=1e-6)
     # proposals but no estimate: the first proposal's box, no estimate (the dim fallback may follow)
     passes = FakePasses({0: _result(poses[0])})
     passes.estimate_in = lambda *a: None
-    box, est = CheckpointRegressor._detect(SimpleNamespace(detection="network", passes=passes), image, cam, 0.0)
+    box, est = CheckpointRegressor._detect(SimpleNamespace(detection="network", passes=passes, options=KeypointOptions()), image, cam, 0.0)
     assert est is None and box == network_boxes(passes, image, cam)[0]
+
+
+def test_fine_tiles_look_again_where_no_estimate_fits_well():
+    cam = Camera.default().scaled((640, 480))
+    image = np.zeros((480, 640, 3), np.uint8)
+    clutter, part = (Pose.from_rotvec_t([0.3, 0.2, 0.1], [-0.25, 0.0, 1.2]),
+                     Pose.from_rotvec_t([0.1, -0.4, 0.2], [0.3, 0.1, 2.5]))
+    fine_views = tile_boxes(640, 480, FINE_TILE_SIDE)
+    assert len(fine_views) == 12 and fine_views[0][2] == 256
+
+    def run(fine_tiles, clutter_kept, part_kept):
+        passes = FakePasses({0: _result(clutter)})
+        coarse = passes.solve_boxes
+
+        def solve_boxes(image, K, views):  # only a fine tile's pass sees the small part
+            views = list(views)
+            out = coarse(image, K, views)
+            if views == fine_views:
+                out[4] = (_result(part), *out[4][1:])
+            return out
+
+        def estimate_in(image, cam, box, sun_turn):  # the clutter lies left of the frame's centre, the part right
+            left = box[0] + box[2] / 2 < 320
+            return KeypointEstimate(_result(clutter if left else part, clutter_kept if left else part_kept, 0.2), [0], None, 128)
+
+        passes.solve_boxes, passes.estimate_in = solve_boxes, estimate_in
+        me = SimpleNamespace(detection="network", passes=passes, options=KeypointOptions(fine_tiles=fine_tiles))
+        return CheckpointRegressor._detect(me, image, cam, 0.0)[1], passes.calls
+
+    # a poor fit from the coarse look: the fine tiles find the part and their well-fitting estimate wins
+    est, calls = run(True, 0.5, 1.0)
+    assert calls == 2 and est.result.pose.allclose(part)
+    # a fine find that PnP fits no better than FINE_ACCEPT is not taken
+    est, _ = run(True, 0.5, 0.6)
+    assert est.result.pose.allclose(clutter)
+    # a good coarse fit, or the option off: one look only
+    assert run(True, 1.0, 1.0)[1] == 1 and run(False, 0.5, 1.0)[1] == 1

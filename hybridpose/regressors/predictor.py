@@ -36,7 +36,7 @@ from .detection import detect_bright_object, detect_dim_object
 from .direct import bounded_image, direct_pose
 from .engines import ENGINES, keypoint_engine
 from .keypoint_passes import KeypointEstimate, KeypointPasses, image_batch, pnp_quality
-from .network_detection import network_boxes
+from .network_detection import FINE_ACCEPT, FINE_BELOW, fine_boxes, network_boxes
 from .options import KeypointOptions
 from .twin_choice import TwinChoice, twin_starts
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
@@ -437,13 +437,19 @@ class CheckpointRegressor(PoseRegressor):
         """(box (x, y, w, h) px where the object is, its estimate or None) without a prior
         (``detection``); (None, None) where nothing is found. With the network's several proposals
         (:func:`~.network_detection.network_boxes`) the estimate PnP fits best, the first proposal's
-        box where none gives an estimate."""
+        box where none gives an estimate; with ``fine_tiles``, where none reaches PnP quality
+        ``FINE_BELOW``, finer tiles' proposals too (:func:`~.network_detection.fine_boxes`), their
+        estimates from ``FINE_ACCEPT``."""
         proposals = network_boxes(self.passes, image, cam) if self.detection == "network" else []
         if not proposals:
             seen = detect_bright_object(image)
             return seen, None if seen is None else self.passes.estimate_in(image, cam, seen, sun_turn)
         found = [(box, self.passes.estimate_in(image, cam, box, sun_turn)) for box in proposals]
         found = [(box, est) for box, est in found if est is not None]
+        if self.options.fine_tiles and (not found or max(pnp_quality(est) for _, est in found) < FINE_BELOW):
+            fine = [(box, self.passes.estimate_in(image, cam, box, sun_turn))
+                    for box in fine_boxes(self.passes, image, cam, proposals)]
+            found += [(box, est) for box, est in fine if est is not None and pnp_quality(est) >= FINE_ACCEPT]
         if not found:
             return proposals[0], None
         return max(found, key=lambda box_est: pnp_quality(box_est[1]))  # the first of equals: the whole frame's

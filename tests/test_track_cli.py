@@ -131,6 +131,8 @@ def test_tracker_options_reach_the_tracker(clip, tmp_path, capsys):
     assert "--tracker-option: expected NAME=VALUE with a name among search_px" in err and "explain" in err
     assert main([*args, "--tracker-option", "explain=maybe", "--out", str(tmp_path / "q")]) == 2
     assert "explain: expected true or false" in capsys.readouterr().err
+    assert main([*args, "--regressor-option", "fine_tiles=true", "--out", str(tmp_path / "r")]) == 2
+    assert "--regressor-option: the tracker alone runs from --init-pose" in capsys.readouterr().err
 
 
 def test_backend_options_read_values_as_the_defaults_types():
@@ -143,3 +145,14 @@ def test_backend_options_read_values_as_the_defaults_types():
     assert backend_options(["lost_quality=none"], get("tracker", "edges"), "-o") == {"lost_quality": None}
     with pytest.raises(ValueError, match="-o: search_px: expected a number"):
         backend_options(["search_px=wide"], get("tracker", "edges"), "-o")
+
+
+def test_regressor_options_are_keypoint_options(tmp_path, capsys):
+    from hybridpose.cli.common import backend_options
+    from hybridpose.regressors.options import KeypointOptions
+
+    opts = backend_options(["fine_tiles=true", "turns=off", "passes=2", "max_depth_m=none"], KeypointOptions, "-r")
+    assert opts == {"fine_tiles": True, "turns": "off", "passes": "2", "max_depth_m": None}
+    assert KeypointOptions(**opts).passes == 2
+    with pytest.raises(ValueError, match="-r: expected NAME=VALUE with a name among check_twins"):
+        backend_options(["fine=true"], KeypointOptions, "-r")

@@ -61,9 +61,10 @@ def names(text: str) -> tuple[str, ...]:
 
 
 def backend_options(items, factory, flag: str) -> dict:
-    """``["explain=false", "lost_quality=0.4"]`` → keyword arguments of the backend ``factory``, each
-    value read as the type of that parameter's default (true/false, a number, ``none`` where the
-    default is None); ValueError naming ``flag`` and the parameters it takes otherwise."""
+    """``["explain=false", "lost_quality=0.4"]`` → keyword arguments of the backend ``factory`` (a
+    callable or a dataclass of options), each value read as the type of that parameter's default
+    (true/false, a number, a word, ``none`` where the default is None); ValueError naming ``flag`` and
+    the parameters it takes otherwise (the backend checks the values it is given)."""
     params = {k: p for k, p in inspect.signature(factory).parameters.items()
               if k not in ("self", "object") and p.default is not inspect.Parameter.empty}
     options = {}
@@ -75,6 +76,8 @@ def backend_options(items, factory, flag: str) -> dict:
         default = params[key].default
         if value.lower() == "none" and (default is None or "None" in str(params[key].annotation)):
             options[key] = None
+        elif isinstance(default, str):
+            options[key] = value
         elif isinstance(default, bool):
             if value.lower() not in ("true", "false", "1", "0"):
                 raise ValueError(f"{flag}: {key}: expected true or false, got {value!r}")

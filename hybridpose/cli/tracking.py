@@ -17,7 +17,12 @@ def cmd_track(args) -> int:
     from ..registry import create, get
     from ..tracking import load_pose, read_frames, track_sequence
 
+    from ..regressors.options import KeypointOptions
+
     tracker_kw = backend_options(args.tracker_option, get("tracker", args.tracker), "--tracker-option")
+    regressor_kw = backend_options(args.regressor_option, KeypointOptions, "--regressor-option")
+    if regressor_kw and args.init_pose is not None:
+        raise ValueError("--regressor-option: the tracker alone runs from --init-pose; no CNN to set")
     get("fusion", args.fusion)
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
@@ -27,7 +32,7 @@ def cmd_track(args) -> int:
         from ..tracking import run_hybrid_on_frames
 
         est = HybridEstimator.from_names(object=obj, tracker=args.tracker, regressor=args.regressor,
-                                         fusion=args.fusion, tracker_kw=tracker_kw)
+                                         fusion=args.fusion, tracker_kw=tracker_kw, regressor_kw=regressor_kw)
         res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"))
         print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}; "
               f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
@@ -184,6 +189,9 @@ def add_commands(sub) -> None:
     k.add_argument("--tracker-option", action="append", metavar="NAME=VALUE",
                    help="a keyword of the tracker (repeatable), e.g. explain=false or lost_quality=0.4 for "
                         "edges; an unknown name lists the ones it takes")
+    k.add_argument("--regressor-option", action="append", metavar="NAME=VALUE",
+                   help="an option of a checkpoint regressor (repeatable; KeypointOptions), e.g. fine_tiles=true "
+                        "to look for a small part in finer tiles of the frame")
     k.add_argument("--fps", type=float, default=None, help="frame rate for image folders (default 30)")
     k.add_argument("--max-frames", type=int, default=None)
     k.add_argument("--out", required=True, help="folder for the overlay video, poses.csv, scene_gt.json")

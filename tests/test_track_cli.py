@@ -145,6 +145,12 @@ def test_backend_options_read_values_as_the_defaults_types():
     assert backend_options(["lost_quality=none"], get("tracker", "edges"), "-o") == {"lost_quality": None}
     with pytest.raises(ValueError, match="-o: search_px: expected a number"):
         backend_options(["search_px=wide"], get("tracker", "edges"), "-o")
+    # every registered tracker names the keywords it takes, factories of several variants too
+    for name in ("klt-pnp", "rapid", "rapid-ols", "rapid-gos"):
+        assert backend_options(["lost_quality=0.4"], get("tracker", name), "-o") == {"lost_quality": 0.4}
+    assert backend_options(["refine=false"], get("tracker", "rapid-gos"), "-o") == {"refine": False}
+    with pytest.raises(ValueError, match="-o: expected NAME=VALUE"):
+        backend_options(["variant=rapid"], get("tracker", "rapid-gos"), "-o")
 
 
 def test_regressor_options_are_keypoint_options(tmp_path, capsys):

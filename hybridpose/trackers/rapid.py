@@ -24,6 +24,8 @@ point-to-point matches. Consequences we handle here:
 """
 from __future__ import annotations
 
+import inspect
+
 import cv2
 import numpy as np
 import trimesh
@@ -126,6 +128,9 @@ def _factory(variant: str):
 
     make.__name__ = f"make_{variant.replace('-', '_')}"
     make.__doc__ = f"``cv2.rapid`` backend {variant!r}; see :class:`RapidTracker`."
+    # the keywords it takes are RapidTracker's (what `track --tracker-option` lists and checks)
+    signature = inspect.signature(RapidTracker)
+    make.__signature__ = signature.replace(parameters=[p for p in signature.parameters.values() if p.name != "variant"])
     return make
 
 

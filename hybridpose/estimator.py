@@ -211,11 +211,9 @@ class HybridEstimator:
             retry = self._track_from(frame, previous.pose, timings, lost_quality=self._keep_quality())
             if not retry.lost:
                 # the object is where the tracker last saw it, not where the motion model sent it (a
-                # hand-held camera that stopped): the fusion starts over from this fit, zero twist
+                # hand-held camera that stopped)
                 self.last_tracker = retry
-                self._timed(timings, "fusion", self.fusion.reset, retry.pose, retry.covariance, frame.timestamp)
-                self._n = _Counters()
-                return self._estimate("tracking", (retry.source,))
+                return self._take_up(frame, retry, timings)
         sources = []
         rejected = False
         if m.lost:
@@ -283,13 +281,10 @@ class HybridEstimator:
             m = self._track_from(frame, prior.pose, timings)
             self.last_tracker = m
             if not m.lost and self._timed(timings, "fusion", self.fusion.update, m):
-                # inside the gate: taken up, but the fusion starts over from the fit (zero twist, its
-                # initial uncertainty) — the twist coasted through the loss is a guess, and after one
-                # update its spread still lets the next CNN check pull the track off by centimetres
-                self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp)
-                self.status = "tracking"
-                self._n = _Counters()
-                return self._estimate("tracking", (m.source,))
+                # inside the gate: taken up, but the fusion starts over from the fit — the twist
+                # coasted through the loss is a guess, and after one update its spread still lets the
+                # next CNN check pull the track off by centimetres
+                return self._take_up(frame, m, timings)
         self._n.since_check += 1
         if self._n.since_check < self.config.lost_check_period:
             return self._estimate("lost", ())
@@ -362,6 +357,14 @@ class HybridEstimator:
         if not 0 < dt <= MAX_TWIST_GAP_S:
             return None
         return previous.pose.local(m.pose) / dt
+
+    def _take_up(self, frame: Frame, m: Measurement, timings: dict) -> Estimate:
+        """The track goes on from the tracker's own fit ``m`` (no CNN involved): the fusion starts over
+        there with zero twist and its initial uncertainty, the counters of the track from zero."""
+        self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp)
+        self.status = "tracking"
+        self._n = _Counters()
+        return self._estimate("tracking", (m.source,))
 
     def _retries(self, previous: Measurement | None) -> bool:
         """Whether a fit lost from the prediction is tried again from the tracker's ``previous`` pose:

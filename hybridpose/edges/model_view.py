@@ -18,7 +18,7 @@ import numpy as np
 from ..geometry import Camera, Pose
 from ..geometry.raster import zbuffer_front_faces
 from ..objects import ObjectModel
-from ..objects.base import SHARP_EDGE_ANGLE_DEG
+from ..objects.base import SHARP_EDGE_ANGLE_DEG, boundary_edges
 from . import _kernels
 
 DEFAULT_STEP_M = 0.005
@@ -62,7 +62,7 @@ class ModelView:
             raise ValueError(f"step_m: expected a positive sample spacing in metres, got {step_m}")
         self.step_m = float(step_m)
         sharp = mesh.face_adjacency_angles > np.radians(SHARP_EDGE_ANGLE_DEG)
-        open_edges, open_faces = _open_edges(mesh)
+        open_edges, open_faces = boundary_edges(mesh)
         if not np.any(sharp) and not len(open_edges):
             raise ValueError(
                 f"object: {object.name!r} has no sharp edges (no faces meeting at > {SHARP_EDGE_ANGLE_DEG}° "
@@ -182,13 +182,3 @@ class ModelView:
             index, uv, normals = index[keep], uv[keep], normals[keep]
         return EdgeSamples(index=index, points_m=self.points[index], uv=uv, normals=normals)
 
-
-def _open_edges(mesh) -> tuple[np.ndarray, np.ndarray]:
-    """The mesh's boundary edges (B, 2) vertex indices (edges of a single face) and that face (B,)."""
-    inverse = np.asarray(mesh.edges_unique_inverse)
-    counts = np.bincount(inverse, minlength=len(mesh.edges_unique))
-    first = np.empty(len(mesh.edges_unique), np.int64)
-    first[inverse[::-1]] = np.arange(len(inverse))[::-1]  # each unique edge's first occurrence
-    boundary = np.nonzero(counts == 1)[0]
-    return (np.asarray(mesh.edges_unique[boundary], dtype=np.int64).reshape(-1, 2),
-            np.asarray(mesh.edges_face[first[boundary]], dtype=np.int64))

@@ -147,11 +147,20 @@ def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 def sharp_edges(mesh: trimesh.Trimesh, angle_deg: float = SHARP_EDGE_ANGLE_DEG) -> np.ndarray:
     """(E, 2, 3) segments of a mesh's crease and boundary edges."""
     idx = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(angle_deg)]
-    edges_sorted = np.sort(mesh.edges, axis=1)
-    uniq, counts = np.unique(edges_sorted, axis=0, return_counts=True)
-    boundary = uniq[counts == 1]
-    all_idx = np.concatenate([idx.reshape(-1, 2), boundary.reshape(-1, 2)], 0)
+    all_idx = np.concatenate([idx.reshape(-1, 2), boundary_edges(mesh)[0]], 0)
     return np.asarray(mesh.vertices, dtype=np.float64)[all_idx]
+
+
+def boundary_edges(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's boundary edges — edges of a single face: the outline of an open surface — as (B, 2)
+    vertex indices, and that face (B,)."""
+    inverse = np.asarray(mesh.edges_unique_inverse)
+    counts = np.bincount(inverse, minlength=len(mesh.edges_unique))
+    first = np.empty(len(mesh.edges_unique), np.int64)
+    first[inverse[::-1]] = np.arange(len(inverse))[::-1]  # each unique edge's first occurrence
+    boundary = np.nonzero(counts == 1)[0]
+    return (np.asarray(mesh.edges_unique[boundary], dtype=np.int64).reshape(-1, 2),
+            np.asarray(mesh.edges_face[first[boundary]], dtype=np.int64))
 
 
 def default_keypoints(mesh: trimesh.Trimesh, count: int = 12) -> np.ndarray:

@@ -75,6 +75,31 @@ def visp_camera(xml_path: Path, width: int, height: int):
                              "cx": value["u0"], "cy": value["v0"]})
 
 
+def visp_sequence(images: Path, model: Path, config: Path, first_pose: Path):
+    """(frames, camera, object, first pose) of one of ViSP's tracker sequences: the ``.pgm`` frames of
+    ``images`` (30 fps), the ``.cao`` ``model``, the camera of the tracker ``config`` and the ``.pos`` pose."""
+    from hybridpose.objects import load_object
+    from hybridpose.tracking import load_pose, read_frames
+
+    first = cv2.imread(str(sorted(images.glob("*.pgm"))[0]), cv2.IMREAD_GRAYSCALE)
+    camera = visp_camera(config, first.shape[1], first.shape[0])
+    return list(read_frames(images, camera, fps=30)), camera, load_object(model), load_pose(first_pose)
+
+
+def tracker_step(tracker, pose0, first_search_px: int | None = None):
+    """``step(frame) → (pose or None, lost)`` of a tracker started at ``pose0`` on frame 0 (searching
+    ``first_search_px`` there where given) and never re-initialised."""
+    def step(frame):
+        if frame.index == 0:
+            tracker.init(frame, pose0)
+            if first_search_px:
+                m = tracker.track(frame, pose0, search_px=first_search_px)
+                return m.pose, m.lost
+        m = tracker.track(frame)
+        return m.pose, m.lost
+    return step
+
+
 def run(label: str, frames, obj, step, out: Path, strip_frames=STRIP_FRAMES) -> dict:
     """``step(frame) → (pose or None, lost)`` over ``frames``: per-frame median edge distance (px, NaN
     without a pose), lost flags, ms per frame (the step only), and the overlay strip."""
@@ -121,34 +146,20 @@ def main(argv=None) -> None:
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
     from hybridpose.estimator import HybridEstimator
-    from hybridpose.objects import load_object
     from hybridpose.registry import create
-    from hybridpose.tracking import load_pose, read_frames
 
     root = find_visp_images(args.visp_images)
     mbt = root / "mbt"
-    first = cv2.imread(str(sorted((mbt / "cube").glob("*.pgm"))[0]), cv2.IMREAD_GRAYSCALE)
-    camera = visp_camera(mbt / "cube.xml", first.shape[1], first.shape[0])
-    obj = load_object(mbt / "cube.cao")
-    pose0 = load_pose(mbt / "cube.0.pos")
-    frames = list(read_frames(mbt / "cube", camera, fps=30))
+    frames, camera, obj, pose0 = visp_sequence(mbt / "cube", mbt / "cube.cao", mbt / "cube.xml", mbt / "cube.0.pos")
     out = Path(args.out)
-
-    def tracker_step(tracker):
-        def step(frame):
-            if frame.index == 0:
-                tracker.init(frame, pose0)
-            m = tracker.track(frame)
-            return m.pose, m.lost
-        return step
 
     rows = []
     for name in TRACKERS:
-        rows.append(run(name, frames, obj, tracker_step(create("tracker", name, object=obj)), out))
+        rows.append(run(name, frames, obj, tracker_step(create("tracker", name, object=obj), pose0), out))
         print(f"{name}: {rows[-1]['tracked']} of {rows[-1]['frames']} frames, {rows[-1]['edge_px_median']} px", flush=True)
     for name in RAW:
         rows.append(run(f"{name} (raw cv2)", frames, obj,
-                        tracker_step(create("tracker", name, object=obj, refine=False)), out))
+                        tracker_step(create("tracker", name, object=obj, refine=False), pose0), out))
         print(f"{name} raw: {rows[-1]['tracked']} of {rows[-1]['frames']} frames, {rows[-1]['edge_px_median']} px", flush=True)
     for fusion in (args.fusions.split(",") if args.regressor else []):
         est = HybridEstimator.from_names(object=obj, regressor=args.regressor, fusion=fusion)
@@ -200,25 +211,14 @@ def picture(rows: list[dict], name: str) -> list[dict]:
 def castle(folder: Path, out: Path) -> tuple[dict, list[str]]:
     """ViSP's castle sequence (``mbt-depth/castel``): our ``edges`` (``CASTLE_EDGES``) and OpenCV's raw
     ``cv2.rapid`` trackers from ``chateau.0.pos``; (payload, results-page lines)."""
-    from hybridpose.objects import load_object
     from hybridpose.registry import create
-    from hybridpose.tracking import load_pose, read_frames
 
-    first = cv2.imread(str(sorted((folder / "castel").glob("image_*.pgm"))[0]), cv2.IMREAD_GRAYSCALE)
-    camera = visp_camera(folder / "chateau.xml", first.shape[1], first.shape[0])
-    obj = load_object(folder / "chateau.cao")
-    pose0 = load_pose(folder / "chateau.0.pos")
-    frames = [f for f in read_frames(folder / "castel", camera, fps=30)]  # the colour images (depth_image_* are .bin)
+    # the grey frames (its depth_image_* files are .bin)
+    frames, camera, obj, pose0 = visp_sequence(folder / "castel", folder / "chateau.cao", folder / "chateau.xml",
+                                               folder / "chateau.0.pos")
 
     def step_of(tracker):
-        def step(frame):
-            if frame.index == 0:
-                tracker.init(frame, pose0)
-                m = tracker.track(frame, pose0, search_px=CASTLE_SEARCH_PX)
-            else:
-                m = tracker.track(frame)
-            return m.pose, m.lost
-        return step
+        return tracker_step(tracker, pose0, CASTLE_SEARCH_PX)
 
     options = ", ".join(f"{k}={v}" for k, v in CASTLE_EDGES.items())
     rows = [run(f"edges ({options})", frames, obj, step_of(create("tracker", "edges", object=obj, **CASTLE_EDGES)),

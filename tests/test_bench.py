@@ -123,6 +123,9 @@ def test_ray_gives_the_local_results(smoke, tmp_path):
     (["--suite", "smoke", "--check-periods", "ten"], "--check-periods: expected whole numbers"),
     (["--suite", "smoke", "--config", "tracker_resumes=maybe"], "--config: tracker_resumes: expected true or false"),
     (["--suite", "smoke", "--config", "start_quality=high"], "--config: start_quality: expected a number"),
+    (["--suite", "smoke", "--tracker-option", "samples=800"], "--tracker-option: expected NAME=VALUE with a name among"),
+    (["--suite", "smoke", "--tracker-option", "max_samples=many"], "--tracker-option: max_samples: expected a number"),
+    (["--suite", "smoke", "--tracker-option", "search_px=0"], "--tracker-option: edges: search_px: expected ≥ 1"),
 ])
 def test_bad_names_are_refused_before_any_work(args, message, tmp_path, capsys):
     assert main(["bench", *args, "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
@@ -163,6 +166,23 @@ def test_config_fields_are_parsed_by_their_type():
     assert parse_config("keep_quality=0.3, keep_after=8").keep_quality == 0.3
     with pytest.raises(ValueError, match="start_quality: expected a number"):
         parse_config("start_quality=none")
+
+
+def test_tracker_options_reach_the_tracker_and_name_the_run():
+    from hybridpose.bench.command import BenchRequest, plan
+    from hybridpose.bench.runner import RunSpec, _backends
+
+    specs, _, _ = plan(BenchRequest(out="o", suite="smoke", modes=("tracker", "cnn", "hybrid"),
+                                    tracker_options=("max_samples=123", "explain=false")))
+    labels = sorted(s.label for s in specs)
+    assert labels == ["cnn (default)", "hybrid (edges+default+ukf; explain=False, max_samples=123)",
+                      "tracker (edges; explain=False, max_samples=123)"]
+    tracker_spec = next(s for s in specs if s.mode == "tracker")
+    _, tracker = _backends(tracker_spec)
+    assert tracker.max_samples == 123 and tracker.explain is False
+    # the options make other rows; the run without them keeps the key it had before options existed
+    assert tracker_spec.key != RunSpec("tracker").key
+    assert next(s for s in specs if s.mode == "cnn").key == RunSpec("cnn").key
 
 
 def test_user_data_must_be_bop_and_the_regressor_must_fit_the_object(tmp_path, capsys):

@@ -42,6 +42,7 @@ class BenchRequest:
     regressor: str = "default"
     check_periods: tuple[int, ...] = ()
     configs: tuple[str, ...] = ()  # "name=value,name=value": one more hybrid run per entry
+    tracker_options: tuple[str, ...] = ()  # "name=value": keyword arguments of every tracker run
     workers: int = 1
     ray: str | None = None
     video: str | None = None
@@ -89,22 +90,39 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
     if any(p < 0 for p in req.check_periods):
         raise ValueError(f"--check-periods: expected frame counts ≥ 0, got {req.check_periods}")
     variants = [parse_config(text) for text in req.configs]
+    options = {t: tracker_options(t, req.tracker_options) for t in req.trackers}
     specs = []
     if "tracker" in req.modes:
-        specs += [RunSpec("tracker", tracker=t, object=req.object, scale=req.scale) for t in req.trackers]
+        specs += [RunSpec("tracker", tracker=t, object=req.object, scale=req.scale, tracker_options=options[t])
+                  for t in req.trackers]
     if "cnn" in req.modes:
         specs.append(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
     if "hybrid" in req.modes:
         configs = [HybridConfig()] + [replace(HybridConfig(), check_period=p) for p in req.check_periods
                                       if p != HybridConfig().check_period] + variants
         specs += [RunSpec("hybrid", tracker=t, regressor=req.regressor, fusion=f, object=req.object, scale=req.scale,
-                          config=c) for t in req.trackers for f in req.fusions for c in configs]
+                          config=c, tracker_options=options[t]) for t in req.trackers for f in req.fusions for c in configs]
     if req.data is not None:
         return specs, user_scenes(req.data), []
     if req.suite is None:
         raise ValueError("--suite or --data: say which sequences to run")
     entries = suite(req.suite, req.split)[: req.limit]
     return specs, None, entries
+
+
+def tracker_options(tracker: str, items) -> tuple:
+    """``["max_samples=800"]`` → the sorted ``((name, value), ...)`` keyword arguments of the tracker
+    registered as ``tracker``; ValueError naming ``--tracker-option`` and what it takes otherwise (the
+    values themselves are checked by :func:`bench` building each tracker once before any long work)."""
+    from ..cli.common import backend_options
+    from ..registry import get
+
+    factory = get("tracker", tracker)
+    try:
+        kw = backend_options(items, factory, "--tracker-option")
+    except ValueError as exc:
+        raise ValueError(f"{exc} (tracker {tracker!r})") from None
+    return tuple(sorted(kw.items()))
 
 
 def parse_config(text: str) -> HybridConfig:
@@ -167,10 +185,23 @@ def _check_regressor(req: BenchRequest) -> None:
     _backends(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
 
 
+def _check_trackers(specs: list[RunSpec]) -> None:
+    """Build each tracker with its options once here: a value it refuses is an error now, not in a worker."""
+    from .runner import _backends
+
+    for spec in {RunSpec("tracker", tracker=s.tracker, object=s.object, scale=s.scale, tracker_options=s.tracker_options)
+                 for s in specs if s.mode != "cnn" and s.tracker_options}:
+        try:
+            _backends(spec)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"--tracker-option: {spec.tracker}: {exc}") from exc
+
+
 def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Callable[[str], None] | None = None) -> dict:
     """Run the request; write ``OUT/results.json``, ``OUT/report.md``, plots (and ``OUT/video/`` with
     ``--video``). Returns the result dict (``config``, ``versions``, ``commit``, ``seconds``, ``rows``)."""
     specs, scenes, entries = plan(req)
+    _check_trackers(specs)
     _check_regressor(req)
     out = Path(req.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -39,6 +39,8 @@ class RunSpec:
     scale: float = 1.0
     config: HybridConfig = field(default_factory=HybridConfig)
     threads: int = 1  # CPU threads per worker (ONNX Runtime / torch / OpenCV)
+    # keyword arguments of the tracker's factory, sorted ((name, value), ...): tracker and hybrid modes
+    tracker_options: tuple = ()
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -50,7 +52,12 @@ class RunSpec:
         parts = {"tracker": [self.tracker], "cnn": [Path(self.regressor).stem if self._is_file() else self.regressor],
                  "hybrid": [self.tracker, Path(self.regressor).stem if self._is_file() else self.regressor, self.fusion]}
         extra = "" if self.config == HybridConfig() or self.mode != "hybrid" else f", {self._config_diff()}"
+        if self.tracker_options and self.mode != "cnn":
+            extra = f"; {self._options_text()}{extra}"
         return f"{self.mode} ({'+'.join(parts[self.mode])}{extra})"
+
+    def _options_text(self) -> str:
+        return ", ".join(f"{k}={'none' if v is None else v}" for k, v in self.tracker_options)
 
     @property
     def key(self) -> str:
@@ -69,6 +76,8 @@ class RunSpec:
 def spec_dict(spec: RunSpec) -> dict:
     d = asdict(spec)
     d.pop("threads")
+    if not spec.tracker_options or spec.mode == "cnn":
+        d.pop("tracker_options")  # rows made before tracker options existed keep their keys
     if spec.mode != "tracker" and spec._is_file() and Path(spec.regressor).is_file():
         # a checkpoint re-trained or re-calibrated under the same path makes other rows
         d["regressor_sha1"] = _file_sha1(str(Path(spec.regressor).resolve()), *_stamp(spec.regressor))
@@ -112,11 +121,12 @@ def _backends(spec: RunSpec):
             _parts[reg_key] = CheckpointRegressor(spec.regressor, object=obj, threads=spec.threads)
         else:
             _parts[reg_key] = create("regressor", spec.regressor, object=obj, threads=spec.threads)
+    tracker_kw = dict(spec.tracker_options)
     if spec.mode == "tracker":
-        return obj, create("tracker", spec.tracker, object=obj)
+        return obj, create("tracker", spec.tracker, object=obj, **tracker_kw)
     if spec.mode == "cnn":
         return obj, _parts[reg_key]
-    return obj, HybridEstimator(create("tracker", spec.tracker, object=obj), _parts[reg_key],
+    return obj, HybridEstimator(create("tracker", spec.tracker, object=obj, **tracker_kw), _parts[reg_key],
                                 create("fusion", spec.fusion), config=spec.config)
 
 

@@ -62,7 +62,7 @@ def cmd_bench(args) -> int:
     req = BenchRequest(out=args.out, suite=None if args.data else args.suite, split=args.split, data=args.data,
                        object=args.object, scale=args.scale, modes=names(args.modes), trackers=names(args.trackers),
                        fusions=names(args.fusions), regressor=args.regressor, check_periods=periods,
-                       configs=tuple(args.config),
+                       configs=tuple(args.config), tracker_options=tuple(args.tracker_option),
                        workers=args.workers, ray=args.ray, video=args.video, limit=args.limit, cache=args.cache)
     bar: list = []  # made at the first finished sequence, after every input was checked
 
@@ -213,6 +213,9 @@ def add_commands(sub) -> None:
     b.add_argument("--config", action="append", default=[],
                    help="one more hybrid run with these HybridConfig fields, e.g. probation_frames=2,check_period=5 "
                         "or keep_quality=none (repeatable)")
+    b.add_argument("--tracker-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a keyword argument of every tracker run, tracker-only and hybrid, e.g. max_samples=800 "
+                        "(repeatable; the options a tracker takes: its docstring)")
     b.add_argument("--workers", type=int, default=1, help="parallel processes (one sequence each)")
     b.add_argument("--ray", default=None, help="run on Ray: an address, 'auto' or 'local' (pip install 'hybridpose[ray]')")
     b.add_argument("--video", default=None, help="also write the hybrid's overlay video of this sequence")

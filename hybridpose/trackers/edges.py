@@ -39,9 +39,13 @@ class EdgeTracker(Tracker):
             iteration, pixels (covers the inter-frame motion the prior does not predict; 8: the
             wider 12 found the truss's neighbouring beams on far views, 0.4° median error where 8
             holds 0.14°). ``track(..., search_px=)`` widens it for one coarse start.
-        max_samples: edge samples per iteration (cost ∝ samples). lost_quality: see module doc.
-        covariance_scale: inflation of the Gauss–Newton covariance (correlated samples); the
-            default is measured by ``hybridpose bench`` (NEES coverage on rendered sequences).
+        max_samples: edge samples per iteration, evenly thinned from the visible ones (800: on the
+            tuning sequences twice the 400 a far truss gives halved the spread of the fit from the
+            true pose; see ``docs/decisions.md``). lost_quality: see module doc.
+        covariance_scale: inflation of the Gauss–Newton covariance (neighbouring samples are
+            correlated, so the covariance shrinks with their number faster than the error does: the
+            scale grows with ``max_samples``); the default is measured by ``hybridpose bench`` (NEES
+            coverage on rendered sequences, 0.89 of 0.90 on the tuning seeds).
         explain: the quality also asks how much of the image's edges and lit pixels around the
             object the model explains (:func:`honest_quality`); False: the fit's quality alone.
         polish: the fit's last iterations with each sample's search stopped halfway to the nearest
@@ -57,8 +61,8 @@ class EdgeTracker(Tracker):
     default_lost_quality = 0.5
     reference_rate = 0.1
 
-    def __init__(self, object: ObjectModel, search_px: int = 8, max_samples: int = 400,
-                 lost_quality: float | None = None, covariance_scale: float = 4.0, explain: bool = True,
+    def __init__(self, object: ObjectModel, search_px: int = 8, max_samples: int = 800,
+                 lost_quality: float | None = None, covariance_scale: float = 8.0, explain: bool = True,
                  polish: int = TRACKING_POLISH, coarse_min_px: float = COARSE_MIN_PX) -> None:
         super().__init__(object, lost_quality)
         self.polish = check_polish(polish)

@@ -203,10 +203,13 @@ def test_space_lit_frames_carry_the_sun_and_the_unknown_sun_is_an_ablation(smoke
     (tmp_path / "test").mkdir()
     (tmp_path / "hybridpose.json").write_text(json.dumps({**config, "appearance": {"kind": "random"}}))
     assert not sun_is_only_light(tmp_path / "test" / "000000")
-    specs, _, _ = plan(BenchRequest(out="o", suite="smoke", modes=("tracker", "hybrid"), sun=("known", "unknown")))
-    assert sorted(s.label for s in specs) == ["hybrid (edges+default+ukf)", "hybrid (edges+default+ukf; sun unknown)",
-                                              "tracker (edges)", "tracker (edges; sun unknown)"]
+    specs, _, _ = plan(BenchRequest(out="o", suite="smoke", sun=("known", "unknown")))
+    assert sorted(s.label for s in specs) == ["cnn (default)", "hybrid (edges+default+ukf)",
+                                              "hybrid (edges+default+ukf; sun unknown)", "tracker (edges)",
+                                              "tracker (edges; sun unknown)"]
     assert RunSpec("hybrid", sun=False).key != RunSpec("hybrid").key
+    only_unknown, _, _ = plan(BenchRequest(out="o", suite="smoke", sun=("unknown",)))
+    assert "cnn (default)" in {s.label for s in only_unknown}
 
 
 def test_user_data_must_be_bop_and_the_regressor_must_fit_the_object(tmp_path, capsys):

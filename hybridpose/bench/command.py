@@ -109,7 +109,10 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
                                       if p != HybridConfig().check_period] + variants
         specs += [RunSpec("hybrid", tracker=t, regressor=req.regressor, fusion=f, object=req.object, scale=req.scale,
                           config=c, tracker_options=options[t]) for t in req.trackers for f in req.fusions for c in configs]
-    specs = [replace(s, sun=value == "known") for value in dict.fromkeys(req.sun) for s in specs]
+    # the CNN alone does not use the sun: one run of it, whatever --sun says
+    suns = list(dict.fromkeys(req.sun))
+    specs = [s if s.mode == "cnn" else replace(s, sun=value == "known") for value in suns for s in specs
+             if s.mode != "cnn" or value == suns[0]]
     if req.data is not None:
         return specs, user_scenes(req.data), []
     if req.suite is None:

@@ -28,7 +28,7 @@ from ..core import Frame
 from ..geometry import Pose, line_jacobian
 from . import _kernels
 from .model_view import EdgeSamples, ModelView, thin
-from .silhouette import explained_lit_share
+from .silhouette import LIT_PIXEL_GREY, explained_lit_share
 
 MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
@@ -71,9 +71,8 @@ def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: in
 
 
 # the strip around the object where a dark background is looked for (px beyond the projected samples'
-# box, and its width), and the lit share below which it is dark
+# box, and its width), and the share of lit pixels (LIT_PIXEL_GREY) below which it is dark
 SURROUND_GAP_PX, SURROUND_WIDTH_PX, SURROUND_LIT_SHARE = 16, 8, 0.1
-SURROUND_LIT_GREY = 12.0  # grey level above which a pixel is lit (black space renders at 0–3)
 
 
 def dark_surround(gray: np.ndarray, uv: np.ndarray) -> bool:
@@ -87,7 +86,7 @@ def dark_surround(gray: np.ndarray, uv: np.ndarray) -> bool:
     X1, Y1 = min(x1 + SURROUND_WIDTH_PX, w), min(y1 + SURROUND_WIDTH_PX, h)
     if X1 <= X0 or Y1 <= Y0:
         return False
-    outer = gray[Y0:Y1, X0:X1] > SURROUND_LIT_GREY
+    outer = gray[Y0:Y1, X0:X1] > LIT_PIXEL_GREY
     inner = outer[max(y0 - Y0, 0):max(min(y1, h) - Y0, 0), max(x0 - X0, 0):max(min(x1, w) - X0, 0)]
     strip = outer.size - inner.size
     if strip <= 0:

@@ -187,7 +187,7 @@ class ModelView:
 
         An edge the sun cannot show pulls its search onto whatever lit edge lies within reach (the
         neighbouring beam): left out, fits from a pose 1° off on the tuning sequences' clear frames
-        came 0.175° → 0.115° mean, 0.19° → 0.13° p90, lost 21 → 10 of 523 (``docs/decisions.md``)."""
+        came 0.175° → 0.115° mean, 0.19° → 0.13° p90, lost 21 → 9 of 523 (``docs/decisions.md``)."""
         index = np.asarray(index, dtype=np.int64)
         normals = self.face_normals[self.faces[index]]                           # (S, 2, 3) object frame
         towards_sun = pose.R.T @ -np.asarray(sun_direction_cam, dtype=np.float64)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import Camera, Pose
-from .geometry.checks import as_array
+from .geometry.checks import as_array, as_unit_direction
 
 ESTIMATE_STATUSES = ("init", "tracking", "lost", "reinit")
 # the covariance of a measurement that knows nothing: ±180° rotation, ±1 m translation
@@ -34,17 +34,28 @@ class Frame:
         camera: intrinsics of the image.
         timestamp: seconds.
         index: frame number in its sequence.
+        sun_direction_cam: where known (a sun sensor, or ephemeris and attitude) and the sun is the
+            only light — black space, no lamp — the (3,) direction the sunlight travels in this
+            camera's frame (x right, y down, z forward; stored as a unit vector). The edge fits then
+            leave out the model edges the sun cannot show (:meth:`ModelView.sun_shows
+            <hybridpose.edges.ModelView.sun_shows>`). None: unknown, or other light too.
     """
 
     image: np.ndarray
     camera: Camera
     timestamp: float
     index: int = 0
+    sun_direction_cam: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.camera.check_image(self.image, "image")
         if not np.isfinite(self.timestamp):
             raise ValueError(f"timestamp: expected finite seconds, got {self.timestamp}")
+        if self.sun_direction_cam is not None:
+            sun = as_unit_direction(self.sun_direction_cam, "sun_direction_cam",
+                                    "the sunlight travels in the camera frame (x right, y down, z forward)")
+            sun.flags.writeable = False
+            object.__setattr__(self, "sun_direction_cam", sun)
 
 
 @dataclass(frozen=True, eq=False)

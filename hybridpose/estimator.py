@@ -242,7 +242,7 @@ class HybridEstimator:
                 far = (_mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
                        or (self.config.disagreement_deg is not None
                            and rotation_error_deg(fused.pose, c.pose) > self.config.disagreement_deg))
-                fit = self._track_from(frame, c.pose, timings, self._cnn_search_px())
+                fit = self._track_from(frame, c.pose, timings, self._cnn_search_px(), from_cnn=True)
                 if rejected and self.config.check_on_rejection and self._vouched(m, c, fit):
                     # the edges from the CNN pose land on the refused measurement: the motion model
                     # was wrong, not the tracker; start the fusion over from the tracker
@@ -330,7 +330,7 @@ class HybridEstimator:
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 fit = None
             else:
-                fit = self._track_from(frame, start, timings, self._cnn_search_px())
+                fit = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
             found = fit is not None and not fit.lost
             if (found and fit.quality >= bar
                     and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2):
@@ -382,12 +382,15 @@ class HybridEstimator:
                 and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
 
     def _track_from(self, frame: Frame, start: Pose, timings: dict, search_px: float | None = None,
-                    lost_quality: float | None = None) -> Measurement:
+                    lost_quality: float | None = None, from_cnn: bool = False) -> Measurement:
         """The tracker's measurement searched from ``start`` (up to ``search_px`` pixels away where the
         tracker can widen its search; lost below ``lost_quality`` where given, else below the
-        tracker's own threshold); lost where the tracker refuses that start (a prediction coasting
+        tracker's own threshold; ``from_cnn``: ``start`` is a CNN pose, fitted without the frame's sun
+        unless ``sun_in_cnn_fits``); lost where the tracker refuses that start (a prediction coasting
         while lost can leave the view or pass behind the camera)."""
         kw = {k: v for k, v in (("search_px", search_px), ("lost_quality", lost_quality)) if v is not None}
+        if from_cnn and not self.config.sun_in_cnn_fits and frame.sun_direction_cam is not None:
+            frame = replace(frame, sun_direction_cam=None)
         try:
             return self._timed(timings, "tracker", lambda: self.tracker.track(frame, start, **kw))
         except ValueError:

@@ -126,6 +126,7 @@ def test_ray_gives_the_local_results(smoke, tmp_path):
     (["--suite", "smoke", "--tracker-option", "samples=800"], "--tracker-option: expected NAME=VALUE with a name among"),
     (["--suite", "smoke", "--tracker-option", "max_samples=many"], "--tracker-option: max_samples: expected a number"),
     (["--suite", "smoke", "--tracker-option", "search_px=0"], "--tracker-option: edges: search_px: expected ≥ 1"),
+    (["--suite", "smoke", "--sun", "maybe"], "--sun: expected known and/or unknown"),
 ])
 def test_bad_names_are_refused_before_any_work(args, message, tmp_path, capsys):
     assert main(["bench", *args, "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
@@ -183,6 +184,32 @@ def test_tracker_options_reach_the_tracker_and_name_the_run():
     # the options make other rows; the run without them keeps the key it had before options existed
     assert tracker_spec.key != RunSpec("tracker").key
     assert next(s for s in specs if s.mode == "cnn").key == RunSpec("cnn").key
+
+
+def test_space_lit_frames_carry_the_sun_and_the_unknown_sun_is_an_ablation(smoke, tmp_path):
+    from hybridpose.bench.command import BenchRequest, plan
+    from hybridpose.bench.modes import load_sequence, sun_is_only_light, without_sun
+    from hybridpose.bench.runner import RunSpec
+    from hybridpose.io import read_json
+
+    scene = next((smoke / "cache").glob("*/test/000000"))
+    seq = load_sequence(scene)
+    recorded = read_json(scene / "scene_meta.json")["frames"][str(seq[0].frame.index)]["sun_direction_cam"]
+    assert sun_is_only_light(scene) and np.allclose(seq[0].frame.sun_direction_cam, recorded)
+    assert all(s.frame.sun_direction_cam is None for s in without_sun(seq))
+    assert load_sequence(scene, sun=False)[0].frame.sun_direction_cam is None
+    # a dataset with a randomised look (ambient light, lamps, a photo behind) is not lit by the sun alone
+    config = read_json(scene.parent.parent / "hybridpose.json")
+    (tmp_path / "test").mkdir()
+    (tmp_path / "hybridpose.json").write_text(json.dumps({**config, "appearance": {"kind": "random"}}))
+    assert not sun_is_only_light(tmp_path / "test" / "000000")
+    specs, _, _ = plan(BenchRequest(out="o", suite="smoke", sun=("known", "unknown")))
+    assert sorted(s.label for s in specs) == ["cnn (default)", "hybrid (edges+default+ukf)",
+                                              "hybrid (edges+default+ukf; sun unknown)", "tracker (edges)",
+                                              "tracker (edges; sun unknown)"]
+    assert RunSpec("hybrid", sun=False).key != RunSpec("hybrid").key
+    only_unknown, _, _ = plan(BenchRequest(out="o", suite="smoke", sun=("unknown",)))
+    assert "cnn (default)" in {s.label for s in only_unknown}
 
 
 def test_user_data_must_be_bop_and_the_regressor_must_fit_the_object(tmp_path, capsys):

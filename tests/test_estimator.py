@@ -267,6 +267,29 @@ def test_fits_from_a_cnn_pose_search_further_than_frame_to_frame():
         HybridConfig(cnn_search_px=-1)
 
 
+class SunRecordingTracker(RangeRecordingTracker):
+    """Records whether each fit's frame carries the sun's direction."""
+
+    def track(self, frame, prior=None, search_px=None):
+        self.sun = getattr(self, "sun", []) + [(frame.index, search_px, frame.sun_direction_cam is not None)]
+        return super().track(frame, prior, search_px)
+
+
+@pytest.mark.parametrize("sun_in_cnn_fits", [False, True])
+def test_fits_from_a_cnn_pose_leave_out_the_sun_unless_asked(sun_in_cnn_fits):
+    """Frame-to-frame fits get the frame as it is; the start and the checks (fits from a CNN pose)
+    get it without the sun's direction unless ``sun_in_cnn_fits``."""
+    trk = SunRecordingTracker()
+    est = HybridEstimator(trk, OracleRegressor(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=5, probation_frames=0, sun_in_cnn_fits=sun_in_cnn_fits))
+    for k in range(8):
+        est.step(replace(frame(k), sun_direction_cam=np.array([0.6, 0.4, 0.7])))
+    from_cnn = {(k, sun) for k, search, sun in trk.sun if search is not None}
+    frame_to_frame = {sun for _, search, sun in trk.sun if search is None}
+    assert from_cnn == {(0, sun_in_cnn_fits), (5, sun_in_cnn_fits)}
+    assert frame_to_frame == {True}
+
+
 class ElsewhereTracker(ScriptedTracker):
     """Fits a pose 10° from the truth with full confidence, wherever it starts."""
 

@@ -708,6 +708,11 @@ def test_sun_turn_aligns_the_light_with_the_training_sun(tiny_checkpoint, truss)
     seen.clear()
     reg.predict(frame)
     assert seen[0] == (0.0,)
+    seen.clear()  # the frame's own sun where the call gives none
+    from dataclasses import replace
+
+    reg.predict(replace(frame, sun_direction_cam=[-0.6, -0.4, 0.7]))
+    assert abs(seen[0][0]) == pytest.approx(180.0)
 
 
 def test_sun_phase_angle_and_light_azimuth(truss):

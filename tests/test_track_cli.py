@@ -10,7 +10,7 @@ from hybridpose.cli import main
 from hybridpose.datasets.bop import pose_to_bop
 from hybridpose.geometry import Camera, Pose
 from hybridpose.metrics import rotation_error_deg
-from hybridpose.render import Renderer
+from hybridpose.render import Renderer, SpaceLighting
 from hybridpose.render.sequences import SequenceSpec, make_sequence
 from hybridpose.tracking import load_pose
 
@@ -67,6 +67,20 @@ def test_track_video_file(clip, tmp_path):
     poses, _ = _read_poses(tmp_path / "v" / "poses.csv")
     assert len(poses) == 6
     assert max(rotation_error_deg(p, t) for p, t in zip(poses, truth)) < 3.0  # mp4 compression costs a little
+
+
+def test_track_with_the_suns_direction(clip, tmp_path, capsys):
+    """The clip is lit by the renderer's sun: given its direction the tracker still holds the truss;
+    a direction that is none is refused naming the option."""
+    root, truth = clip
+    args = ["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+            "--init-pose", str(root / "pose.json")]
+    sun = ",".join(str(x) for x in SpaceLighting().sun_direction_cam)
+    assert main([*args, "--sun-dir", sun, "--out", str(tmp_path / "run")]) == 0
+    poses, _ = _read_poses(tmp_path / "run" / "poses.csv")
+    assert np.median([rotation_error_deg(p, t) for p, t in zip(poses, truth)]) < 1.0
+    assert main([*args, "--sun-dir", "0,0", "--out", str(tmp_path / "bad")]) == 2
+    assert "--sun-dir: expected x,y,z" in capsys.readouterr().err
 
 
 def test_pose_file_formats_agree(tmp_path):

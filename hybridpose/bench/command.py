@@ -19,6 +19,7 @@ from .report import report_markdown, write_plots
 from .runner import MODES, RunSpec, run_all
 from .suite import REPORT_SEEDS, TUNING_SEEDS, render_suite, suite
 
+SUN_CHOICES = ("known", "unknown")
 RESULTS_BLOCK = "bench"  # <!-- bench:begin --> … <!-- bench:end --> in the results page
 PAPER_TABLE = """The paper's single-image table (rendered truss, 224×224, after 100 epochs; random whole-object views, not
 sequences): VGG-16 13.56° mean / 12.33° median rotation, 0.18 m; VGG-19 12.21° / 11.34°, 0.15 m; Branched
@@ -43,6 +44,7 @@ class BenchRequest:
     check_periods: tuple[int, ...] = ()
     configs: tuple[str, ...] = ()  # "name=value,name=value": one more hybrid run per entry
     tracker_options: tuple[str, ...] = ()  # "name=value": keyword arguments of every tracker run
+    sun: tuple[str, ...] = ("known",)  # "known" and/or "unknown": every run once per entry
     workers: int = 1
     ray: str | None = None
     video: str | None = None
@@ -89,6 +91,11 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
         raise ValueError(f"--workers: expected ≥ 1, got {req.workers}")
     if any(p < 0 for p in req.check_periods):
         raise ValueError(f"--check-periods: expected frame counts ≥ 0, got {req.check_periods}")
+    for value in req.sun:
+        if value not in SUN_CHOICES:
+            raise ValueError(f"--sun: expected known and/or unknown, got {value!r}")
+    if not req.sun:
+        raise ValueError("--sun: expected known and/or unknown")
     variants = [parse_config(text) for text in req.configs]
     options = {t: tracker_options(t, req.tracker_options) for t in req.trackers}
     specs = []
@@ -102,6 +109,10 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
                                       if p != HybridConfig().check_period] + variants
         specs += [RunSpec("hybrid", tracker=t, regressor=req.regressor, fusion=f, object=req.object, scale=req.scale,
                           config=c, tracker_options=options[t]) for t in req.trackers for f in req.fusions for c in configs]
+    # the CNN alone does not use the sun: one run of it, whatever --sun says
+    suns = list(dict.fromkeys(req.sun))
+    specs = [s if s.mode == "cnn" else replace(s, sun=value == "known") for value in suns for s in specs
+             if s.mode != "cnn" or value == suns[0]]
     if req.data is not None:
         return specs, user_scenes(req.data), []
     if req.suite is None:
@@ -251,7 +262,7 @@ def write_video(out: Path, scene_dir: Path, spec: RunSpec) -> Path:
     from .runner import _backends
 
     _, estimator = _backends(spec)
-    res = run_hybrid_on_frames((s.frame for s in load_sequence(scene_dir)), estimator, out)
+    res = run_hybrid_on_frames((s.frame for s in load_sequence(scene_dir, sun=spec.sun)), estimator, out)
     return res.video
 
 

@@ -11,7 +11,7 @@ loss and recovery, cost).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -58,21 +58,45 @@ class FrameRecord:
     ms_parts: dict | None = None
 
 
-def load_sequence(scene_dir) -> list[SequenceFrame]:
+def load_sequence(scene_dir, sun: bool = True) -> list[SequenceFrame]:
     """Frames, true poses and visible shares of a rendered BOP scene (``scene_meta.json`` timestamps
-    where present, else 30 fps)."""
+    where present, else 30 fps). With ``sun``, the frames of a space-lit scene carry the sun's
+    direction (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`, as a spacecraft's sun sensors
+    give it) where ``scene_meta.json`` records it; see :func:`sun_is_only_light`."""
     from ..datasets.bop import BopScene
     from ..io import read_json
 
     scene = BopScene(scene_dir)
     meta_path = Path(scene_dir) / "scene_meta.json"
     meta = read_json(meta_path).get("frames", {}) if meta_path.is_file() else {}
+    sun = sun and sun_is_only_light(scene_dir)
     out = []
     for k, i in enumerate(scene.image_ids):
         img = scene.image(i)
-        t = float(meta.get(str(i), {}).get("timestamp_s", k / 30.0))
-        out.append(SequenceFrame(Frame(scene.rgb(i), img.camera, t, i), img.pose, img.visib_fract))
+        extra = meta.get(str(i), {})
+        t = float(extra.get("timestamp_s", k / 30.0))
+        sun_dir = extra.get("sun_direction_cam") if sun else None
+        out.append(SequenceFrame(Frame(scene.rgb(i), img.camera, t, i, sun_dir), img.pose, img.visib_fract))
     return out
+
+
+def sun_is_only_light(scene_dir) -> bool:
+    """Whether the scene was rendered by ``hybridpose render`` in space: its dataset's
+    ``hybridpose.json`` (two folders up, BOP's ``<dataset>/<split>/<scene>``) records the lighting and
+    no randomised appearance (ambient light, lamps, a photo behind: the sun is not the only light)."""
+    from ..datasets.generate import CONFIG_FILE
+    from ..io import read_json
+
+    path = Path(scene_dir).resolve().parent.parent / CONFIG_FILE
+    if not path.is_file():
+        return False
+    config = read_json(path)
+    return "lighting" in config and "appearance" not in config
+
+
+def without_sun(seq: list[SequenceFrame]) -> list[SequenceFrame]:
+    """The same frames with the sun's direction left out (an ablation: a sun that is not known)."""
+    return [replace(s, frame=replace(s.frame, sun_direction_cam=None)) for s in seq]
 
 
 def run_tracker(seq: list[SequenceFrame], tracker) -> list[FrameRecord]:

@@ -22,7 +22,8 @@ import numpy as np
 
 from ..estimator import HybridConfig
 from ..io import atomic_write_json, read_json
-from .modes import COMPONENTS, load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg
+from .modes import (COMPONENTS, load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg,
+                    without_sun)
 
 MODES = ("tracker", "cnn", "hybrid")
 
@@ -41,6 +42,7 @@ class RunSpec:
     threads: int = 1  # CPU threads per worker (ONNX Runtime / torch / OpenCV)
     # keyword arguments of the tracker's factory, sorted ((name, value), ...): tracker and hybrid modes
     tracker_options: tuple = ()
+    sun: bool = True  # space-lit frames carry the sun's direction (modes.load_sequence); False: left out
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -54,6 +56,8 @@ class RunSpec:
         extra = "" if self.config == HybridConfig() or self.mode != "hybrid" else f", {self._config_diff()}"
         if self.tracker_options and self.mode != "cnn":
             extra = f"; {self._options_text()}{extra}"
+        if not self.sun:
+            extra = f"{extra}; sun unknown"
         return f"{self.mode} ({'+'.join(parts[self.mode])}{extra})"
 
     def _options_text(self) -> str:
@@ -78,6 +82,8 @@ def spec_dict(spec: RunSpec) -> dict:
     d.pop("threads")
     if not spec.tracker_options or spec.mode == "cnn":
         d.pop("tracker_options")  # rows made before tracker options existed keep their keys
+    if spec.sun:
+        d.pop("sun")
     if spec.mode != "tracker" and spec._is_file() and Path(spec.regressor).is_file():
         # a checkpoint re-trained or re-calibrated under the same path makes other rows
         d["regressor_sha1"] = _file_sha1(str(Path(spec.regressor).resolve()), *_stamp(spec.regressor))
@@ -140,10 +146,11 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
     import cv2
 
     cv2.setNumThreads(threads)
-    seq = load_sequence(scene_dir)
+    with_sun = load_sequence(scene_dir)
     rows = []
     for spec in specs:
         obj, runner = _backends(spec)
+        seq = with_sun if spec.sun else without_sun(with_sun)
         if spec.mode == "tracker":
             records = run_tracker(seq, runner)
         elif spec.mode == "cnn":

@@ -2,6 +2,7 @@
 sequence benchmark), ``fit`` (a CNN for your own object) and ``demo``."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,16 @@ def cmd_track(args) -> int:
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
     frames = read_frames(args.source, camera, args.fps)
+    if args.sun_dir is not None:
+        from ..geometry.checks import as_unit_direction
+
+        try:
+            sun = as_unit_direction([float(x) for x in args.sun_dir.split(",")], "--sun-dir",
+                                    "x,y,z: the sunlight's direction of travel in the camera frame")
+        except ValueError as exc:
+            raise ValueError(f"--sun-dir: expected x,y,z, the direction the sunlight travels in the camera frame, "
+                             f"got {args.sun_dir!r}") from exc
+        frames = (replace(f, sun_direction_cam=sun) for f in frames)
     if args.init_pose is None:
         from ..estimator import HybridEstimator
         from ..tracking import run_hybrid_on_frames
@@ -62,7 +73,7 @@ def cmd_bench(args) -> int:
     req = BenchRequest(out=args.out, suite=None if args.data else args.suite, split=args.split, data=args.data,
                        object=args.object, scale=args.scale, modes=names(args.modes), trackers=names(args.trackers),
                        fusions=names(args.fusions), regressor=args.regressor, check_periods=periods,
-                       configs=tuple(args.config), tracker_options=tuple(args.tracker_option),
+                       configs=tuple(args.config), tracker_options=tuple(args.tracker_option), sun=names(args.sun),
                        workers=args.workers, ray=args.ray, video=args.video, limit=args.limit, cache=args.cache)
     bar: list = []  # made at the first finished sequence, after every input was checked
 
@@ -192,6 +203,10 @@ def add_commands(sub) -> None:
     k.add_argument("--regressor-option", action="append", metavar="NAME=VALUE",
                    help="an option of a checkpoint regressor (repeatable; KeypointOptions), e.g. fine_tiles=true "
                         "to look for a small part in finer tiles of the frame")
+    k.add_argument("--sun-dir", default=None, metavar="X,Y,Z",
+                   help="in space with the sun the only light: the direction the sunlight travels in the camera "
+                        "frame (x right, y down, z forward), e.g. from a sun sensor; the edge fits then leave out "
+                        "the model edges the sun cannot show")
     k.add_argument("--fps", type=float, default=None, help="frame rate for image folders (default 30)")
     k.add_argument("--max-frames", type=int, default=None)
     k.add_argument("--out", required=True, help="folder for the overlay video, poses.csv, scene_gt.json")
@@ -216,6 +231,10 @@ def add_commands(sub) -> None:
     b.add_argument("--tracker-option", action="append", default=[], metavar="NAME=VALUE",
                    help="a keyword argument of every tracker run, tracker-only and hybrid, e.g. max_samples=800 "
                         "(repeatable; the options a tracker takes: its docstring)")
+    b.add_argument("--sun", default="known",
+                   help="known: the frames of space-lit sequences carry the sun's direction, as a spacecraft's "
+                        "sun sensors give it (the edge fits leave out edges the sun cannot show); unknown: they "
+                        "do not; known,unknown: every run both ways")
     b.add_argument("--workers", type=int, default=1, help="parallel processes (one sequence each)")
     b.add_argument("--ray", default=None, help="run on Ray: an address, 'auto' or 'local' (pip install 'hybridpose[ray]')")
     b.add_argument("--video", default=None, help="also write the hybrid's overlay video of this sequence")

@@ -27,8 +27,8 @@ import numpy as np
 from ..core import Frame
 from ..geometry import Pose, line_jacobian
 from . import _kernels
-from .model_view import EdgeSamples, ModelView
-from .silhouette import explained_lit_share
+from .model_view import EdgeSamples, ModelView, thin
+from .silhouette import LIT_PIXEL_GREY, explained_lit_share
 
 MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
@@ -68,6 +68,30 @@ def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: in
     if limits is None:
         limits = np.full(len(uv), np.float32(search_px))
     return _kernels.strongest_steps(profiles, int(search_px), float(min_contrast), limits)
+
+
+# the strip around the object where a dark background is looked for (px beyond the projected samples'
+# box, and its width), and the share of lit pixels (LIT_PIXEL_GREY) below which it is dark
+SURROUND_GAP_PX, SURROUND_WIDTH_PX, SURROUND_LIT_SHARE = 16, 8, 0.1
+
+
+def dark_surround(gray: np.ndarray, uv: np.ndarray) -> bool:
+    """Whether the strip around the box of the points ``uv`` (N, 2) px — ``SURROUND_GAP_PX`` beyond it,
+    ``SURROUND_WIDTH_PX`` wide, inside the (H, W) grey image — is dark: black space behind the object,
+    not the Earth, a lit scene or an arm beside it. No strip in the image: not dark."""
+    h, w = gray.shape[:2]
+    x0, y0 = np.floor(uv.min(0)).astype(int) - SURROUND_GAP_PX
+    x1, y1 = np.ceil(uv.max(0)).astype(int) + SURROUND_GAP_PX
+    X0, Y0 = max(x0 - SURROUND_WIDTH_PX, 0), max(y0 - SURROUND_WIDTH_PX, 0)
+    X1, Y1 = min(x1 + SURROUND_WIDTH_PX, w), min(y1 + SURROUND_WIDTH_PX, h)
+    if X1 <= X0 or Y1 <= Y0:
+        return False
+    outer = gray[Y0:Y1, X0:X1] > LIT_PIXEL_GREY
+    inner = outer[max(y0 - Y0, 0):max(min(y1, h) - Y0, 0), max(x0 - X0, 0):max(min(x1, w) - X0, 0)]
+    strip = outer.size - inner.size
+    if strip <= 0:
+        return False
+    return (int(outer.sum()) - int(inner.sum())) / strip < SURROUND_LIT_SHARE
 
 
 def _half_stretch(view: ModelView, pose: Pose, cam, normals: np.ndarray) -> np.ndarray:
@@ -115,7 +139,12 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     max_step_m = view.object.diameter if max_step_m is None else max_step_m
     # visibility once per fit (at the start pose: the pose moves by a fraction of a degree); the
     # samples are re-projected as the pose moves and those that leave the image dropped
-    visible = view.visible_index(start, cam, margin_px=2, max_samples=max_samples)
+    visible = view.visible_index(start, cam, margin_px=2)
+    if frame.sun_direction_cam is not None and len(visible):
+        uv0 = _kernels.project_samples(view.points[visible], view.directions[visible], start.R, start.t, K,
+                                       cam.width, cam.height, 0.0, False)[1]
+        visible = visible[view.sun_shows(visible, start, frame.sun_direction_cam, dark_surround(gray, uv0))]
+    visible = thin(visible, max_samples)
     points, directions = view.points[visible], view.directions[visible]
     R, t = start.R, start.t
     rng_px = search_px

@@ -43,7 +43,7 @@ def coarse_to_fine(view: ModelView, frame: Frame, start: Pose, levels=COARSE_LEV
     for factor, spx in zip(levels, search_px):
         size = (max(1, round(cam.width / factor)), max(1, round(cam.height / factor)))
         image = cv2.resize(frame.image, size, interpolation=cv2.INTER_AREA)
-        small = Frame(image, cam.scaled(size), frame.timestamp, frame.index)
+        small = Frame(image, cam.scaled(size), frame.timestamp, frame.index, frame.sun_direction_cam)
         fit = fit_edges(view, small, pose, search_px=int(spx), outer=3)
         if fit is not None:
             pose = fit.pose

@@ -382,12 +382,13 @@ class CheckpointRegressor(PoseRegressor):
                 Keypoint models then turn their crop so that the light crosses it from the side
                 their training data was lit from (:func:`sun_turn_deg`; checkpoints that record
                 their training sun, as the shipped ``default`` does). The direct (VGG) models take
-                the whole frame and ignore it.
+                the whole frame and ignore it. None: the frame's own
+                (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`), where it has one.
         """
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(sun_direction_cam)
+        sun_turn = self._sun_turn(frame.sun_direction_cam if sun_direction_cam is None else sun_direction_cam)
         self._check_camera(frame.camera)
         with torch.no_grad():
             if self.kind == "keypoints":
@@ -406,7 +407,7 @@ class CheckpointRegressor(PoseRegressor):
         if self.kind != "keypoints":
             raise ValueError(f"{self.path}: keypoint estimates need a keypoint model, this is {self.model_name!r}")
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(sun_direction_cam)
+        sun_turn = self._sun_turn(frame.sun_direction_cam if sun_direction_cam is None else sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
             return self._estimates(image, cam, roi, sun_turn)
@@ -465,7 +466,7 @@ class CheckpointRegressor(PoseRegressor):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         self.require_twin_head()
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(sun_direction_cam)
+        sun_turn = self._sun_turn(frame.sun_direction_cam if sun_direction_cam is None else sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
             ests = self._estimates(image, cam, roi, sun_turn)

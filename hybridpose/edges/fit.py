@@ -141,9 +141,8 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     # samples are re-projected as the pose moves and those that leave the image dropped
     visible = view.visible_index(start, cam, margin_px=2)
     if frame.sun_direction_cam is not None and len(visible):
-        uv0 = _kernels.project_samples(view.points[visible], view.directions[visible], start.R, start.t, K,
-                                       cam.width, cam.height, 0.0, False)[1]
-        visible = visible[view.sun_shows(visible, start, frame.sun_direction_cam, dark_surround(gray, uv0))]
+        dark = dark_surround(gray, view.samples_at(start, cam, visible).uv)
+        visible = visible[view.sun_shows(visible, start, frame.sun_direction_cam, dark)]
     visible = thin(visible, max_samples)
     points, directions = view.points[visible], view.directions[visible]
     R, t = start.R, start.t

@@ -192,8 +192,8 @@ class ModelView:
         normals = self.face_normals[self.faces[index]]                           # (S, 2, 3) object frame
         towards_sun = pose.R.T @ -np.asarray(sun_direction_cam, dtype=np.float64)
         lit = normals @ towards_sun > SUNLIT_COSINE                               # (S, 2)
-        camera_obj = -pose.R.T @ pose.t
-        facing = np.einsum("skj,skj->sk", normals, camera_obj[None, None] - self.points[index][:, None]) > 0
+        # turned to the camera as in the visibility test (_kernels.facing_samples): n · (p + Rᵀt) < 0
+        facing = self._normal_dot_point[index] + normals @ (pose.R.T @ pose.t) < 0
         crease = facing[:, 0] & facing[:, 1] & (self.faces[index, 0] != self.faces[index, 1])
         outline_lit = np.where(facing[:, 0], lit[:, 0], lit[:, 1]) | (not dark_background)
         return np.where(crease, lit[:, 0] | lit[:, 1], outline_lit)

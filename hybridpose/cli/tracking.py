@@ -32,8 +32,7 @@ def cmd_track(args) -> int:
         from ..geometry.checks import as_unit_direction
 
         try:
-            sun = as_unit_direction([float(x) for x in args.sun_dir.split(",")], "--sun-dir",
-                                    "x,y,z: the sunlight's direction of travel in the camera frame")
+            sun = as_unit_direction([float(x) for x in args.sun_dir.split(",")], "--sun-dir")
         except ValueError as exc:
             raise ValueError(f"--sun-dir: expected x,y,z, the direction the sunlight travels in the camera frame, "
                              f"got {args.sun_dir!r}") from exc

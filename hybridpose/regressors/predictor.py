@@ -362,8 +362,11 @@ class CheckpointRegressor(PoseRegressor):
         on its device, in its memory layout."""
         return image_batch(*images).to(self.device).contiguous(memory_format=self.memory_format)
 
-    def _sun_turn(self, sun_direction_cam) -> float:
-        """The crop turn (°, :func:`sun_turn_deg`) for the caller's sun (checked; None: no turn)."""
+    def _sun_turn(self, frame: Frame, sun_direction_cam) -> float:
+        """The crop turn (°, :func:`sun_turn_deg`) for the caller's sun (checked), else the frame's
+        own (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`); neither: no turn."""
+        if sun_direction_cam is None:
+            sun_direction_cam = frame.sun_direction_cam
         if sun_direction_cam is None:
             return 0.0
         sun = as_unit_direction(sun_direction_cam, "sun_direction_cam",
@@ -388,7 +391,7 @@ class CheckpointRegressor(PoseRegressor):
         if not isinstance(frame, Frame):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(frame.sun_direction_cam if sun_direction_cam is None else sun_direction_cam)
+        sun_turn = self._sun_turn(frame, sun_direction_cam)
         self._check_camera(frame.camera)
         with torch.no_grad():
             if self.kind == "keypoints":
@@ -407,7 +410,7 @@ class CheckpointRegressor(PoseRegressor):
         if self.kind != "keypoints":
             raise ValueError(f"{self.path}: keypoint estimates need a keypoint model, this is {self.model_name!r}")
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(frame.sun_direction_cam if sun_direction_cam is None else sun_direction_cam)
+        sun_turn = self._sun_turn(frame, sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
             return self._estimates(image, cam, roi, sun_turn)
@@ -466,7 +469,7 @@ class CheckpointRegressor(PoseRegressor):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         self.require_twin_head()
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(frame.sun_direction_cam if sun_direction_cam is None else sun_direction_cam)
+        sun_turn = self._sun_turn(frame, sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
             ests = self._estimates(image, cam, roi, sun_turn)

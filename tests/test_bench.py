@@ -114,6 +114,23 @@ def test_ray_gives_the_local_results(smoke, tmp_path):
         assert mine == theirs
 
 
+def test_the_untimed_warm_up_changes_no_result(smoke, monkeypatch):
+    """Each backend runs a few frames untimed before its first sequence in a process (the first calls
+    compile kernels); every run starts afresh, so the rows are those of a run without it."""
+    from hybridpose.bench import runner
+
+    scene = sorted((smoke / "cache").glob("*/test/000000"))[0]
+    specs = [runner.RunSpec("tracker"), runner.RunSpec("cnn"), runner.RunSpec("hybrid")]
+    monkeypatch.setattr(runner, "_warmed", set())
+    warmed = runner.run_sequence("s", str(scene), specs)
+    monkeypatch.setattr(runner, "WARMUP_FRAMES", 0)
+    monkeypatch.setattr(runner, "_warmed", set())
+    cold = runner.run_sequence("s", str(scene), specs)
+    for a, b in zip(warmed, cold):
+        assert {k: v for k, v in a.items() if not k.startswith("ms_")} == {k: v for k, v in b.items()
+                                                                          if not k.startswith("ms_")}
+
+
 @pytest.mark.parametrize("args, message", [
     (["--suite", "everything"], "suite: expected one of"),
     (["--suite", "smoke", "--trackers", "edges,nope"], "--trackers: unknown tracker 'nope'"),

@@ -106,6 +106,11 @@ def _file_sha1(path: str, mtime_ns: int, size: int) -> str:
 
 
 _parts: dict = {}
+# frames each backend runs once per process, untimed, before its first timed sequence: the first calls
+# compile the numba kernels (seconds where their cache is cold, as after an install) and would be
+# charged to whichever sequence a worker happened to take first (149 ms a frame on one of them)
+WARMUP_FRAMES = 10
+_warmed: set = set()
 
 
 def _backends(spec: RunSpec):
@@ -151,12 +156,11 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
     for spec in specs:
         obj, runner = _backends(spec)
         seq = with_sun if spec.sun else without_sun(with_sun)
-        if spec.mode == "tracker":
-            records = run_tracker(seq, runner)
-        elif spec.mode == "cnn":
-            records = run_cnn(seq, runner)
-        else:
-            records = run_hybrid(seq, runner)
+        run = {"tracker": run_tracker, "cnn": run_cnn}.get(spec.mode, run_hybrid)
+        if WARMUP_FRAMES > 0 and spec.key not in _warmed:
+            run(seq[:WARMUP_FRAMES], runner)  # every run starts afresh (init, reset): nothing carries over
+            _warmed.add(spec.key)
+        records = run(seq, runner)
         row = {"sequence": name, "mode": spec.mode, "label": spec.label, "key": spec.key,
                "tracker": spec.tracker if spec.mode != "cnn" else "",
                "regressor": spec.regressor if spec.mode != "tracker" else "",

@@ -70,6 +70,28 @@ def test_dark_surround_tells_black_space_from_a_lit_background():
     assert not dark_surround(black, np.array([[-40.0, -40.0], [200.0, 160.0]]))  # no strip in the image
 
 
+def test_dark_surround_counts_exactly_the_strip_around_the_box():
+    """Against a mask of the strip drawn pixel by pixel, on random boxes (some reaching out of the
+    image) over random lit pixels near the share that decides."""
+    from hybridpose.edges.fit import SURROUND_GAP_PX as GAP, SURROUND_LIT_SHARE, SURROUND_WIDTH_PX as WIDTH
+    from hybridpose.edges.silhouette import LIT_PIXEL_GREY
+
+    rng = np.random.default_rng(11)
+    h, w = 90, 120
+    agree = []
+    for _ in range(300):
+        gray = np.where(rng.random((h, w)) < rng.uniform(0.02, 0.2), 200.0, 0.0).astype(np.float32)
+        uv = rng.uniform([-60, -60], [w + 60, h + 60], (2, 2))
+        x0, y0 = np.floor(uv.min(0)).astype(int) - GAP
+        x1, y1 = np.ceil(uv.max(0)).astype(int) + GAP
+        mask = np.zeros((h, w), bool)
+        mask[max(y0 - WIDTH, 0):max(y1 + WIDTH, 0), max(x0 - WIDTH, 0):max(x1 + WIDTH, 0)] = True
+        mask[max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = False
+        expected = bool(mask.any()) and (gray[mask] > LIT_PIXEL_GREY).mean() < SURROUND_LIT_SHARE
+        agree.append(dark_surround(gray, uv) == expected)
+    assert all(agree)
+
+
 def test_an_edge_fit_under_a_known_sun_keeps_only_the_edges_it_shows(truss):
     cam = Camera.default()
     pose = Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.0, 0.0, 1.0])

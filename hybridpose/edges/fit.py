@@ -86,12 +86,17 @@ def dark_surround(gray: np.ndarray, uv: np.ndarray) -> bool:
     X1, Y1 = min(x1 + SURROUND_WIDTH_PX, w), min(y1 + SURROUND_WIDTH_PX, h)
     if X1 <= X0 or Y1 <= Y0:
         return False
-    outer = gray[Y0:Y1, X0:X1] > LIT_PIXEL_GREY
-    inner = outer[max(y0 - Y0, 0):max(min(y1, h) - Y0, 0), max(x0 - X0, 0):max(min(x1, w) - X0, 0)]
-    strip = outer.size - inner.size
+    # the inner box, clipped to the outer one; the strip counted as four bands around it (a close
+    # truss's box covers most of the frame: thresholding all of it cost more than the rest of the test)
+    ra, rb = Y0 + min(max(y0 - Y0, 0), Y1 - Y0), Y0 + min(max(min(y1, h) - Y0, 0), Y1 - Y0)
+    ca, cb = X0 + min(max(x0 - X0, 0), X1 - X0), X0 + min(max(min(x1, w) - X0, 0), X1 - X0)
+    rb, cb = max(rb, ra), max(cb, ca)
+    strip = (Y1 - Y0) * (X1 - X0) - (rb - ra) * (cb - ca)
     if strip <= 0:
         return False
-    return (int(outer.sum()) - int(inner.sum())) / strip < SURROUND_LIT_SHARE
+    lit = sum(int(np.count_nonzero(gray[r0:r1, c0:c1] > LIT_PIXEL_GREY))
+              for r0, r1, c0, c1 in ((Y0, ra, X0, X1), (rb, Y1, X0, X1), (ra, rb, X0, ca), (ra, rb, cb, X1)))
+    return lit / strip < SURROUND_LIT_SHARE
 
 
 def _half_stretch(view: ModelView, pose: Pose, cam, normals: np.ndarray) -> np.ndarray:

@@ -1,6 +1,7 @@
 """``hybridpose fit``: budget and plan, input checks before long work, and a tiny fit end to end."""
 import json
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -44,6 +45,35 @@ def test_this_machine_is_measured_before_planning(box_mesh):
     assert 0 < render_s < 5 and 0 < train_s < 5
     plan = make_plan(30, render_s, train_s, (0.3, 1.2))
     assert plan.train_views >= 100 and plan.epochs >= 1
+
+
+def test_the_render_speed_is_measured_on_views_like_the_training_views(box_mesh, tmp_path, monkeypatch):
+    """The plan's render time comes from views with the fit's own photos, lights and shares: measured
+    on plain views, a fit's quarter of the budget for rendering once took half of it."""
+    import hybridpose.datasets as datasets
+
+    calls = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_render(out, obj, camera, count, seed=0, **kw):
+        calls.append(kw)
+        if len(calls) > 2:  # the two measuring runs, then the training views: enough seen
+            raise Stop
+        return None
+
+    monkeypatch.setattr(datasets, "render_random_dataset", fake_render)
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    cv2.imwrite(str(photos / "grey.png"), np.full((64, 64, 3), 90, np.uint8))
+    with pytest.raises(Stop):
+        fit(str(box_mesh), tmp_path / "fit", scale=0.001, budget="30m", backgrounds=photos, textured_share=0.25,
+            occluded_share=0.2, progress=lambda _line: None)
+    measured, training = calls[1], calls[2]
+    for key in ("appearance", "distance_range_m", "sun_cone_deg", "sun_scale_range", "occluded_share", "in_view"):
+        assert measured[key] == training[key], key
+    assert measured["appearance"].backgrounds == str(photos) and measured["appearance"].texture_share == 0.25
 
 
 def test_what_cannot_work_is_refused_before_long_work(box_mesh):

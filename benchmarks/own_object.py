@@ -2,6 +2,7 @@
 vs hybrid on sequences of it in front of a real photo the fit never saw.
 
     python benchmarks/own_object.py --out runs/own_object [--budget 60m] [--workers 1]
+    python benchmarks/own_object.py --out runs/own_object --split tuning --tuning-photos DIR
 
 1. writes a plain box mesh (180 × 110 × 70 mm, in millimetres as CAD exports are);
 2. ``hybridpose fit`` for it within ``--budget`` (random lights and colours; backgrounds half
@@ -15,8 +16,10 @@ vs hybrid on sequences of it in front of a real photo the fit never saw.
    of ``benchmarks/RESULTS.md``.
 
 Every step resumes. Seeds: the fit's 0 (training views) and 1 (held-out views); the sequences' 1–30.
-Nothing here was tuned on these sequences (the box's tuning sequences: seeds 101–130, the same six kinds over
-other photos).
+Nothing here was tuned on these sequences. ``--split tuning`` renders the box's tuning sequences instead —
+the same six kinds, seeds 101–130, over the photos in ``--tuning-photos`` (those used so far: two photos
+of circuit boards, ``f3.jpg`` and ``verify.jpeg`` of the Rust embedded book, installed with the Rust
+documentation) — and benches them without touching the results page: what to tune on.
 """
 from __future__ import annotations
 
@@ -32,8 +35,16 @@ KINDS = (("tumble", "none"), ("tumble", "arm-full"), ("approach", "none"), ("app
          ("fly-around", "none"), ("fly-around", "arm-full"))
 SEEDS_PER_KIND = 5  # the spread over seeds (median, p90, worst of each kind), not one sequence a kind
 # round r renders every kind once, kind k with seed 6·r + k + 1: seeds 1–30, the first round 1–6
-SEQUENCES = tuple((trajectory, occlusion, len(KINDS) * r + k + 1)
-                  for r in range(SEEDS_PER_KIND) for k, (trajectory, occlusion) in enumerate(KINDS))
+FIRST_SEED = {"report": 1, "tuning": 101}
+
+
+def sequences(split: str) -> tuple[tuple[str, str, int], ...]:
+    """(trajectory, occlusion, seed) of the split's thirty sequences."""
+    first = FIRST_SEED[split]
+    return tuple((trajectory, occlusion, len(KINDS) * r + k + first)
+                 for r in range(SEEDS_PER_KIND) for k, (trajectory, occlusion) in enumerate(KINDS))
+
+
 BOX_MM = (180.0, 110.0, 70.0)
 
 
@@ -75,7 +86,14 @@ def main() -> None:
     ap.add_argument("--textured-share", type=float, default=0.0,
                     help="share of the training views with a random print on the box (hybridpose fit "
                          "--textured-share; default 0)")
+    ap.add_argument("--split", choices=tuple(FIRST_SEED), default="report",
+                    help="report: the sequences over grace_hopper.jpg that RESULTS shows (seeds 1–30); tuning: "
+                         "the tuning sequences over --tuning-photos (seeds 101–130), results in OUT/bench_tuning only")
+    ap.add_argument("--tuning-photos", default=None, help="folder of the photos behind the tuning sequences")
     args = ap.parse_args()
+    if args.split == "tuning" and not (args.tuning_photos and Path(args.tuning_photos).is_dir()):
+        raise SystemExit("--split tuning: give --tuning-photos DIR, a folder of photos none of the fit's training "
+                         "views and none of the report sequences use")
     import trimesh
 
     out = Path(args.out)
@@ -88,16 +106,20 @@ def main() -> None:
     if args.train_photos == "skimage":
         extra += ["--backgrounds", training_photos(out / "train_photos")]
     hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, "--workers", args.workers, *extra)
-    photos = out / "photos"
-    photos.mkdir(exist_ok=True)
-    shutil.copy(Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg", photos)
-    for trajectory, occlusion, seed in SEQUENCES:
+    if args.split == "tuning":
+        photos, seqs, results = Path(args.tuning_photos), out / "tuning_seqs", []
+    else:
+        photos, seqs = out / "photos", out / "seqs"
+        photos.mkdir(exist_ok=True)
+        shutil.copy(Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg", photos)
+        results = ["--results-md", args.results_md, "--results-block", "own-object"]
+    for trajectory, occlusion, seed in sequences(args.split):
         hp("render", "--object", mesh, "--scale", 0.001, "--kind", "sequence", "--trajectory", trajectory,
            "--occlusion", occlusion, "--frames", 60, "--size", "640x480", "--seed", seed, "--appearance", "random",
-           "--backgrounds", photos, "--photo-share", 1, "--out", out / "seqs" / f"{trajectory}_{occlusion}_s{seed}")
-    hp("bench", "--data", out / "seqs", "--object", mesh, "--scale", 0.001, "--regressor", fit / "best.pt",
-       "--trackers", "edges", "--workers", args.workers, "--out", out / "bench",
-       "--results-md", args.results_md, "--results-block", "own-object")
+           "--backgrounds", photos, "--photo-share", 1, "--out", seqs / f"{trajectory}_{occlusion}_s{seed}")
+    hp("bench", "--data", seqs, "--object", mesh, "--scale", 0.001, "--regressor", fit / "best.pt",
+       "--trackers", "edges", "--workers", args.workers,
+       "--out", out / ("bench" if args.split == "report" else "bench_tuning"), *results)
 
 
 if __name__ == "__main__":

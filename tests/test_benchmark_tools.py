@@ -7,6 +7,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
+import own_object  # noqa: E402
 import paper_check  # noqa: E402
 import predict_stages  # noqa: E402
 from _common import test_views as views_of  # noqa: E402  (not a test: renamed so pytest does not collect it)
@@ -121,3 +122,13 @@ def test_gpu_vgg_summary_reads_the_archive_and_marks_what_is_missing(tmp_path):
     md = vgg_runs.markdown(two, "note", title="Two runs")
     assert md.startswith("## Two runs") and md.count("| paper: VGG-16") == 1
     assert "| **vgg16 (`seed1`)** | 1 × 50 | 126.0 / 129.0 / 0.160 (epoch 0) | – |" in md
+
+
+def test_the_own_object_tuning_sequences_never_share_a_seed_with_the_reported_ones():
+    report, tuning = own_object.sequences("report"), own_object.sequences("tuning")
+    assert len(report) == len(tuning) == 30
+    assert {seed for *_, seed in report} == set(range(1, 31)) and {seed for *_, seed in tuning} == set(range(101, 131))
+    # the same kinds, five seeds each, in both
+    kinds = {(t, o) for t, o, _ in report}
+    assert kinds == {(t, o) for t, o, _ in tuning} == set(own_object.KINDS)
+    assert all(sum((t, o) == kind for t, o, _ in tuning) == 5 for kind in kinds)

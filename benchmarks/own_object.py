@@ -34,7 +34,7 @@ import matplotlib
 KINDS = (("tumble", "none"), ("tumble", "arm-full"), ("approach", "none"), ("approach", "arm-partial"),
          ("fly-around", "none"), ("fly-around", "arm-full"))
 SEEDS_PER_KIND = 5  # the spread over seeds (median, p90, worst of each kind), not one sequence a kind
-# round r renders every kind once, kind k with seed 6·r + k + 1: seeds 1–30, the first round 1–6
+# round r renders every kind once, kind k with seed 6·r + k + the split's first: report 1–30, tuning 101–130
 FIRST_SEED = {"report": 1, "tuning": 101}
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -128,7 +128,7 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 16, **render_k
     from .render import AppearanceSpec
 
     render_kw = {"appearance": AppearanceSpec("random"), "distance_range_m": working_distances(obj, camera),
-                 **render_kw, "in_view": True, "workers": 1}
+                 "in_view": True, **render_kw, "workers": 1}
     with tempfile.TemporaryDirectory() as tmp:
         spent = []
         for n in (2, 2 + views):
@@ -159,13 +159,14 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 16, **render_k
     return render_s, train_s
 
 
-def training_render_settings(backgrounds, distance_range_m, occluded_share: float, textured_share: float) -> dict:
-    """The :func:`~hybridpose.datasets.render_random_dataset` settings of a fit's training views (its
-    held-out views: the same without the arm and the print)."""
+def training_render_settings(backgrounds, distance_range_m, occluded_share: float = 0.0,
+                             textured_share: float = 0.0) -> dict:
+    """The :func:`~hybridpose.datasets.render_random_dataset` settings of a fit's views (its held-out
+    views: without the arm and the print, the shares' defaults)."""
     from .render import AppearanceSpec
 
     looks = AppearanceSpec("random", None if backgrounds is None else str(backgrounds), texture_share=textured_share)
-    return dict(distance_range_m=tuple(distance_range_m), appearance=looks, sun_cone_deg=85.0,
+    return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, sun_cone_deg=85.0,
                 sun_scale_range=(0.6, 1.3), occluded_share=occluded_share)
 
 
@@ -267,17 +268,16 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         atomic_write_json(record_path, record)
 
     training_views = training_render_settings(backgrounds, plan.distance_range_m, occluded_share, textured_share)
-    common = {**training_views, "occluded_share": 0.0, "appearance": replace(training_views["appearance"],
-                                                                             texture_share=0.0)}
+    held_out = training_render_settings(backgrounds, plan.distance_range_m)
     tick = bar or (lambda _desc: None)
     half = max(1, plan.test_views // 2)
     stage("render", lambda: (
-        render_random_dataset(out / "data" / "train", obj, camera, plan.train_views, seed=seed, in_view=True,
-                              workers=workers, progress=tick("render training views"), **training_views),
-        render_random_dataset(out / "data" / "calib", obj, camera, half, seed=seed + 2, in_view=True,
-                              workers=workers, progress=tick("render calibration views"), **common),
+        render_random_dataset(out / "data" / "train", obj, camera, plan.train_views, seed=seed, workers=workers,
+                              progress=tick("render training views"), **training_views),
+        render_random_dataset(out / "data" / "calib", obj, camera, half, seed=seed + 2, workers=workers,
+                              progress=tick("render calibration views"), **held_out),
         render_random_dataset(out / "data" / "test", obj, camera, plan.test_views - half, seed=seed + 1,
-                              in_view=True, workers=workers, progress=tick("render held-out views"), **common)))
+                              workers=workers, progress=tick("render held-out views"), **held_out)))
 
     def run_training():
         start = None if init_from is None else str(checkpoint_or_shipped(init_from))

@@ -88,9 +88,8 @@ def dark_surround(gray: np.ndarray, uv: np.ndarray) -> bool:
         return False
     # the inner box, clipped to the outer one; the strip counted as four bands around it (a close
     # truss's box covers most of the frame: thresholding all of it cost more than the rest of the test)
-    ra, rb = Y0 + min(max(y0 - Y0, 0), Y1 - Y0), Y0 + min(max(min(y1, h) - Y0, 0), Y1 - Y0)
-    ca, cb = X0 + min(max(x0 - X0, 0), X1 - X0), X0 + min(max(min(x1, w) - X0, 0), X1 - X0)
-    rb, cb = max(rb, ra), max(cb, ca)
+    ra, rb = min(max(y0, Y0), Y1), min(max(y1, Y0), Y1)
+    ca, cb = min(max(x0, X0), X1), min(max(x1, X0), X1)
     strip = (Y1 - Y0) * (X1 - X0) - (rb - ra) * (cb - ca)
     if strip <= 0:
         return False

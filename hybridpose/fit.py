@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +44,7 @@ FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network 
 OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
 TEXTURED_SHARE = 0.0  # share of training views with a random print on the part (docs/decisions.md)
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
+EVAL_RESERVE_MIN = 2.0  # kept after training for calibration and evaluation (under a minute for 300 views here)
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
 
@@ -187,6 +188,18 @@ def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: flo
                    train_s_per_view=float(train_s_per_view), distance_range_m=tuple(float(d) for d in distance_range_m))
 
 
+def plan_training(plan: FitPlan, spent_min: float) -> FitPlan:
+    """``plan`` with its training run re-planned once the views are rendered: the budget's time left
+    after ``spent_min`` minutes (measuring and rendering, as long as they took) less
+    ``EVAL_RESERVE_MIN``, and as many epochs as fit in it at ``PLAN_MARGIN``. Planned up front at its
+    fixed share (``TRAIN_SHARE``), the training left both stages' margins unused: a 60-minute box fit
+    ended after 44. Never less than half the training time planned up front: a render stage that
+    overran makes the fit overrun its budget rather than ship a network barely trained."""
+    train_min = max(plan.budget_min - spent_min - EVAL_RESERVE_MIN, 0.5 * plan.train_min)
+    epochs = int(60 * train_min / (PLAN_MARGIN * plan.train_views * max(plan.train_s_per_view, 1e-4)))
+    return replace(plan, train_min=float(train_min), epochs=int(np.clip(epochs, 1, 200)))
+
+
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
         backgrounds=None, workers: int = 1, init_from="default", progress=print,
         plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE,
@@ -210,7 +223,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
             or procedural clutter, :func:`~hybridpose.render.appearance.part_texture`): for a part
             with a printed or painted surface; held-out views stay plain.
         plan: views and epochs fixed by the caller instead of measured for ``budget`` (its
-            ``budget_min`` is then not checked against the minimum: for tests and small trials).
+            ``budget_min`` is then not checked against the minimum, and its training is not
+            re-planned after rendering: for tests and small trials). A measured plan's training is
+            re-planned once the views are rendered, to fill the budget (:func:`plan_training`).
         progress: called with one line per stage. bar: ``bar(description)`` → a ``(done, total)``
             callback for the long stages (rendering, calibration, evaluation); None: silent.
     Returns:
@@ -225,6 +240,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     out = Path(out)
     obj = load_object(str(mesh), scale=scale)
     camera = camera or Camera.default()
+    measured = plan is None
     budget_min = parse_budget(budget) if plan is None else plan.budget_min
     distances = check_inputs(obj, camera, budget_min if plan is None else MIN_BUDGET_MIN)
     record_path = out / "fit.json"
@@ -246,12 +262,15 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         plan = FitPlan(**{**record["plan"], "distance_range_m": tuple(record["plan"]["distance_range_m"])})
         progress(f"fit: resuming in {out}")
     else:
+        minutes = {}
         if plan is None:
             progress(f"fit: measuring this machine ({obj.name}, {camera.width}×{camera.height})")
+            t0 = time.time()
             speeds = measure_speeds(obj, camera, **training_render_settings(
                 backgrounds, distances, occluded_share, textured_share))
             plan = make_plan(budget_min, *speeds, distances, workers)
-        record = {"request": request, "plan": asdict(plan), "minutes": {}, "done": []}
+            minutes["measure"] = (time.time() - t0) / 60
+        record = {"request": request, "plan": asdict(plan), "minutes": minutes, "done": []}
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(record_path, record)
     progress(f"fit: plan — {plan.train_views} training + {plan.test_views} held-out views, {plan.epochs} epochs "
@@ -288,6 +307,11 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
 
+    if measured and "train" not in record["done"] and not record.get("training_planned"):
+        plan = plan_training(plan, sum(record["minutes"].values()))
+        record.update(plan=asdict(plan), training_planned=True)
+        atomic_write_json(record_path, record)
+        progress(f"fit: training re-planned for the time left — {plan.epochs} epochs within {plan.train_min:.0f} min")
     stage("train", run_training)
 
     def run_calibration():

@@ -7,7 +7,8 @@ import pytest
 import trimesh
 
 from hybridpose.cli import main
-from hybridpose.fit import FitPlan, check_inputs, fit, make_plan, measure_speeds, parse_budget, working_distances
+from hybridpose.fit import (EVAL_RESERVE_MIN, PLAN_MARGIN, FitPlan, check_inputs, fit, make_plan, measure_speeds,
+                            parse_budget, plan_training, working_distances)
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
 
@@ -37,6 +38,52 @@ def test_the_plan_grows_with_the_budget_and_fits_it():
         assert (p.train_views + p.test_views) * p.render_s_per_view <= 60 * p.budget_min * 0.25 + 1
         assert 2 * p.train_views * p.train_s_per_view <= 60 * p.train_min + 1e-6
         assert p.epochs * p.train_views * p.train_s_per_view <= 60 * p.train_min * 1.01
+
+
+def test_the_training_fills_the_time_the_rendering_left():
+    plan = make_plan(60, 0.05, 0.0134, (0.3, 1.2))
+    quick = plan_training(plan, spent_min=14.0)
+    # the budget's rest after rendering, less the reserve for calibration and evaluation
+    assert quick.train_min == pytest.approx(60 - 14 - EVAL_RESERVE_MIN) and quick.train_min > plan.train_min
+    assert quick.epochs > plan.epochs and quick.train_views == plan.train_views
+    assert quick.epochs * PLAN_MARGIN * quick.train_views * quick.train_s_per_view <= 60 * quick.train_min
+    assert (quick.epochs + 1) * PLAN_MARGIN * quick.train_views * quick.train_s_per_view > 60 * quick.train_min
+    # a render stage that overran leaves half the planned training, not none
+    late = plan_training(plan, spent_min=59.0)
+    assert late.train_min == pytest.approx(0.5 * plan.train_min) and late.epochs >= 1
+
+
+def test_a_measured_plan_trains_for_the_time_left_after_rendering(box_mesh, tmp_path, monkeypatch):
+    import hybridpose.fit as fit_module
+    import hybridpose.regressors.train as train_module
+
+    cam = Camera.default().scaled((320, 240))
+    box = load_object(str(box_mesh), scale=0.001)
+    tiny = FitPlan(budget_min=6.0, train_views=32, test_views=4, epochs=1, train_min=1.0, render_s_per_view=0.05,
+                   train_s_per_view=0.05, distance_range_m=working_distances(box, cam))
+    monkeypatch.setattr(fit_module, "measure_speeds", lambda *a, **k: (0.05, 0.05))
+    monkeypatch.setattr(fit_module, "make_plan", lambda *a, **k: tiny)
+    runs = []
+
+    class Stop(Exception):
+        pass
+
+    def no_training(cfg, **kw):
+        runs.append(cfg)
+        raise Stop
+
+    monkeypatch.setattr(train_module, "train", no_training)
+    out = tmp_path / "fit"
+    with pytest.raises(Stop):
+        fit(box_mesh, out, camera=cam, scale=0.001, budget="6m", progress=lambda *_: None)
+    record = json.loads((out / "fit.json").read_text())
+    spent = record["minutes"]["measure"] + record["minutes"]["render"]
+    assert record["training_planned"] and record["plan"]["train_min"] == pytest.approx(6.0 - spent - EVAL_RESERVE_MIN)
+    assert runs[0].time_limit_min == record["plan"]["train_min"] and runs[0].epochs == record["plan"]["epochs"] > 1
+    # resumed, the training keeps the plan it was given (its schedule runs over those epochs)
+    with pytest.raises(Stop):
+        fit(box_mesh, out, camera=cam, scale=0.001, budget="6m", progress=lambda *_: None)
+    assert runs[1].epochs == runs[0].epochs and runs[1].time_limit_min == runs[0].time_limit_min
 
 
 def test_this_machine_is_measured_before_planning(box_mesh):

@@ -2,7 +2,9 @@
 
 Each frame is one edge fit (:func:`hybridpose.edges.fit_edges`) from the caller's prior; the quality
 is the fit's, capped by how much of the image's edges and, on a dark background, of its lit pixels
-the model explains (:func:`hybridpose.edges.honest_quality`). Below ``lost_quality`` (default 0.5) →
+the model explains (:func:`hybridpose.edges.honest_quality`); under a known sun, the first fits after
+an init and every start searched wider than frame to frame must also match the sunlit surface their
+pose predicts, cast shadows included (``VERIFIED_FITS``). Below ``lost_quality`` (default 0.5) →
 ``lost``. A fit that comes out lost on an object filling the view is tried again from edge fits on
 the shrunk frame (:func:`hybridpose.edges.coarse_to_fine`).
 """
@@ -28,6 +30,11 @@ from .base import Tracker
 # objects whose projected box at a lost fit's start is this large (diagonal, px) get the
 # coarse-to-fine retry: the truss overflowing a 640×480 view (0.3–0.6 m); chosen on the tuning seeds
 COARSE_MIN_PX = 600.0
+# a track's first fits after its init (a start from a CNN pose, or from a restart) have no history to
+# vouch for them: they, and every start searched wider than frame to frame, must also match the
+# sunlit surface their pose predicts under a known sun (edges.honest_quality's sunlit term; a shadow
+# map costs 1–9 ms, so not on every frame)
+VERIFIED_FITS = 10
 
 
 @register("tracker", "edges")
@@ -72,10 +79,12 @@ class EdgeTracker(Tracker):
         if search_px < 1:
             raise ValueError(f"search_px: expected ≥ 1 pixel, got {search_px}")
         self.view = ModelView(object)
+        self._unverified = 0  # fits left that must match the sunlit surface too (VERIFIED_FITS after init)
         self.explain = bool(explain)
         self.search_px, self.max_samples, self.covariance_scale = int(search_px), int(max_samples), float(covariance_scale)
 
     def _init(self, frame: Frame, pose: Pose) -> None:
+        self._unverified = VERIFIED_FITS
         if self._fit(frame, pose, outer=1) is None:
             raise ValueError(
                 f"pose: fewer than 6 model edges of {self.object.name!r} match image edges at the initial pose "
@@ -87,8 +96,13 @@ class EdgeTracker(Tracker):
                          max_samples=self.max_samples, covariance_scale=self.covariance_scale, outer=outer,
                          polish=self.polish)
 
+    def reset(self) -> None:
+        super().reset()
+        self._unverified = 0
+
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray = to_gray(frame.image)  # one conversion for the fits and their qualities
+        self._unverified = max(0, self._unverified - 1)
         pose, cov, quality = self._fit_once(frame, start, gray, search_px)
         if (quality < self.lost_quality and self.coarse_min_px > 0
                 and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
@@ -104,7 +118,8 @@ class EdgeTracker(Tracker):
         fit = self._fit(frame, start, outer=3 + extra, gray=gray, search_px=search_px)
         if fit is None:
             return None, None, 0.0
-        quality = honest_quality(self.view, frame, fit, gray) if self.explain else fit.quality
+        young = self._unverified > 0 or (search_px is not None and search_px > self.search_px)
+        quality = honest_quality(self.view, frame, fit, gray, sunlit=young) if self.explain else fit.quality
         return fit.pose, fit.covariance, quality
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):

@@ -28,7 +28,7 @@ from ..core import Frame
 from ..geometry import Pose, line_jacobian
 from . import _kernels
 from .model_view import EdgeSamples, ModelView, thin
-from .shadows import sunlit_agreement, sunlit_mask
+from .shadows import sunlit_agreement
 from .silhouette import LIT_PIXEL_GREY, explained_lit_share
 
 MIN_SUPPORT = 40  # inlier samples for full quality
@@ -245,9 +245,6 @@ TEXTURE_EDGE_DENSITY = 0.15
 # (the box's tuning sequences): 3×, which at 2× passed as texture and was tracked for 11 frames
 TEXTURE_BAND_PX = 8
 TEXTURE_CONTRAST = 4.0
-# below this share, where the frame gives the sun's direction, the outlines of the shadows the model
-# casts on itself count as explained too (edges.shadows; a shadow map costs 1–9 ms, so not on every fit)
-SHADOWS_BELOW = 0.81
 
 
 def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
@@ -262,10 +259,7 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     (p10 0.90) on frames within 2° of the truth, 0.69 median on frames > 5° off that the fit's
     quality did not flag. On a textured part (many more edges inside its visible faces than just
     outside them: ``TEXTURE_EDGE_DENSITY``, ``TEXTURE_CONTRAST``) the edges on its faces that no model
-    edge explains are left out. Where the frame gives the sun's direction and the share falls below
-    ``SHADOWS_BELOW``, the outlines of the shadows the model casts on itself under that sun
-    (:func:`~hybridpose.edges.shadows.sunlit_mask`) explain edges too: close up they are a quarter of
-    a sunlit truss's edges. ``ids``: the view's facet ids of ``pose``, where the caller has them.
+    edge explains are left out. ``ids``: the view's facet ids of ``pose``, where the caller has them.
     """
     cam = frame.camera
     ids = view.facet_ids(pose, cam) if ids is None else ids  # one raster for the samples and the faces
@@ -297,8 +291,8 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     model = np.zeros(edges.shape, np.uint8)
     segments = np.round(np.stack([a, b], 1) - [x0, y0]).astype(np.int32)
     cv2.polylines(model, list(segments), False, 255, 1)
-    k_near = 2 * EXPLAIN_TOLERANCE_PX + 1
-    near = cv2.dilate(model, np.ones((k_near, k_near), np.uint8)) > 0
+    k = 2 * EXPLAIN_TOLERANCE_PX + 1
+    near = cv2.dilate(model, np.ones((k, k), np.uint8)) > 0
     faces = _raster_box(ids > 0, cam, (x0, y0, x1, y1), model.shape)
     k = 2 * TEXTURE_CLEAR_PX + 1
     interior = faces & (cv2.dilate(model, np.ones((k, k), np.uint8)) == 0)
@@ -311,14 +305,7 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     n = int(edges.sum())
     if n == 0:
         return float("nan")
-    share = float((edges & near).sum()) / n
-    if share < SHADOWS_BELOW and frame.sun_direction_cam is not None:
-        # the outlines of the shadows the model casts on itself explain image edges too
-        lit = _raster_box(sunlit_mask(view, pose, cam, frame.sun_direction_cam, ids), cam, (x0, y0, x1, y1), model.shape)
-        outline = cv2.morphologyEx(lit.astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
-        near |= cv2.dilate(outline, np.ones((k_near, k_near), np.uint8)) > 0
-        share = float((edges & near).sum()) / n
-    return share
+    return float((edges & near).sum()) / n
 
 
 def _raster_box(mask: np.ndarray, cam, box, shape) -> np.ndarray:

@@ -143,7 +143,7 @@ class ModelView:
         in front of the camera."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         f = np.asarray(facets, dtype=np.int64)
-        rays = np.linalg.solve(camera.K, np.c_[uv, np.ones(len(uv))].T).T     # camera frame, z = 1
+        rays = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(camera.K).T       # camera frame, z = 1
         origin = -pose.R.T @ pose.t                                          # camera centre, object frame
         d = rays @ pose.R                                                    # ray directions, object frame
         n, p0 = self.plane_normal[f], self.plane_point[f]

@@ -3,7 +3,8 @@ each other): which model edges are visible at a pose (:class:`ModelView`), the s
 along their normals, the moving-edge fit (:func:`fit_edges`; coarse to fine over an image pyramid:
 :func:`coarse_to_fine`) and how much of the image it explains
 (:func:`explained_edge_share`, and of its lit pixels: :func:`explained_lit_share`; under a known sun
-the shadows it casts on itself: :func:`sunlit_mask`), and how far its
+the surface it lights, cast shadows included, against the image's: :func:`sunlit_mask`,
+:func:`sunlit_agreement`), and how far its
 edges lie from the image's (:func:`edge_distances_px`, the check of a track on real video). The edge trackers follow the object with it; the CNN regressor
 refines its pose and chooses between end-for-end twins with it.
 """
@@ -19,10 +20,10 @@ from .fit import (
 from .image_distance import edge_distances_px
 from .model_view import EdgeSamples, ModelView
 from .pyramid import coarse_to_fine, projected_diagonal_px
-from .shadows import sunlit_mask
+from .shadows import sunlit_agreement, sunlit_mask
 from .silhouette import explained_lit_share
 
 __all__ = ["EdgeFit", "EdgeSamples", "ModelView", "coarse_to_fine", "edge_distances_px", "explained_edge_share",
            "explained_lit_share",
-           "fit_edges", "fit_from_proposals", "honest_quality", "projected_diagonal_px", "search_edges", "sunlit_mask",
-           "to_gray"]
+           "fit_edges", "fit_from_proposals", "honest_quality", "projected_diagonal_px", "search_edges",
+           "sunlit_agreement", "sunlit_mask", "to_gray"]

@@ -293,7 +293,7 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     cv2.polylines(model, list(segments), False, 255, 1)
     k = 2 * EXPLAIN_TOLERANCE_PX + 1
     near = cv2.dilate(model, np.ones((k, k), np.uint8)) > 0
-    faces = _raster_box(ids > 0, cam, (x0, y0, x1, y1), model.shape)
+    faces = _faces(ids, cam, (x0, y0, x1, y1), model.shape)
     k = 2 * TEXTURE_CLEAR_PX + 1
     interior = faces & (cv2.dilate(model, np.ones((k, k), np.uint8)) == 0)
     density = found[interior].mean() if interior.any() else 0.0
@@ -308,16 +308,16 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     return float((edges & near).sum()) / n
 
 
-def _raster_box(mask: np.ndarray, cam, box, shape) -> np.ndarray:
-    """(h, w) = ``shape`` bool over ``box`` (x0, y0, x1, y1 px of ``cam``'s image): ``mask``, a bool
-    raster over the whole image at any scale (the facet-id raster's), there."""
+def _faces(ids: np.ndarray, cam, box, shape) -> np.ndarray:
+    """(h, w) = ``shape`` bool over ``box`` (x0, y0, x1, y1 px of ``cam``'s image): the pixels where a
+    visible face lies in the facet-id raster ``ids`` (:meth:`ModelView.facet_ids`, any scale)."""
     x0, y0, x1, y1 = box
-    scale = mask.shape[1] / cam.width
-    r0, r1 = int(y0 * scale), min(int(np.ceil(y1 * scale)), mask.shape[0])
-    c0, c1 = int(x0 * scale), min(int(np.ceil(x1 * scale)), mask.shape[1])
+    scale = ids.shape[1] / cam.width
+    r0, r1 = int(y0 * scale), min(int(np.ceil(y1 * scale)), ids.shape[0])
+    c0, c1 = int(x0 * scale), min(int(np.ceil(x1 * scale)), ids.shape[1])
     if r1 <= r0 or c1 <= c0:
         return np.zeros(shape, bool)
-    return cv2.resize(mask[r0:r1, c0:c1].astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+    return cv2.resize((ids[r0:r1, c0:c1] > 0).astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
 
 
 def background_edge_density(gray: np.ndarray, box, ring_px: int = CLUTTER_RING_PX) -> float:

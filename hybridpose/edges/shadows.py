@@ -22,6 +22,12 @@ SUN_DISTANCE_DIAMETERS = 1000.0  # the shadow map's eye this far up the sunlight
 # a face counts as shading a point only this many shadow-map pixels up the sunlight from it (faces
 # meeting at a crease share the crease's pixels)
 SHADOW_GAP_PX = 3.0
+# a face turned to the sun by less than this cosine may render too dim to tell from shadow: left out
+SURE_LIT_COSINE = 0.25
+LIT_GREY_MIN = 8.0  # a pixel brighter than this grey level may be lit (black space renders at 0–3)
+LIT_GREY_SHARE = 0.1  # ... and must be brighter than this share of the silhouette's brightest pixels (p99)
+AGREEMENT_SLACK_PX = 1  # lit pixels this close (raster pixels) to the other set count as matched
+MIN_LIT_PX = 20  # fewer predicted and seen lit pixels than this (raster pixels): no verdict
 
 
 def sunlit_mask(view: ModelView, pose: Pose, camera: Camera, sun_direction_cam, ids: np.ndarray | None = None,
@@ -90,15 +96,6 @@ def _shaded(view: ModelView, points: np.ndarray, facets: np.ndarray, s: np.ndarr
     step = np.where(other & (np.abs(along) > 1e-9),
                     np.einsum("ij,ij->i", n, p0 - points) / np.where(np.abs(along) > 1e-9, along, 1.0), 0.0)
     return other & (step < -SHADOW_GAP_PX * pixel_m)
-
-
-
-# a face turned to the sun by less than this cosine may render too dim to tell from shadow: left out
-SURE_LIT_COSINE = 0.25
-LIT_GREY_MIN = 8.0  # a pixel brighter than this grey level may be lit (black space renders at 0–3)
-LIT_GREY_SHARE = 0.1  # ... and must be brighter than this share of the silhouette's brightest pixels (p99)
-AGREEMENT_SLACK_PX = 1  # lit pixels this close (raster pixels) to the other set count as matched
-MIN_LIT_PX = 20  # fewer predicted and seen lit pixels than this (raster pixels): no verdict
 
 
 def sunlit_agreement(view: ModelView, frame, pose: Pose, gray: np.ndarray | None = None,

@@ -33,7 +33,7 @@ COARSE_MIN_PX = 600.0
 # a track's first fits after its init (a start from a CNN pose, or from a restart) have no history to
 # vouch for them: they, and every start searched wider than frame to frame, must also match the
 # sunlit surface their pose predicts under a known sun (edges.honest_quality's sunlit term; a shadow
-# map costs 1–9 ms, so not on every frame)
+# map costs 1–4 ms, so not on every frame)
 VERIFIED_FITS = 10
 
 

@@ -74,10 +74,11 @@ class HybridConfig:
             0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
             the previous frame's pose does.
         sun_in_cnn_fits: whether a tracker fit started from a CNN pose (a start, a check) gets the
-            frame's sun direction (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`) too. Off:
-            where the sun lights only slivers of the object, a pose 15° off explains them as well as
-            the right one once the edges in shadow are left out, and those starts and checks then
-            settle on it; the frame-to-frame fits, from the track's own pose, keep the sun.
+            frame's sun direction (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`) too, as
+            the frame-to-frame fits do. On: its edges in shadow are left out, and a tracker that can
+            (``edges``) asks the fit to match the sunlit surface its pose predicts — without that
+            check, where the sun lights only slivers of the object, a pose 15° off explained them as
+            well as the right one and starts settled on it.
         keep_quality, keep_after: once a track has run ``keep_after`` frames since its (re)start, the
             tracker's frame-to-frame fit counts as lost only below ``keep_quality`` (never above the
             tracker's own threshold; where the tracker takes one per call, ``track(...,
@@ -116,7 +117,7 @@ class HybridConfig:
     start_depth_span: float = 0.12
     restart_unconfirmed: bool = False
     cnn_search_px: float = 12.0
-    sun_in_cnn_fits: bool = False
+    sun_in_cnn_fits: bool = True
     keep_quality: float | None = 0.4
     keep_after: int = 5
     disagreement_deg: float | None = None

@@ -348,10 +348,10 @@ def _ring_density(edges: np.ndarray, inner) -> float:
 
 # the lit-share term of honest_quality: 1 − LIT_SLOPE · (1 − share), 0.5 at 98 % explained
 LIT_SLOPE = 25.0
-# its sunlit term: 1 − SUNLIT_SLOPE · (1 − precision), 0.5 at 96.7 %. On tuning frames fitted from the
+# its sunlit term: 1 − SUNLIT_SLOPE · (1 − precision), 0.5 at 98 %. On tuning frames fitted from the
 # true pose the precision's 0.5th percentile was 0.997; fitted from starts that ended > 5° off, its
 # median 0.75 and 90th percentile 0.93 (0.97 where the sun lights only slivers of the truss)
-SUNLIT_SLOPE = 15.0
+SUNLIT_SLOPE = 25.0
 SUNLIT_FROM = 0.5  # a fit already lost (edge trackers' lost_quality) skips the term: it changes nothing there
 
 
@@ -365,7 +365,7 @@ def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray
     the silhouette outside it. With ``sunlit``, where the frame gives the sun's direction and the
     background is dark (the lit term has a verdict), also ``1 − SUNLIT_SLOPE·(1 − precision)``,
     ``precision`` the share of the surface the pose predicts sunlit that is lit in the image
-    (:func:`~hybridpose.edges.shadows.sunlit_agreement`; 0.5 at 96.7 %), where the quality is at
+    (:func:`~hybridpose.edges.shadows.sunlit_agreement`; 0.5 at 98 %), where the quality is at
     least ``SUNLIT_FROM`` before it. A term without a verdict (NaN) is left out."""
     quality = fit.quality
     ids = view.facet_ids(fit.pose, frame.camera)  # one raster of the fitted pose for every term

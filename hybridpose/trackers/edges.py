@@ -34,7 +34,7 @@ COARSE_MIN_PX = 600.0
 # vouch for them: they, and every start searched wider than frame to frame, must also match the
 # sunlit surface their pose predicts under a known sun (edges.honest_quality's sunlit term; a shadow
 # map costs 1–4 ms, so not on every frame)
-VERIFIED_FITS = 10
+VERIFIED_FITS = 5
 
 
 @register("tracker", "edges")

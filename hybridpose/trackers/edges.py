@@ -34,7 +34,7 @@ COARSE_MIN_PX = 600.0
 # vouch for them: they, and every start searched wider than frame to frame, must also match the
 # sunlit surface their pose predicts under a known sun (edges.honest_quality's sunlit term; a shadow
 # map costs 1–4 ms, so not on every frame)
-VERIFIED_FITS = 5
+VERIFIED_FITS = 4
 
 
 @register("tracker", "edges")
@@ -102,24 +102,25 @@ class EdgeTracker(Tracker):
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray = to_gray(frame.image)  # one conversion for the fits and their qualities
+        verify = self._unverified > 0 or (search_px is not None and search_px > self.search_px)
         self._unverified = max(0, self._unverified - 1)
-        pose, cov, quality = self._fit_once(frame, start, gray, search_px)
+        pose, cov, quality = self._fit_once(frame, start, gray, search_px, verify)
         if (quality < self.lost_quality and self.coarse_min_px > 0
                 and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
             # an object this large may lie beyond any full-resolution search: fit the shrunk frames first
-            coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), gray, search_px)
+            coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), gray, search_px, verify)
             if coarse[2] > quality:
                 return coarse
         return pose, cov, quality
 
-    def _fit_once(self, frame: Frame, start: Pose, gray: np.ndarray, search_px: int | None = None):
+    def _fit_once(self, frame: Frame, start: Pose, gray: np.ndarray, search_px: int | None = None,
+                  verify: bool = False):
         # the range halves at each outer iteration: a wider start takes as many more to reach the usual end
         extra = 0 if search_px is None else max(0, int(np.ceil(np.log2(search_px / self.search_px))))
         fit = self._fit(frame, start, outer=3 + extra, gray=gray, search_px=search_px)
         if fit is None:
             return None, None, 0.0
-        young = self._unverified > 0 or (search_px is not None and search_px > self.search_px)
-        quality = honest_quality(self.view, frame, fit, gray, sunlit=young) if self.explain else fit.quality
+        quality = honest_quality(self.view, frame, fit, gray, sunlit=verify) if self.explain else fit.quality
         return fit.pose, fit.covariance, quality
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):

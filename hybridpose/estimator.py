@@ -12,8 +12,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
   error), confirms it (not lost); the tracker's fit starts the fusion.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
-  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_quality``: an arm
-  covering half the object lowers a right fit's quality under the tracker's own threshold). Every
+  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_quality``, and to
+  ``keep_covered_quality`` where the tracker sees the object covered: an arm covering half the
+  object lowers a right fit's quality under the tracker's own threshold). Every
   ``check_period`` frames the CNN runs on a crop around the predicted projection, and the tracker
   fits the edges from the CNN pose too. The check disagrees when the CNN pose is far from the fused
   one (``disagreement_chi2`` with both covariances; optionally ``disagreement_deg`` apart whatever
@@ -123,6 +124,7 @@ class HybridEstimator:
         except (TypeError, ValueError):
             params = {}
         self._widens, self._keeps = "search_px" in params, "lost_quality" in params
+        self._covers = "covered_lost_quality" in params
         self.regressor_calls = 0  # since construction: the CNN's share of the work
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.reset()
@@ -205,10 +207,12 @@ class HybridEstimator:
 
     def _track(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
-        m = self._track_from(frame, prior.pose, timings, lost_quality=self._keep_quality())
+        keep, keep_covered = self._keep_quality()
+        m = self._track_from(frame, prior.pose, timings, lost_quality=keep, covered_lost_quality=keep_covered)
         previous, self.last_tracker = self.last_tracker, m
         if m.lost and self._retries(previous):
-            retry = self._track_from(frame, previous.pose, timings, lost_quality=self._keep_quality())
+            retry = self._track_from(frame, previous.pose, timings, lost_quality=keep,
+                                     covered_lost_quality=keep_covered)
             if not retry.lost:
                 # the object is where the tracker last saw it, not where the motion model sent it (a
                 # hand-held camera that stopped)
@@ -382,13 +386,16 @@ class HybridEstimator:
                 and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
 
     def _track_from(self, frame: Frame, start: Pose, timings: dict, search_px: float | None = None,
-                    lost_quality: float | None = None, from_cnn: bool = False) -> Measurement:
+                    lost_quality: float | None = None, covered_lost_quality: float | None = None,
+                    from_cnn: bool = False) -> Measurement:
         """The tracker's measurement searched from ``start`` (up to ``search_px`` pixels away where the
-        tracker can widen its search; lost below ``lost_quality`` where given, else below the
+        tracker can widen its search; lost below ``lost_quality`` where given — below
+        ``covered_lost_quality`` where given and the tracker sees the object covered — else below the
         tracker's own threshold; ``from_cnn``: ``start`` is a CNN pose, fitted without the frame's sun
         unless ``sun_in_cnn_fits``); lost where the tracker refuses that start (a prediction coasting
         while lost can leave the view or pass behind the camera)."""
-        kw = {k: v for k, v in (("search_px", search_px), ("lost_quality", lost_quality)) if v is not None}
+        kw = {k: v for k, v in (("search_px", search_px), ("lost_quality", lost_quality),
+                                ("covered_lost_quality", covered_lost_quality)) if v is not None}
         if from_cnn and not self.config.sun_in_cnn_fits and frame.sun_direction_cam is not None:
             frame = replace(frame, sun_direction_cam=None)
         try:
@@ -396,15 +403,18 @@ class HybridEstimator:
         except ValueError:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
 
-    def _keep_quality(self) -> float | None:
-        """The tracker's lost threshold for the next frame-to-frame fit: ``keep_quality`` (never above
-        the tracker's own) once the track has run ``keep_after`` frames since its start, where the
-        tracker takes a threshold per call; else None (the tracker's own)."""
+    def _keep_quality(self) -> tuple[float | None, float | None]:
+        """The tracker's lost thresholds for the next frame-to-frame fit, (in general, where the
+        tracker sees the object covered): ``keep_quality`` (never above the tracker's own) and
+        ``keep_covered_quality`` (never above that) once the track has run ``keep_after`` frames
+        since its start, where the tracker takes them per call; else None (the tracker's own)."""
         keep = self.config.keep_quality
         if not self._keeps or keep is None or self._n.since_start < self.config.keep_after:
-            return None
+            return None, None
         own = getattr(self.tracker, "lost_quality", None)
-        return keep if own is None else min(keep, float(own))
+        keep = keep if own is None else min(keep, float(own))
+        covered = self.config.keep_covered_quality
+        return keep, (min(covered, keep) if covered is not None and self._covers else None)
 
     def _cnn_search_px(self) -> float | None:
         """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` where the tracker can widen

@@ -85,6 +85,11 @@ class HybridConfig:
             lost_quality=)``). An arm covering half the object lowers the honest quality of a right
             fit to 0.45–0.5, under the edge trackers' 0.5; starts, checks and resumes keep the
             tracker's own threshold (a young track may be a wrong start). None: off.
+        keep_covered_quality: the same, where the tracker sees the object partly covered (its
+            ``covered``: on black space, something lit came in beside the object — the arm) and
+            takes the threshold per call (``track(..., covered_lost_quality=)``): with 40–50 % of
+            the truss behind the arm, right fits score 0.3–0.4. Never above ``keep_quality``;
+            None: ``keep_quality`` there too.
         restart_unconfirmed: when checks disagree with the track and the tracker started from the
             CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
             lost until the CNN and the edges agree again (False: such restarts were wrong in every
@@ -119,6 +124,7 @@ class HybridConfig:
     cnn_search_px: float = 12.0
     sun_in_cnn_fits: bool = True
     keep_quality: float | None = 0.4
+    keep_covered_quality: float | None = 0.3
     keep_after: int = 5
     disagreement_deg: float | None = None
 
@@ -138,8 +144,10 @@ class HybridConfig:
                 raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
         if self.disagreement_deg is not None and not 0 < self.disagreement_deg <= 180:
             raise ValueError(f"disagreement_deg: expected an angle in (0, 180] degrees or None, got {self.disagreement_deg}")
-        if self.keep_quality is not None and not 0 <= self.keep_quality <= 1:
-            raise ValueError(f"keep_quality: expected a tracker quality in [0, 1] or None, got {self.keep_quality}")
+        for name in ("keep_quality", "keep_covered_quality"):
+            v = getattr(self, name)
+            if v is not None and not 0 <= v <= 1:
+                raise ValueError(f"{name}: expected a tracker quality in [0, 1] or None, got {v}")
         if not 0 <= self.start_quality <= 1:
             raise ValueError(f"start_quality: expected a tracker quality in [0, 1], got {self.start_quality}")
         if not 0 <= self.switch_quality_margin <= 1:

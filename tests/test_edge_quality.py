@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from hybridpose.core import Frame
-from hybridpose.edges import ModelView, explained_edge_share, explained_lit_share
+from hybridpose.edges import ModelView, explained_edge_share, explained_lit_share, lit_verdict
 from hybridpose.geometry import Pose
+from hybridpose.registry import create
 from hybridpose.render import Renderer, random_poses
 
 OFF_DEG = 5.0
@@ -51,3 +52,41 @@ def test_no_verdict_on_a_lit_background_or_without_the_object(view, views):
     assert np.isnan(explained_lit_share(view, Frame(black, frame.camera, 0.0, 0), pose))  # nothing lit near it
     far = Pose(pose.R, pose.t * 40.0)  # a silhouette of a few pixels
     assert np.isnan(explained_lit_share(view, frame, far))
+
+
+def with_arm(frame: Frame, pose: Pose, truss) -> Frame:
+    """``frame`` with a flat lit plate (the arm's tool plate) over the right 40 % of the object's
+    projected box, reaching beyond it above, below and to the right."""
+    uv = frame.camera.project(truss.bbox_corners, pose)
+    (x0, y0), (x1, y1) = uv.min(0), uv.max(0)
+    image = frame.image.copy()
+    image[max(int(y0) - 40, 0):int(y1) + 40, int(x1 - 0.4 * (x1 - x0)):] = 140
+    return Frame(image, frame.camera, frame.timestamp, frame.index, sun_direction_cam=frame.sun_direction_cam)
+
+
+def test_something_lit_beside_the_object_is_seen(view, views, truss):
+    frame, pose = views[1]
+    clear = lit_verdict(view, frame, pose)
+    assert not clear.beside and clear.share >= 0.99
+    covered = lit_verdict(view, with_arm(frame, pose, truss), pose)
+    assert covered.beside and np.isnan(covered.share)  # no lit-pixel verdict beside an occluder
+
+
+def test_the_edges_tracker_sees_an_arm_come_in_but_not_a_lit_background(views, truss):
+    frame, pose = views[1]
+    trk = create("tracker", "edges", object=truss)
+    trk.init(frame, pose)
+    assert not trk.track(frame, pose).lost and not trk.covered
+    armed = with_arm(frame, pose, truss)
+    m = trk.track(armed, pose)
+    assert trk.covered and 0 < m.quality < 0.5  # the arm's edges and the hidden beams cost the fit
+    assert trk.track(armed, pose, lost_quality=m.quality + 0.05).lost
+    kept = trk.track(armed, pose, lost_quality=m.quality + 0.05, covered_lost_quality=m.quality - 0.05)
+    assert not kept.lost and kept.pose is not None
+    # a background lit from the start (a photo, the Earth) is not an occluder
+    lit_background = Frame(np.maximum(armed.image, 90).astype(np.uint8), frame.camera, 0.0, 0)
+    trk.init(lit_background, pose)
+    trk.track(lit_background, pose)
+    assert not trk.covered
+    with pytest.raises(ValueError, match="covered_lost_quality"):
+        trk.track(frame, pose, covered_lost_quality=1.5)

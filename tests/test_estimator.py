@@ -378,6 +378,55 @@ def test_an_established_track_is_kept_through_a_partial_occlusion():
         HybridConfig(keep_after=-1)
 
 
+class DeeplyCoveredTracker(EdgesOnlyAtTheTruth):
+    """Right from within 90° of the truth, but with more of the object behind the arm its quality
+    falls to 0.35 on ``covered`` frames, where it says so (``covered``), as the edges tracker does;
+    takes per-call thresholds like the library's trackers."""
+
+    lost_quality = 0.5
+
+    def __init__(self, covered, **kw):
+        super().__init__(**kw)
+        self.covered_frames, self.covered = set(covered), False
+
+    def track(self, frame, prior=None, lost_quality=None, covered_lost_quality=None):
+        m = super().track(frame, prior)
+        self.covered = frame.index in self.covered_frames
+        if m.lost:
+            return m
+        quality = 0.35 if self.covered else m.quality
+        threshold = self.lost_quality if lost_quality is None else lost_quality
+        if self.covered and covered_lost_quality is not None:
+            threshold = covered_lost_quality
+        if quality < threshold:
+            return Measurement(None, np.eye(6), quality, m.source, frame.timestamp)
+        return Measurement(m.pose, m.covariance, quality, m.source, frame.timestamp)
+
+
+def test_a_track_the_tracker_sees_covered_is_kept_down_to_the_covered_threshold():
+    config = HybridConfig(check_period=10, probation_frames=0, keep_quality=0.4, keep_covered_quality=0.3,
+                          keep_after=5)
+    est = HybridEstimator(DeeplyCoveredTracker(covered=range(20, 30)), OracleRegressor(outliers=set(range(20, 30))),
+                          registry.create("fusion", "ukf"), config)
+    out = run(est, 35)
+    assert all(e.status == "tracking" for e in out[1:]), [e.status for e in out]
+    # without the covered threshold, 0.35 is under keep_quality: lost at the first covered frame
+    est = HybridEstimator(DeeplyCoveredTracker(covered=range(20, 30)), OracleRegressor(),
+                          registry.create("fusion", "ukf"), replace(config, keep_covered_quality=None))
+    assert run(est, 21)[20].status == "lost"
+    # a young track keeps the tracker's own threshold, covered or not
+    est = HybridEstimator(DeeplyCoveredTracker(covered=range(2, 6)), OracleRegressor(),
+                          registry.create("fusion", "ukf"), config)
+    assert run(est, 3)[2].status == "lost"
+    # never above keep_quality: a covered threshold of 0.45 is held at 0.4
+    est = HybridEstimator(DeeplyCoveredTracker(covered=()), OracleRegressor(), registry.create("fusion", "ukf"),
+                          replace(config, keep_covered_quality=0.45))
+    run(est, 10)
+    assert est._keep_quality() == (0.4, 0.4)
+    with pytest.raises(ValueError, match="keep_covered_quality"):
+        HybridConfig(keep_covered_quality=-0.1)
+
+
 def test_a_check_crop_at_a_pose_reaching_behind_the_camera_is_the_whole_image(truss):
     est = HybridEstimator(ScriptedTracker(object=truss), OracleRegressor(), registry.create("fusion", "ukf"))
     assert est._roi(Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM) is not None

@@ -2,7 +2,8 @@
 each other): which model edges are visible at a pose (:class:`ModelView`), the search for image edges
 along their normals, the moving-edge fit (:func:`fit_edges`; coarse to fine over an image pyramid:
 :func:`coarse_to_fine`) and how much of the image it explains
-(:func:`explained_edge_share`, and of its lit pixels: :func:`explained_lit_share`; under a known sun
+(:func:`explained_edge_share`, and of its lit pixels: :func:`explained_lit_share`, which also tells
+whether something lit stands beside the object: :func:`lit_verdict`; under a known sun
 the surface it lights, cast shadows included, against the image's: :func:`sunlit_mask`,
 :func:`sunlit_agreement`), and how far its
 edges lie from the image's (:func:`edge_distances_px`, the check of a track on real video). The edge trackers follow the object with it; the CNN regressor
@@ -14,6 +15,7 @@ from .fit import (
     fit_edges,
     fit_from_proposals,
     honest_quality,
+    quality_verdict,
     search_edges,
     to_gray,
 )
@@ -21,9 +23,9 @@ from .image_distance import edge_distances_px
 from .model_view import EdgeSamples, ModelView
 from .pyramid import coarse_to_fine, projected_diagonal_px
 from .shadows import sunlit_agreement, sunlit_mask
-from .silhouette import explained_lit_share
+from .silhouette import explained_lit_share, lit_verdict
 
 __all__ = ["EdgeFit", "EdgeSamples", "ModelView", "coarse_to_fine", "edge_distances_px", "explained_edge_share",
-           "explained_lit_share",
-           "fit_edges", "fit_from_proposals", "honest_quality", "projected_diagonal_px", "search_edges",
+           "explained_lit_share", "fit_edges", "fit_from_proposals", "honest_quality", "lit_verdict",
+           "projected_diagonal_px", "quality_verdict", "search_edges",
            "sunlit_agreement", "sunlit_mask", "to_gray"]

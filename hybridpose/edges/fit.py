@@ -20,6 +20,7 @@ its rim a single line: the quality collapses.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -29,7 +30,7 @@ from ..geometry import Pose, line_jacobian
 from . import _kernels
 from .model_view import EdgeSamples, ModelView, thin
 from .shadows import sunlit_agreement
-from .silhouette import LIT_PIXEL_GREY, explained_lit_share
+from .silhouette import LIT_PIXEL_GREY, lit_verdict
 
 MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
@@ -355,6 +356,14 @@ SUNLIT_SLOPE = 25.0
 SUNLIT_FROM = 0.5  # a fit already lost (edge trackers' lost_quality) skips the term: it changes nothing there
 
 
+class QualityVerdict(NamedTuple):
+    """:func:`quality_verdict`'s answer: the honest ``quality`` (0..1) and whether something lit
+    stood ``beside`` the object at the fitted pose (:func:`~hybridpose.edges.silhouette.lit_verdict`)."""
+
+    quality: float
+    beside: bool
+
+
 def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None,
                    sunlit: bool = False) -> float:
     """A tracker's quality from its final ``fit`` in ``frame``, never above the fit's own:
@@ -367,19 +376,26 @@ def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray
     ``precision`` the share of the surface the pose predicts sunlit that is lit in the image
     (:func:`~hybridpose.edges.shadows.sunlit_agreement`; 0.5 at 98 %), where the quality is at
     least ``SUNLIT_FROM`` before it. A term without a verdict (NaN) is left out."""
+    return quality_verdict(view, frame, fit, gray, sunlit).quality
+
+
+def quality_verdict(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None,
+                    sunlit: bool = False) -> QualityVerdict:
+    """:func:`honest_quality` (same arguments), with whether something lit stood beside the object
+    (its lit term's ring: an arm in front on black space, or a lit background)."""
     quality = fit.quality
     ids = view.facet_ids(fit.pose, frame.camera)  # one raster of the fitted pose for every term
     explained = explained_edge_share(view, frame, fit.pose, gray, ids)
     if np.isfinite(explained):
         quality = min(quality, 2.0 * explained - 1.0)
-    lit = explained_lit_share(view, frame, fit.pose, gray, ids)
+    lit, beside = lit_verdict(view, frame, fit.pose, gray, ids)
     if np.isfinite(lit):
         quality = min(quality, 1.0 - LIT_SLOPE * (1.0 - lit))
         if sunlit and frame.sun_direction_cam is not None and quality >= SUNLIT_FROM:
             precision = sunlit_agreement(view, frame, fit.pose, gray, ids)[0]
             if np.isfinite(precision):
                 quality = min(quality, 1.0 - SUNLIT_SLOPE * (1.0 - precision))
-    return float(max(0.0, quality))
+    return QualityVerdict(float(max(0.0, quality)), beside)
 
 
 def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray | None = None,

@@ -9,6 +9,8 @@ edge visibility already uses.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -25,6 +27,14 @@ DARK_RING_SHARE = 0.1  # a ring more lit than this is a lit background or an occ
 MIN_SILHOUETTE_PX = 20  # silhouettes smaller than this (at the raster's scale) give no verdict
 
 
+class LitVerdict(NamedTuple):
+    """:func:`lit_verdict`'s answer: ``share`` of the lit pixels near the silhouette it explains (NaN:
+    no verdict) and whether something lit stands ``beside`` the object (its ring is lit)."""
+
+    share: float
+    beside: bool
+
+
 def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
                         ids: np.ndarray | None = None) -> float:
     """Share (0..1) of the lit pixels within ``BAND_PX`` beyond the slack of the object's projected
@@ -38,11 +48,19 @@ def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndar
         gray: (H, W) float32 grey image of ``frame`` (made here when None). ids: the view's
             :meth:`~ModelView.facet_ids` of ``pose`` (rendered here when None).
     """
+    return lit_verdict(view, frame, pose, gray, ids).share
+
+
+def lit_verdict(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
+                ids: np.ndarray | None = None) -> LitVerdict:
+    """:func:`explained_lit_share` (same arguments), with whether the ring beyond the band is lit
+    (more than ``DARK_RING_SHARE`` of it): something lit beside the object's silhouette — on black
+    space, an occluder such as the arm; on a photo or the Earth, the background itself."""
     cam = frame.camera
     ids = view.facet_ids(pose, cam) if ids is None else ids  # at ID_SCALE of the frame
     mask = (ids > 0).astype(np.uint8)
     if int(mask.sum()) < MIN_SILHOUETTE_PX:
-        return float("nan")
+        return LitVerdict(float("nan"), False)
     x, y, w, h = cv2.boundingRect(mask)
     # a pose a degree off moves the silhouette's far end by more pixels the larger it appears
     slack = max(SLACK_PX, SLACK_SHARE * float(np.hypot(w, h)) / ID_SCALE)
@@ -62,8 +80,8 @@ def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndar
     explained, band, outer = grown(slack), grown(BAND_PX + slack), grown(BAND_PX + slack + RING_PX)
     ring = outer & ~band
     if ring.any() and float(lit[ring].mean()) > DARK_RING_SHARE:
-        return float("nan")
+        return LitVerdict(float("nan"), True)
     n = int((lit & band).sum())
     if n == 0:
-        return float("nan")
-    return float((lit & explained).sum()) / n
+        return LitVerdict(float("nan"), False)
+    return LitVerdict(float((lit & explained).sum()) / n, False)

@@ -26,7 +26,12 @@ class Tracker(ABC):
         lost_quality: ``track`` reports ``lost`` when its quality falls below this (per-backend
             default, documented by each backend; measured by ``hybridpose bench --modes tracker``).
 
-    Subclasses implement :meth:`_init` and :meth:`_track`.
+    Attributes:
+        covered: whether the last ``track`` call saw the object partly covered — something lit came
+            to stand beside it where the track had dark space around it (on black space, only an
+            occluder such as the arm does that). A backend that cannot tell leaves it False.
+
+    Subclasses implement :meth:`_init` and :meth:`_track` (and set ``covered`` there if they can tell).
     """
 
     name = "tracker"
@@ -41,6 +46,7 @@ class Tracker(ABC):
             raise ValueError(f"lost_quality: expected a value in [0, 1], got {lost_quality}")
         self.pose: Pose | None = None
         self.frame: Frame | None = None
+        self.covered = False
 
     # --- public API --------------------------------------------------------------------------------
     def init(self, frame: Frame, pose: Pose) -> None:
@@ -51,7 +57,7 @@ class Tracker(ABC):
         self.pose, self.frame = pose, frame
 
     def track(self, frame: Frame, prior: Pose | None = None, search_px: float | None = None,
-              lost_quality: float | None = None) -> Measurement:
+              lost_quality: float | None = None, covered_lost_quality: float | None = None) -> Measurement:
         """Pose in ``frame``, searched around ``prior`` (default: the last pose).
 
         ``search_px``: how far (pixels) the object may lie from its projection at ``prior`` when that
@@ -60,7 +66,9 @@ class Tracker(ABC):
 
         ``lost_quality``: this call's threshold in place of the backend's own (0..1): a caller that
         knows more, such as an estimator holding a long, consistent track through a partial
-        occlusion, may accept a lower quality.
+        occlusion, may accept a lower quality. ``covered_lost_quality``: the threshold instead where
+        the backend sees the object partly covered (:attr:`covered`): an occluder hides model edges
+        and adds edges the model does not explain, so a right fit scores lower.
 
         Returns a :class:`Measurement` with quality in 0..1. When quality falls below
         ``lost_quality`` or the solve fails, ``lost`` is True and ``pose`` is None (the contract of
@@ -77,9 +85,11 @@ class Tracker(ABC):
             self._check_pose(prior, "prior")
         if search_px is not None and not (np.isfinite(search_px) and search_px > 0):
             raise ValueError(f"search_px: expected a positive number of pixels or None, got {search_px}")
-        if lost_quality is not None and not 0.0 <= lost_quality <= 1.0:
-            raise ValueError(f"lost_quality: expected a quality in [0, 1] or None, got {lost_quality}")
+        for name, value in (("lost_quality", lost_quality), ("covered_lost_quality", covered_lost_quality)):
+            if value is not None and not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name}: expected a quality in [0, 1] or None, got {value}")
         threshold = self.lost_quality if lost_quality is None else float(lost_quality)
+        self.covered = False
         try:
             if search_px is None:
                 pose, cov, quality = self._track(frame, start)
@@ -91,6 +101,8 @@ class Tracker(ABC):
         if not finite or pose.t[2] <= MIN_DEPTH_M:
             pose, quality = None, 0.0
         quality = float(np.clip(quality, 0.0, 1.0))
+        if covered_lost_quality is not None and self.covered:
+            threshold = float(covered_lost_quality)
         if pose is None or quality < threshold:
             m = Measurement(pose=None, covariance=LOST_COVARIANCE, quality=quality, source=f"tracker:{self.name}",
                             timestamp=frame.timestamp, lost=True)
@@ -103,6 +115,7 @@ class Tracker(ABC):
     def reset(self) -> None:
         """Forget the object (``track`` needs a new ``init``)."""
         self.pose, self.frame = None, None
+        self.covered = False
 
     # --- for subclasses -------------------------------------------------------------------------
     @abstractmethod

@@ -5,7 +5,9 @@ is the fit's, capped by how much of the image's edges and, on a dark background,
 the model explains (:func:`hybridpose.edges.honest_quality`); under a known sun, the first fits after
 an init and every start searched wider than frame to frame must also match the sunlit surface their
 pose predicts, cast shadows included (``VERIFIED_FITS``). Below ``lost_quality`` (default 0.5) →
-``lost``. A fit that comes out lost on an object filling the view is tried again from edge fits on
+``lost``. Where something lit comes to stand beside the object after the track had dark space around
+it — on black space, the arm passing in front — the tracker reports the object ``covered`` (a
+caller may then accept a lower quality: ``track(..., covered_lost_quality=)``). A fit that comes out lost on an object filling the view is tried again from edge fits on
 the shrunk frame (:func:`hybridpose.edges.coarse_to_fine`).
 """
 from __future__ import annotations
@@ -17,8 +19,8 @@ from ..edges import (
     ModelView,
     coarse_to_fine,
     fit_edges,
-    honest_quality,
     projected_diagonal_px,
+    quality_verdict,
     to_gray,
 )
 from ..edges.fit import TRACKING_POLISH, check_polish
@@ -80,11 +82,13 @@ class EdgeTracker(Tracker):
             raise ValueError(f"search_px: expected ≥ 1 pixel, got {search_px}")
         self.view = ModelView(object)
         self._unverified = 0  # fits left that must match the sunlit surface too (VERIFIED_FITS after init)
+        self._dark_around = False  # whether this track has seen dark space around the object
         self.explain = bool(explain)
         self.search_px, self.max_samples, self.covariance_scale = int(search_px), int(max_samples), float(covariance_scale)
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         self._unverified = VERIFIED_FITS
+        self._dark_around = False
         if self._fit(frame, pose, outer=1) is None:
             raise ValueError(
                 f"pose: fewer than 6 model edges of {self.object.name!r} match image edges at the initial pose "
@@ -99,18 +103,23 @@ class EdgeTracker(Tracker):
     def reset(self) -> None:
         super().reset()
         self._unverified = 0
+        self._dark_around = False
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray = to_gray(frame.image)  # one conversion for the fits and their qualities
         verify = self._unverified > 0 or (search_px is not None and search_px > self.search_px)
         self._unverified = max(0, self._unverified - 1)
-        pose, cov, quality = self._fit_once(frame, start, gray, search_px, verify)
+        pose, cov, quality, beside = self._fit_once(frame, start, gray, search_px, verify)
         if (quality < self.lost_quality and self.coarse_min_px > 0
                 and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
             # an object this large may lie beyond any full-resolution search: fit the shrunk frames first
             coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), gray, search_px, verify)
             if coarse[2] > quality:
-                return coarse
+                pose, cov, quality, beside = coarse
+        # something lit beside the object where the track saw dark space: an occluder came in (a lit
+        # background, the Earth or a photo, is lit from the start and never counts)
+        self.covered = beside and self._dark_around
+        self._dark_around = self._dark_around or (pose is not None and not beside)
         return pose, cov, quality
 
     def _fit_once(self, frame: Frame, start: Pose, gray: np.ndarray, search_px: int | None = None,
@@ -119,9 +128,11 @@ class EdgeTracker(Tracker):
         extra = 0 if search_px is None else max(0, int(np.ceil(np.log2(search_px / self.search_px))))
         fit = self._fit(frame, start, outer=3 + extra, gray=gray, search_px=search_px)
         if fit is None:
-            return None, None, 0.0
-        quality = honest_quality(self.view, frame, fit, gray, sunlit=verify) if self.explain else fit.quality
-        return fit.pose, fit.covariance, quality
+            return None, None, 0.0, False
+        if not self.explain:
+            return fit.pose, fit.covariance, fit.quality, False
+        verdict = quality_verdict(self.view, frame, fit, gray, sunlit=verify)
+        return fit.pose, fit.covariance, verdict.quality, verdict.beside
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):
         return self._track(frame, start, search_px=max(self.search_px, int(np.ceil(search_px))))

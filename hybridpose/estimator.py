@@ -12,9 +12,10 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
   error), confirms it (not lost); the tracker's fit starts the fusion.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
-  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_quality``, and to
-  ``keep_covered_quality`` where the tracker sees the object covered: an arm covering half the
-  object lowers a right fit's quality under the tracker's own threshold). Every
+  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality``
+  where the tracker sees the object covered, or, for a tracker that cannot tell, down to
+  ``keep_quality``: an arm covering half the object lowers a right fit's quality under the
+  tracker's own threshold). Every
   ``check_period`` frames the CNN runs on a crop around the predicted projection, and the tracker
   fits the edges from the CNN pose too. The check disagrees when the CNN pose is far from the fused
   one (``disagreement_chi2`` with both covariances; optionally ``disagreement_deg`` apart whatever
@@ -124,7 +125,7 @@ class HybridEstimator:
         except (TypeError, ValueError):
             params = {}
         self._widens, self._keeps = "search_px" in params, "lost_quality" in params
-        self._covers = "covered_lost_quality" in params
+        self._covers = "covered_lost_quality" in params and bool(getattr(tracker, "tells_covered", False))
         self.regressor_calls = 0  # since construction: the CNN's share of the work
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.reset()
@@ -404,17 +405,21 @@ class HybridEstimator:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
 
     def _keep_quality(self) -> tuple[float | None, float | None]:
-        """The tracker's lost thresholds for the next frame-to-frame fit, (in general, where the
-        tracker sees the object covered): ``keep_quality`` (never above the tracker's own) and
-        ``keep_covered_quality`` (never above that) once the track has run ``keep_after`` frames
-        since its start, where the tracker takes them per call; else None (the tracker's own)."""
-        keep = self.config.keep_quality
-        if not self._keeps or keep is None or self._n.since_start < self.config.keep_after:
+        """The tracker's lost thresholds for the next frame-to-frame fit (in general, where it sees
+        the object covered), once the track has run ``keep_after`` frames since its start and where
+        the tracker takes them per call; else None (the tracker's own). A tracker that tells when the
+        object is covered (``tells_covered``) keeps its own threshold in general and gets
+        ``keep_covered_quality`` where covered; any other gets ``keep_quality``; neither above its own."""
+        if not self._keeps or self._n.since_start < self.config.keep_after:
             return None, None
         own = getattr(self.tracker, "lost_quality", None)
-        keep = keep if own is None else min(keep, float(own))
-        covered = self.config.keep_covered_quality
-        return keep, (min(covered, keep) if covered is not None and self._covers else None)
+
+        def capped(q: float | None) -> float | None:
+            return q if q is None or own is None else min(q, float(own))
+
+        if self._covers:
+            return None, capped(self.config.keep_covered_quality)
+        return capped(self.config.keep_quality), None
 
     def _cnn_search_px(self) -> float | None:
         """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` where the tracker can widen

@@ -79,17 +79,17 @@ class HybridConfig:
             (``edges``) asks the fit to match the sunlit surface its pose predicts — without that
             check, where the sun lights only slivers of the object, a pose 15° off explained them as
             well as the right one and starts settled on it.
-        keep_quality, keep_after: once a track has run ``keep_after`` frames since its (re)start, the
-            tracker's frame-to-frame fit counts as lost only below ``keep_quality`` (never above the
-            tracker's own threshold; where the tracker takes one per call, ``track(...,
-            lost_quality=)``). An arm covering half the object lowers the honest quality of a right
-            fit to 0.45–0.5, under the edge trackers' 0.5; starts, checks and resumes keep the
-            tracker's own threshold (a young track may be a wrong start). None: off.
-        keep_covered_quality: the same, where the tracker sees the object partly covered (its
-            ``covered``: on black space, something lit came in beside the object — the arm) and
-            takes the threshold per call (``track(..., covered_lost_quality=)``): with 40–50 % of
-            the truss behind the arm, right fits score 0.3–0.4. Never above ``keep_quality``;
-            None: ``keep_quality`` there too.
+        keep_covered_quality, keep_after: once a track has run ``keep_after`` frames since its
+            (re)start, a tracker that tells when the object is covered (``tells_covered``: on black
+            space, something lit came in beside the object — the arm; ``track(...,
+            covered_lost_quality=)``) counts its frame-to-frame fit lost only below
+            ``keep_covered_quality`` where it sees the object covered, and below its own threshold
+            elsewhere. With 40–50 % of the truss behind the arm a right fit's honest quality is
+            0.26–0.4, under the edge trackers' 0.5; starts, checks and resumes keep the tracker's own
+            threshold (a young track may be a wrong start). Never above the tracker's own; None: off.
+        keep_quality: the same for a tracker that takes a threshold per call (``track(...,
+            lost_quality=)``) but cannot tell when the object is covered: its fits count as lost only
+            below this, covered or not (never above its own threshold; None: off).
         restart_unconfirmed: when checks disagree with the track and the tracker started from the
             CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
             lost until the CNN and the edges agree again (False: such restarts were wrong in every

@@ -72,9 +72,20 @@ def test_something_lit_beside_the_object_is_seen(view, views, truss):
     assert covered.beside and np.isnan(covered.share)  # no lit-pixel verdict beside an occluder
 
 
-def test_the_edges_tracker_sees_an_arm_come_in_but_not_a_lit_background(views, truss):
+TELLS_COVERED = ["edges", "klt-pnp", "rapid", "rapid-gos", "rapid-ols"]  # the edge-refining trackers
+
+
+def test_the_trackers_that_tell_covered_are_the_edge_refining_ones(truss):
+    from hybridpose.registry import available
+
+    assert [n for n in available("tracker") if create("tracker", n, object=truss).tells_covered] == TELLS_COVERED
+    assert not create("tracker", "rapid", object=truss, refine=False).tells_covered
+
+
+@pytest.mark.parametrize("name", TELLS_COVERED)
+def test_a_tracker_sees_an_arm_come_in_but_not_a_lit_background(name, views, truss):
     frame, pose = views[1]
-    trk = create("tracker", "edges", object=truss)
+    trk = create("tracker", name, object=truss)
     trk.init(frame, pose)
     assert not trk.track(frame, pose).lost and not trk.covered
     armed = with_arm(frame, pose, truss)

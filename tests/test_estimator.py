@@ -384,6 +384,7 @@ class DeeplyCoveredTracker(EdgesOnlyAtTheTruth):
     takes per-call thresholds like the library's trackers."""
 
     lost_quality = 0.5
+    tells_covered = True
 
     def __init__(self, covered, **kw):
         super().__init__(**kw)
@@ -410,7 +411,8 @@ def test_a_track_the_tracker_sees_covered_is_kept_down_to_the_covered_threshold(
                           registry.create("fusion", "ukf"), config)
     out = run(est, 35)
     assert all(e.status == "tracking" for e in out[1:]), [e.status for e in out]
-    # without the covered threshold, 0.35 is under keep_quality: lost at the first covered frame
+    # without the covered threshold, 0.35 is under the tracker's own 0.5: lost at the first covered
+    # frame (keep_quality is for trackers that cannot tell)
     est = HybridEstimator(DeeplyCoveredTracker(covered=range(20, 30)), OracleRegressor(),
                           registry.create("fusion", "ukf"), replace(config, keep_covered_quality=None))
     assert run(est, 21)[20].status == "lost"
@@ -418,11 +420,16 @@ def test_a_track_the_tracker_sees_covered_is_kept_down_to_the_covered_threshold(
     est = HybridEstimator(DeeplyCoveredTracker(covered=range(2, 6)), OracleRegressor(),
                           registry.create("fusion", "ukf"), config)
     assert run(est, 3)[2].status == "lost"
-    # never above keep_quality: a covered threshold of 0.45 is held at 0.4
+    # elsewhere the tracker's own threshold (a track sliding off at 0.45 uncovered is let go), and
+    # never more than its own where covered
     est = HybridEstimator(DeeplyCoveredTracker(covered=()), OracleRegressor(), registry.create("fusion", "ukf"),
-                          replace(config, keep_covered_quality=0.45))
-    run(est, 10)
-    assert est._keep_quality() == (0.4, 0.4)
+                          replace(config, keep_covered_quality=0.7))
+    for k in range(3):
+        est.step(frame(k))
+    assert est._keep_quality() == (None, None)  # young
+    for k in range(3, 11):
+        est.step(frame(k))
+    assert est._keep_quality() == (None, 0.5)
     with pytest.raises(ValueError, match="keep_covered_quality"):
         HybridConfig(keep_covered_quality=-0.1)
 

@@ -30,12 +30,15 @@ class Tracker(ABC):
         covered: whether the last ``track`` call saw the object partly covered — something lit came
             to stand beside it where the track had dark space around it (on black space, only an
             occluder such as the arm does that). A backend that cannot tell leaves it False.
+        tells_covered: class attribute, True for a backend that sets ``covered``.
 
-    Subclasses implement :meth:`_init` and :meth:`_track` (and set ``covered`` there if they can tell).
+    Subclasses implement :meth:`_init` and :meth:`_track`; one that can tell what stands beside the
+    object calls :meth:`_note_surround` from ``_track`` and sets ``tells_covered``.
     """
 
     name = "tracker"
     default_lost_quality = 0.3
+    tells_covered = False
 
     def __init__(self, object: ObjectModel, lost_quality: float | None = None) -> None:
         if not isinstance(object, ObjectModel):
@@ -47,12 +50,14 @@ class Tracker(ABC):
         self.pose: Pose | None = None
         self.frame: Frame | None = None
         self.covered = False
+        self._dark_around = False  # whether this track has seen dark space around the object
 
     # --- public API --------------------------------------------------------------------------------
     def init(self, frame: Frame, pose: Pose) -> None:
         """Start tracking at ``pose`` (``T_cam_obj``, metres) in ``frame``."""
         self._check_frame(frame)
         self._check_pose(pose, "pose")
+        self.covered = self._dark_around = False
         self._init(frame, pose)
         self.pose, self.frame = pose, frame
 
@@ -115,7 +120,7 @@ class Tracker(ABC):
     def reset(self) -> None:
         """Forget the object (``track`` needs a new ``init``)."""
         self.pose, self.frame = None, None
-        self.covered = False
+        self.covered = self._dark_around = False
 
     # --- for subclasses -------------------------------------------------------------------------
     @abstractmethod
@@ -125,6 +130,14 @@ class Tracker(ABC):
     @abstractmethod
     def _track(self, frame: Frame, start: Pose) -> tuple[Pose | None, np.ndarray | None, float]:
         """(pose, (6, 6) covariance over ``[ω, v]``, quality) in ``frame`` starting from ``start``."""
+
+    def _note_surround(self, lit_beside: bool) -> None:
+        """Record what the fit this ``_track`` call returns saw around the object: ``lit_beside``,
+        something lit beside it (:func:`~hybridpose.edges.quality_verdict`). Something lit where the
+        track saw dark space is an occluder that came in: ``covered``. A lit background (the Earth, a
+        photo) is lit from the start and never counts."""
+        self.covered = lit_beside and self._dark_around
+        self._dark_around = self._dark_around or not lit_beside
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float) -> tuple[Pose | None, np.ndarray | None, float]:
         """:meth:`_track` with the search reaching ``search_px`` pixels (default: the backend's own range)."""

@@ -68,6 +68,7 @@ class EdgeTracker(Tracker):
 
     name = "edges"
     default_lost_quality = 0.5
+    tells_covered = True
     reference_rate = 0.1
 
     def __init__(self, object: ObjectModel, search_px: int = 8, max_samples: int = 800,
@@ -82,13 +83,11 @@ class EdgeTracker(Tracker):
             raise ValueError(f"search_px: expected ≥ 1 pixel, got {search_px}")
         self.view = ModelView(object)
         self._unverified = 0  # fits left that must match the sunlit surface too (VERIFIED_FITS after init)
-        self._dark_around = False  # whether this track has seen dark space around the object
         self.explain = bool(explain)
         self.search_px, self.max_samples, self.covariance_scale = int(search_px), int(max_samples), float(covariance_scale)
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         self._unverified = VERIFIED_FITS
-        self._dark_around = False
         if self._fit(frame, pose, outer=1) is None:
             raise ValueError(
                 f"pose: fewer than 6 model edges of {self.object.name!r} match image edges at the initial pose "
@@ -103,7 +102,6 @@ class EdgeTracker(Tracker):
     def reset(self) -> None:
         super().reset()
         self._unverified = 0
-        self._dark_around = False
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray = to_gray(frame.image)  # one conversion for the fits and their qualities
@@ -116,10 +114,8 @@ class EdgeTracker(Tracker):
             coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), gray, search_px, verify)
             if coarse[2] > quality:
                 pose, cov, quality, beside = coarse
-        # something lit beside the object where the track saw dark space: an occluder came in (a lit
-        # background, the Earth or a photo, is lit from the start and never counts)
-        self.covered = beside and self._dark_around
-        self._dark_around = self._dark_around or (pose is not None and not beside)
+        if pose is not None:
+            self._note_surround(beside)
         return pose, cov, quality
 
     def _fit_once(self, frame: Frame, start: Pose, gray: np.ndarray, search_px: int | None = None,

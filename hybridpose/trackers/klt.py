@@ -30,7 +30,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..edges import ModelView, fit_from_proposals, honest_quality
+from ..edges import ModelView, fit_from_proposals, quality_verdict
 from ..edges.fit import TRACKING_POLISH, check_polish
 from ..geometry import projection_jacobian
 
@@ -68,6 +68,7 @@ class KltPnpTracker(Tracker):
         self.view = ModelView(object)
         self.max_features, self.min_features = int(max_features), int(min_features)
         self.fb_px, self.ransac_px, self.edge_refine = float(fb_px), float(ransac_px), bool(edge_refine)
+        self.tells_covered = self.edge_refine  # the edge fit's quality sees what stands beside the object
         self._lk = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
 
     # --- features -----------------------------------------------------------------------------------
@@ -175,7 +176,8 @@ class KltPnpTracker(Tracker):
         if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0
-        quality = honest_quality(self.view, frame, best, gray.astype(np.float32))
+        quality, beside = quality_verdict(self.view, frame, best, gray.astype(np.float32))
+        self._note_surround(beside)
         if quality >= self.lost_quality:
             self._refresh(gray, best.pose, frame, klt)
         else:

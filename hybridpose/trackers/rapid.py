@@ -35,7 +35,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..edges import ModelView, fit_from_proposals, honest_quality, to_gray
+from ..edges import ModelView, fit_from_proposals, quality_verdict, to_gray
 from ..edges.fit import TRACKING_POLISH, check_polish
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
@@ -70,6 +70,7 @@ class RapidTracker(Tracker):
             raise ValueError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
         self.polish = check_polish(POLISH[variant] if polish is None else polish)
         self.default_lost_quality = 0.5 if refine else 0.3
+        self.tells_covered = bool(refine)  # the edge fit's quality sees what stands beside the object
         super().__init__(object, lost_quality)
         if control_points < 3 or search_px < 1 or iterations < 1 or subdivide_m <= 0:
             raise ValueError("control_points ≥ 3, search_px ≥ 1, iterations ≥ 1 and subdivide_m > 0 expected, got "
@@ -119,7 +120,9 @@ class RapidTracker(Tracker):
                                   polish=self.polish)
         if best is None:
             return None, None, 0.0
-        return best.pose, best.covariance, honest_quality(self.view, frame, best, gray)
+        verdict = quality_verdict(self.view, frame, best, gray)
+        self._note_surround(verdict.beside)
+        return best.pose, best.covariance, verdict.quality
 
 
 def _factory(variant: str):

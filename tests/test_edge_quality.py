@@ -80,6 +80,7 @@ def test_the_trackers_that_tell_covered_are_the_edge_refining_ones(truss):
 
     assert [n for n in available("tracker") if create("tracker", n, object=truss).tells_covered] == TELLS_COVERED
     assert not create("tracker", "rapid", object=truss, refine=False).tells_covered
+    assert not create("tracker", "edges", object=truss, explain=False).tells_covered
 
 
 @pytest.mark.parametrize("name", TELLS_COVERED)

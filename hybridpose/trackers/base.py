@@ -30,7 +30,7 @@ class Tracker(ABC):
         covered: whether the last ``track`` call saw the object partly covered — something lit came
             to stand beside it where the track had dark space around it (on black space, only an
             occluder such as the arm does that). A backend that cannot tell leaves it False.
-        tells_covered: class attribute, True for a backend that sets ``covered``.
+        tells_covered: True for a backend (an instance, where its options decide) that sets ``covered``.
 
     Subclasses implement :meth:`_init` and :meth:`_track`; one that can tell what stands beside the
     object calls :meth:`_note_surround` from ``_track`` and sets ``tells_covered``.

@@ -84,6 +84,7 @@ class EdgeTracker(Tracker):
         self.view = ModelView(object)
         self._unverified = 0  # fits left that must match the sunlit surface too (VERIFIED_FITS after init)
         self.explain = bool(explain)
+        self.tells_covered = self.explain  # the quality's lit term sees what stands beside the object
         self.search_px, self.max_samples, self.covariance_scale = int(search_px), int(max_samples), float(covariance_scale)
 
     def _init(self, frame: Frame, pose: Pose) -> None:

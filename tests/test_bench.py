@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from hybridpose.bench.suite import REPORT_SEEDS, SMOKE_SEEDS, TUNING_SEEDS, occlusion_suite, suite
+from hybridpose.bench.suite import REPORT_SEEDS, SMOKE_SEEDS, TUNING_SEEDS, occlusion_suite, parse_seeds, suite
 from hybridpose.cli import main
 
 ROW_FIELDS = {"sequence", "mode", "tracker", "regressor", "fusion", "frames", "rot_mean_deg", "rot_median_deg",
@@ -23,6 +23,18 @@ def test_seed_splits_never_overlap_and_suites_are_what_they_say():
     assert len(occlusion_suite("report")) == 60
     with pytest.raises(ValueError, match="suite: expected one of"):
         suite("everything")
+
+
+def test_a_split_takes_more_seeds_on_its_side_of_the_line():
+    from hybridpose.bench.report import seed_ranges
+
+    assert parse_seeds("920-923,930,921") == (920, 921, 922, 923, 930)
+    assert seed_ranges(parse_seeds("920-923,930")) == "920–923, 930" and seed_ranges(REPORT_SEEDS) == "500–519"
+    extra = occlusion_suite("tuning", seeds=parse_seeds("920-979"))
+    assert len(extra) == 180 and {e.spec.seed for e in extra} == set(range(920, 980))
+    assert sum(e.spec.occlusion == "arm-partial" for e in extra) == 60
+    fresh = suite("standard", "report", seeds=parse_seeds("520-539"))
+    assert len(fresh) == 140 and not {e.spec.seed for e in fresh} & (set(REPORT_SEEDS) | set(TUNING_SEEDS))
 
 
 @pytest.fixture(scope="module")
@@ -144,6 +156,11 @@ def test_the_untimed_warm_up_changes_no_result(smoke, monkeypatch):
     (["--suite", "smoke", "--tracker-option", "max_samples=many"], "--tracker-option: max_samples: expected a number"),
     (["--suite", "smoke", "--tracker-option", "search_px=0"], "--tracker-option: edges: search_px: expected ≥ 1"),
     (["--suite", "smoke", "--sun", "maybe"], "--sun: expected known and/or unknown"),
+    (["--suite", "standard", "--seeds", "920-979"], "--seeds: [920, 921, 922, 923, 924] are tuning seeds"),
+    (["--suite", "occlusion", "--split", "tuning", "--seeds", "500-505"], "--seeds: the tuning split's seeds lie in"),
+    (["--suite", "smoke", "--seeds", "520-530"], "--seeds: the smoke suite has its own seeds"),
+    (["--suite", "standard", "--seeds", "nine"], "--seeds: expected seeds like 920-979"),
+    (["--data", "x", "--seeds", "520-530"], "--seeds: only with --suite"),
 ])
 def test_bad_names_are_refused_before_any_work(args, message, tmp_path, capsys):
     assert main(["bench", *args, "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2

@@ -50,6 +50,7 @@ class BenchRequest:
     video: str | None = None
     limit: int | None = None
     cache: str = "runs/bench_cache"
+    seeds: tuple[int, ...] | None = None  # the split's seeds instead of its default twenty
 
 
 def _commit() -> str:
@@ -114,10 +115,12 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
     specs = [s if s.mode == "cnn" else replace(s, sun=value == "known") for value in suns for s in specs
              if s.mode != "cnn" or value == suns[0]]
     if req.data is not None:
+        if req.seeds is not None:
+            raise ValueError("--seeds: only with --suite (your --data sequences are what they are)")
         return specs, user_scenes(req.data), []
     if req.suite is None:
         raise ValueError("--suite or --data: say which sequences to run")
-    entries = suite(req.suite, req.split)[: req.limit]
+    entries = suite(req.suite, req.split, req.seeds)[: req.limit]
     return specs, None, entries
 
 
@@ -227,7 +230,7 @@ def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Calla
     t0 = time.time()
     stats: dict = {}
     rows = run_all(scenes, specs, out=out, workers=req.workers, ray_address=req.ray, progress=progress, stats=stats)
-    seeds = None if req.data else list(TUNING_SEEDS if req.split == "tuning" else REPORT_SEEDS)
+    seeds = None if req.data else list(req.seeds or (TUNING_SEEDS if req.split == "tuning" else REPORT_SEEDS))
     result = {"config": {"suite": req.suite if req.data is None else None, "data": req.data, "split": req.split,
                          "seeds": seeds, "sequences": sorted(scenes), "workers": req.workers, "ray": req.ray,
                          "runs": [s.label for s in specs], "object": req.object, "scale": req.scale,

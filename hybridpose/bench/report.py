@@ -166,6 +166,17 @@ def kind_of(sequence: str) -> str:
     return sequence.rsplit("_s", 1)[0]
 
 
+def seed_ranges(seeds) -> str:
+    """``[500, 501, …, 519, 560]`` → ``"500–519, 560"``."""
+    seeds, parts = sorted(int(x) for x in seeds), []
+    for s in seeds:
+        if parts and s == parts[-1][1] + 1:
+            parts[-1][1] = s
+        else:
+            parts.append([s, s])
+    return ", ".join(f"{a}–{b}" if b > a else f"{a}" for a, b in parts)
+
+
 def report_markdown(result: dict, plots: list[str] = ()) -> str:
     """The run as a page: what ran, the table per run, the hybrid's ratios and targets, per kind of
     sequence, and the plots."""
@@ -180,7 +191,7 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
     edge_on = sorted(int(n.rsplit("_s", 1)[1]) for n in cfg["sequences"] if "edgeon" in n and "_s" in n)
     what = (f"Sequences from `{cfg['data']}` ({len(cfg['sequences'])}), object `{cfg.get('object')}`" if cfg.get("data")
             else f"Suite `{cfg['suite']}`, split `{cfg['split']}` ({len(cfg['sequences'])} sequences"
-            + (f", seeds {seeds[0]}–{seeds[-1]}" if seeds else "")
+            + (f", seeds {seed_ranges(seeds)}" if seeds else "")
             + (f"; edge-on tumbles: seeds {edge_on[0]}–{edge_on[-1]}" if edge_on else "") + ")")
     lines = [
         what + f", commit `{result['commit']}`, "

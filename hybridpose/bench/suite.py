@@ -28,6 +28,8 @@ OCCLUSION_KINDS = ("arm-partial", "arm-full", "arm-long")
 # 900–909) and seeds only ever used for reporting
 TUNING_SEEDS = tuple(range(900, 920))
 REPORT_SEEDS = tuple(range(500, 520))
+# seeds a caller may add to the tuning split (``--seeds``); the report split never takes one of them
+TUNING_SEED_RANGE = range(900, 1000)
 SMOKE_SEEDS = (950,)
 # the edge-on kind draws its seeds from these pools, keeping those whose first view is near edge-on
 EDGE_ON_POOLS = {"report": range(2000, 3000), "tuning": range(5000, 6000), "smoke": range(7000, 7100)}
@@ -46,26 +48,62 @@ class SuiteEntry:
     split: str  # "tuning" | "report" | "smoke"
 
 
-def _seeds(split: str) -> tuple[int, ...]:
-    seeds = {"report": REPORT_SEEDS, "tuning": TUNING_SEEDS, "smoke": SMOKE_SEEDS}
-    if split not in seeds:
-        raise ValueError(f"split: expected one of {sorted(seeds)}, got {split!r}")
-    return seeds[split]
+def _seeds(split: str, seeds=None) -> tuple[int, ...]:
+    defaults = {"report": REPORT_SEEDS, "tuning": TUNING_SEEDS, "smoke": SMOKE_SEEDS}
+    if split not in defaults:
+        raise ValueError(f"split: expected one of {sorted(defaults)}, got {split!r}")
+    return defaults[split] if seeds is None else check_seeds(seeds, split)
 
 
-def occlusion_suite(split: str = "report", frames: int = 60, fps: float = 30.0) -> list[SuiteEntry]:
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``"920-979"``, ``"501,507"`` or both (``"520-539,560"``) → the seeds, in order, without repeats."""
+    out: list[int] = []
+    try:
+        for part in str(text).split(","):
+            part = part.strip()
+            lo, _, hi = part.partition("-")
+            first, last = int(lo), int(hi) if hi else int(lo)
+            if last < first:
+                raise ValueError
+            out += [s for s in range(first, last + 1) if s not in out]
+    except ValueError:
+        raise ValueError(f"--seeds: expected seeds like 920-979 or 501,507, got {text!r}") from None
+    return tuple(out)
+
+
+def check_seeds(seeds, split: str) -> tuple[int, ...]:
+    """``seeds`` for ``split`` in place of its default twenty: tuning seeds lie in
+    :data:`TUNING_SEED_RANGE` and report seeds outside it, so that no figure is reported on a seed
+    that tuned anything. ValueError naming ``--seeds`` otherwise."""
+    if split not in ("tuning", "report"):
+        raise ValueError(f"--seeds: only the tuning and report splits take seeds, not {split!r}")
+    seeds = tuple(int(s) for s in seeds)
+    if not seeds or min(seeds) < 0:
+        raise ValueError(f"--seeds: expected one or more seeds ≥ 0, got {seeds}")
+    tuning = [s for s in seeds if s in TUNING_SEED_RANGE]
+    if split == "tuning" and len(tuning) < len(seeds):
+        raise ValueError(f"--seeds: the tuning split's seeds lie in {TUNING_SEED_RANGE.start}–"
+                         f"{TUNING_SEED_RANGE.stop - 1}; {sorted(set(seeds) - set(tuning))[:5]} do not")
+    if split == "report" and tuning:
+        raise ValueError(f"--seeds: {tuning[:5]} are tuning seeds ({TUNING_SEED_RANGE.start}–"
+                         f"{TUNING_SEED_RANGE.stop - 1}); report figures come from seeds nothing was tuned on")
+    return seeds
+
+
+def occlusion_suite(split: str = "report", frames: int = 60, fps: float = 30.0, seeds=None) -> list[SuiteEntry]:
     """Arm-occlusion sequences: tumble, fly-around and approach, each seed with one of a partial, a full
     and a long occlusion (seed mod 3), ``frames`` frames at ``fps``.
 
     Args:
-        split: ``"report"`` (20 seeds per trajectory), ``"tuning"`` (10 seeds per trajectory, disjoint
+        split: ``"report"`` (20 seeds per trajectory), ``"tuning"`` (20 seeds per trajectory, disjoint
             from the report seeds) or ``"smoke"`` (one seed).
+        seeds: the split's seeds instead of its default ones (:func:`check_seeds`).
     """
     if frames < 10:
         raise ValueError(f"frames: expected at least 10 (an occlusion needs room to start and end), got {frames}")
     entries = []
     for traj in OCCLUSION_TRAJECTORIES:
-        for seed in _seeds(split):
+        for seed in _seeds(split, seeds):
             occ = OCCLUSION_KINDS[seed % len(OCCLUSION_KINDS)]
             spec = SequenceSpec(trajectory=traj, frames=frames, fps=fps, occlusion=occ, seed=seed)
             entries.append(SuiteEntry(f"{traj}_{occ}_s{seed}", spec, split))
@@ -89,10 +127,11 @@ def edge_on_seeds(split: str, count: int, frames: int = 60, fps: float = 30.0) -
     raise RuntimeError(f"only {len(out)} edge-on starts in the {split} pool; widen EDGE_ON_POOLS")
 
 
-def standard_suite(split: str = "report", frames: int = 60, fps: float = 30.0) -> list[SuiteEntry]:
-    """:func:`occlusion_suite` plus distance sweep, eclipse, fast tumble and edge-on starts (no arm)."""
-    seeds = _seeds(split)
-    entries = occlusion_suite(split, frames, fps)
+def standard_suite(split: str = "report", frames: int = 60, fps: float = 30.0, seeds=None) -> list[SuiteEntry]:
+    """:func:`occlusion_suite` plus distance sweep, eclipse, fast tumble and edge-on starts (no arm);
+    ``seeds`` as there (the edge-on kind then takes as many of its split's pool)."""
+    seeds = _seeds(split, seeds)
+    entries = occlusion_suite(split, frames, fps, seeds)
     for seed in seeds:
         entries.append(SuiteEntry(f"distance-sweep_none_s{seed}",
                                   SequenceSpec("distance-sweep", frames=frames, fps=fps, seed=seed), split))
@@ -120,15 +159,18 @@ def smoke_suite(frames: int = 12) -> list[SuiteEntry]:
     ]
 
 
-def suite(name: str, split: str = "report") -> list[SuiteEntry]:
-    """The named suite (:data:`SUITES`) on ``split`` (:data:`SPLITS`; ignored by ``smoke``)."""
+def suite(name: str, split: str = "report", seeds=None) -> list[SuiteEntry]:
+    """The named suite (:data:`SUITES`) on ``split`` (:data:`SPLITS`; ignored by ``smoke``), on
+    ``seeds`` instead of the split's default ones where given (:func:`check_seeds`)."""
     if name not in SUITES:
         raise ValueError(f"suite: expected one of {', '.join(SUITES)}, got {name!r}")
     if split not in SPLITS:
         raise ValueError(f"split: expected one of {', '.join(SPLITS)}, got {split!r}")
     if name == "smoke":
+        if seeds is not None:
+            raise ValueError("--seeds: the smoke suite has its own seeds; use --suite standard or occlusion")
         return smoke_suite()
-    return standard_suite(split) if name == "standard" else occlusion_suite(split)
+    return standard_suite(split, seeds=seeds) if name == "standard" else occlusion_suite(split, seeds=seeds)
 
 
 def render_suite(entries: list[SuiteEntry], root, camera: Camera | None = None, object_name: str = "truss",

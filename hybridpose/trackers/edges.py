@@ -68,7 +68,6 @@ class EdgeTracker(Tracker):
 
     name = "edges"
     default_lost_quality = 0.5
-    tells_covered = True
     reference_rate = 0.1
 
     def __init__(self, object: ObjectModel, search_px: int = 8, max_samples: int = 800,

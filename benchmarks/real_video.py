@@ -7,8 +7,10 @@ initial pose ``cube.0.pos`` that ViSP's tracker tutorials use), from Debian's / 
     apt-get download visp-images-data && dpkg -x visp-images-data_*.deb visp
     python benchmarks/real_video.py --visp-images /usr/share/visp-images-data/ViSP-images
     # cam.json: {"width": 640, "height": 480, "fx": px, "fy": py, "cx": u0, "cy": v0} of mbt/cube.xml
-    hybridpose fit DIR/mbt/cube.cao --camera cam.json --budget 40m --backgrounds PHOTOS --out runs/visp_cube
-    python benchmarks/real_video.py --visp-images DIR --regressor runs/visp_cube/best.pt   # + the hybrid
+    # PHOTOS: scikit-image's sample photos (benchmarks/own_object.py, training_photos)
+    hybridpose fit DIR/mbt/cube.cao --camera cam.json --budget 40m --backgrounds PHOTOS --textured-share 0.5 --out runs/visp_cube
+    python benchmarks/real_video.py --visp-images DIR --regressor runs/visp_cube/best.pt   # + the hybrid and the
+        # fitted CNN alone on every 6th frame (from the whole frame, and given the cube's box)
 
 Where the package also holds ViSP's castle sequence (``mbt-depth/castel``: 30 frames of a textured
 model castle in a cluttered room, modelled only in part by ``chateau.cao``, separate faces from its
@@ -48,6 +50,7 @@ CASTLE_STRIP = (0, 10, 20, 29)
 CASTLE_EDGES = {"explain": False, "lost_quality": 0.45}
 CASTLE_SEARCH_PX = 16  # its initial pose lies 10–20 px off the castle: the first fit searches further
 DEFAULT_DIRS = ("/usr/share/visp-images-data/ViSP-images",)
+CNN_EVERY = 6  # the fitted CNN alone runs on every CNN_EVERY-th frame
 
 
 def find_visp_images(arg: str | None) -> Path:
@@ -107,12 +110,13 @@ def run(label: str, frames, obj, step, out: Path, strip_frames=STRIP_FRAMES) -> 
     from hybridpose.viz import draw_wireframe
 
     view = ModelView(obj)
-    medians, lost, ms, strip = [], [], [], []
+    medians, lost, ms, strip, poses = [], [], [], [], []
     for frame in frames:
         t0 = time.perf_counter()
         pose, is_lost = step(frame)
         ms.append(1000 * (time.perf_counter() - t0))
         lost.append(bool(is_lost))
+        poses.append(pose)
         d = edge_distances_px(view, frame, pose) if pose is not None else np.zeros(0)
         medians.append(float(np.median(d)) if len(d) else float("nan"))
         if frame.index in strip_frames:
@@ -131,7 +135,7 @@ def run(label: str, frames, obj, step, out: Path, strip_frames=STRIP_FRAMES) -> 
             "edge_px_p90": float(np.percentile(m[tracked], 90)) if tracked.any() else None,
             "edge_px_worst": float(np.max(m[tracked])) if tracked.any() else None,
             "ms_per_frame": float(np.mean(ms)), "edge_px_per_frame": [round(x, 3) for x in medians],
-            "lost_per_frame": lost, "strip": str(path)}
+            "lost_per_frame": lost, "strip": str(path), "poses": poses}
 
 
 def main(argv=None) -> None:
@@ -161,6 +165,7 @@ def main(argv=None) -> None:
         rows.append(run(f"{name} (raw cv2)", frames, obj,
                         tracker_step(create("tracker", name, object=obj, refine=False), pose0), out))
         print(f"{name} raw: {rows[-1]['tracked']} of {rows[-1]['frames']} frames, {rows[-1]['edge_px_median']} px", flush=True)
+    alone = cnn_alone(frames, obj, args.regressor, rows[0]) if args.regressor else None
     for fusion in (args.fusions.split(",") if args.regressor else []):
         est = HybridEstimator.from_names(object=obj, regressor=args.regressor, fusion=fusion)
 
@@ -170,7 +175,10 @@ def main(argv=None) -> None:
         rows.append(run(f"hybrid (edges + fitted CNN + {fusion}, no initial pose)", frames, obj, hybrid_step, out))
         print(f"hybrid {fusion}: {rows[-1]['tracked']} of {rows[-1]['frames']} frames", flush=True)
     pair = picture(rows, "real_video_cube.jpg")
-    payload = {"environment": environment(), "sequence": str(mbt / "cube"), "camera": camera.to_dict(), "rows": rows}
+    for r in rows:
+        r.pop("poses")
+    payload = {"environment": environment(), "sequence": str(mbt / "cube"), "camera": camera.to_dict(), "rows": rows,
+               "cnn_alone": alone}
     lines = [f"ViSP's cube sequence (`visp-images-data`, `mbt/cube`: {len(frames)} real frames, 640 × 480 grey), "
              f"commit `{payload['environment']['git']}`, one thread. Trackers alone start from `cube.0.pos` and are "
              "never re-initialised; hybrid rows get no pose at all; per frame, the median distance (px) from the "
@@ -178,11 +186,62 @@ def main(argv=None) -> None:
              *table(rows), "", f"Frames 0, 72, 145 and 217: {' (top) and '.join(r['run'] for r in pair)}"
              f"{' (bottom)' if len(pair) > 1 else ''}, green where the run trusted its pose.", "",
              "![the model at each run's pose on ViSP's cube sequence](results/real_video_cube.jpg)"]
+    if alone is not None:
+        lines += ["", *cnn_alone_lines(alone, rows[0]["run"])]
     castle_dir = root / "mbt-depth" / "castel"
     if (castle_dir / "chateau.cao").is_file():
         payload["castle"], castle_lines = castle(castle_dir, out)
         lines += ["", *castle_lines]
     publish("real_video", "real-video", payload, lines)
+
+
+def cnn_alone(frames, obj, regressor: str, reference: dict, every: int = CNN_EVERY) -> dict:
+    """The fitted CNN alone on every ``every``-th frame, against the ``reference`` run's poses (to the
+    nearest of the object's equivalent poses): from the whole frame (``"whole"``), and given the box
+    of the reference pose's projection (``"box"``: the detection's share of the misses). Each: the
+    frames in a tracker's basin (as in ``hybridpose bench``: within ``BASIN_DEG`` and ``BASIN_PCT`` %
+    of the distance), those with a pose at all, the median ms a call."""
+    from hybridpose.bench.modes import BASIN_DEG, BASIN_PCT
+    from hybridpose.metrics import nearest_equivalent, rotation_error_deg
+    from hybridpose.regressors.predictor import CheckpointRegressor
+
+    reg = CheckpointRegressor(regressor, object=obj)
+    sampled = [f for f in frames[::every]
+               if reference["poses"][f.index] is not None and not reference["lost_per_frame"][f.index]]
+    out = {"every": every, "frames": [f.index for f in sampled], "basin_deg": BASIN_DEG, "basin_pct": BASIN_PCT}
+    for key in ("whole", "box"):
+        inside, found, ms = [], 0, []
+        for frame in sampled:
+            ref = reference["poses"][frame.index]
+            roi = None
+            if key == "box":
+                x0, y0, x1, y1 = frame.camera.image_box(obj.bbox_corners, ref)
+                roi = (int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0)))
+            t0 = time.perf_counter()
+            m = reg.predict(frame, roi)
+            ms.append(1000 * (time.perf_counter() - t0))
+            if m.pose is None:
+                continue
+            found += 1
+            truth = nearest_equivalent(m.pose, ref, obj.symmetries)
+            pct = 100 * np.linalg.norm(m.pose.t - truth.t) / np.linalg.norm(ref.t)
+            if rotation_error_deg(m.pose, truth) <= BASIN_DEG and pct <= BASIN_PCT:
+                inside.append(frame.index)
+        out[key] = {"in_basin": inside, "found": found, "ms_median": float(np.median(ms))}
+    return out
+
+
+def cnn_alone_lines(alone: dict, reference: str) -> list[str]:
+    """The results page's lines for :func:`cnn_alone`."""
+    n = len(alone["frames"])
+
+    def counts(key):
+        return f"{len(alone[key]['in_basin'])} of {n} ({alone[key]['ms_median']:.0f} ms median a call)"
+
+    return [f"The fitted CNN alone, on every {alone['every']}th frame against the `{reference}` track from "
+            f"`cube.0.pos` (to the nearest of the cube's equivalent poses): within {alone['basin_deg']:g}° and "
+            f"{alone['basin_pct']:g} % of the distance (a tracker's basin) on {counts('whole')} from the whole "
+            f"frame; on {counts('box')} given the box of the cube's projection."]
 
 
 def table(rows: list[dict]) -> list[str]:
@@ -229,6 +288,7 @@ def castle(folder: Path, out: Path) -> tuple[dict, list[str]]:
         rows.append(run(f"{name} (raw cv2)", frames, obj, step_of(create("tracker", name, object=obj, refine=False)),
                         out / "castle", CASTLE_STRIP))
     for r in rows:
+        r.pop("poses")
         print(f"castle {r['run']}: {r['tracked']} of {r['frames']} frames, {r['edge_px_median']} px", flush=True)
     pair = picture(rows, "real_video_castle.jpg")
     lines = [f"ViSP's castle sequence (`mbt-depth/castel`: {len(frames)} real frames, 640 × 480 grey, hand-held "

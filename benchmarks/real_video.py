@@ -238,7 +238,7 @@ def cnn_alone_lines(alone: dict, reference: str) -> list[str]:
     def counts(key):
         return f"{len(alone[key]['in_basin'])} of {n} ({alone[key]['ms_median']:.0f} ms median a call)"
 
-    return [f"The fitted CNN alone, on every {alone['every']}th frame against the `{reference}` track from "
+    return [f"The fitted CNN alone, on one frame in {alone['every']}, against the `{reference}` track from "
             f"`cube.0.pos` (to the nearest of the cube's equivalent poses): within {alone['basin_deg']:g}° and "
             f"{alone['basin_pct']:g} % of the distance (a tracker's basin) on {counts('whole')} from the whole "
             f"frame; on {counts('box')} given the box of the cube's projection."]

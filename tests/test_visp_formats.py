@@ -194,3 +194,47 @@ def read_cao_points(text: str) -> np.ndarray:
     lines = [ln for ln in text.splitlines()[1:] if ln.strip()]
     n = int(lines[0])
     return np.array([[float(x) for x in ln.split()[:3]] for ln in lines[1:1 + n]])
+
+
+def test_the_real_video_benchmark_scores_the_cnn_alone_to_the_nearest_equivalent_pose(tmp_path, monkeypatch):
+    """The cube's CNN-alone line: a pose that is the reference turned by one of the cube's symmetries
+    counts as right, one 20° off or with no pose as a miss, from the whole frame and given the box."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    import real_video
+
+    from hybridpose.core import LOST_COVARIANCE, Frame, Measurement
+    import hybridpose.regressors.predictor as predictor
+
+    (tmp_path / "cube.cao").write_text(CUBE)
+    cube = load_object(tmp_path / "cube.cao")
+    cam = Camera.default().scaled((640, 480))
+    ref = Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.02, 0.01, 0.5])
+    frames = [Frame(np.zeros((480, 640, 3), np.uint8), cam, k / 30, k) for k in range(12)]
+    turned = ref @ cube.symmetries[0]  # the same cube, another corner at the origin
+    off = ref @ Pose.from_rotvec_t([np.radians(20), 0, 0], [0, 0, 0])
+
+    class FakeRegressor:
+        def __init__(self, path, object=None):
+            assert path == "fit.pt" and object is cube
+
+        def predict(self, frame, roi=None):
+            if roi is not None:  # given the box: right, but for frame 6
+                x, y, w, h = roi
+                u, v = cam.project(cube.bbox_corners, ref).T
+                assert x <= u.min() + 1 and y <= v.min() + 1 and x + w >= u.max() - 1 and y + h >= v.max() - 1
+                return Measurement(off if frame.index == 6 else ref, np.eye(6), 1.0, "cnn", frame.timestamp)
+            if frame.index == 6:
+                return Measurement(None, LOST_COVARIANCE, 0.0, "cnn", frame.timestamp, lost=True)
+            return Measurement(turned if frame.index == 0 else off, np.eye(6), 1.0, "cnn", frame.timestamp)
+
+    monkeypatch.setattr(predictor, "CheckpointRegressor", FakeRegressor)
+    reference = {"poses": [ref] * 12, "lost_per_frame": [k == 9 for k in range(12)]}
+    alone = real_video.cnn_alone(frames, cube, "fit.pt", reference, every=3)
+    assert alone["frames"] == [0, 3, 6]  # frame 9 was sampled too, but the reference lost it
+    assert alone["whole"]["in_basin"] == [0] and alone["whole"]["found"] == 2
+    assert alone["box"]["in_basin"] == [0, 3] and alone["box"]["found"] == 3
+    line = real_video.cnn_alone_lines(alone, "edges")[0]
+    assert "one frame in 3" in line and "on 1 of 3 (" in line and "on 2 of 3 (" in line

@@ -213,10 +213,9 @@ def cnn_alone(frames, obj, regressor: str, reference: dict, every: int = CNN_EVE
         inside, found, ms = [], 0, []
         for frame in sampled:
             ref = reference["poses"][frame.index]
-            roi = None
-            if key == "box":
-                x0, y0, x1, y1 = frame.camera.image_box(obj.bbox_corners, ref)
-                roi = (int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0)))
+            box = frame.camera.image_box(obj.bbox_corners, ref) if key == "box" else None
+            roi = None if box is None else (int(box[0]), int(box[1]), int(np.ceil(box[2] - box[0])),
+                                            int(np.ceil(box[3] - box[1])))
             t0 = time.perf_counter()
             m = reg.predict(frame, roi)
             ms.append(1000 * (time.perf_counter() - t0))

@@ -5,7 +5,9 @@ import pytest
 
 from hybridpose.core import Frame
 from hybridpose.edges import ModelView, explained_edge_share, explained_lit_share, lit_verdict
-from hybridpose.geometry import Pose
+from hybridpose.edges.silhouette import occluder_mask
+from hybridpose.geometry import Camera, Pose
+from hybridpose.metrics import rotation_error_deg
 from hybridpose.registry import create
 from hybridpose.render import Renderer, random_poses
 
@@ -68,8 +70,22 @@ def test_something_lit_beside_the_object_is_seen(view, views, truss):
     frame, pose = views[1]
     clear = lit_verdict(view, frame, pose)
     assert not clear.beside and clear.share >= 0.99
-    covered = lit_verdict(view, with_arm(frame, pose, truss), pose)
-    assert covered.beside and np.isnan(covered.share)  # no lit-pixel verdict beside an occluder
+    assert lit_verdict(view, frame, pose, dark_surround=True) == clear
+    armed = with_arm(frame, pose, truss)
+    covered = lit_verdict(view, armed, pose)
+    assert covered.beside and np.isnan(covered.share)  # no lit-pixel verdict beside an unknown lit thing
+
+
+def test_the_occluder_is_the_broad_lit_part_off_the_object():
+    lit = np.zeros((200, 200), bool)
+    lit[20:180, 120:190] = True  # a broad plate
+    lit[95:102, 10:110] = True  # a beam 7 px wide off the projected silhouette
+    off = np.ones(lit.shape, bool)
+    mask = occluder_mask(lit, off, float(np.hypot(200, 200)))
+    assert mask[100, 150] and mask[100, 118]  # the plate, grown to take in its outline
+    assert not mask[98, 50]  # the beam is the object's to explain
+    off[20:180, 120:190] = False  # on the object's projected silhouette nothing is an occluder
+    assert not occluder_mask(lit, off, float(np.hypot(200, 200)))[100, 160]
 
 
 TELLS_COVERED = ["edges", "klt-pnp", "rapid", "rapid-gos", "rapid-ols"]  # the edge-refining trackers
@@ -102,3 +118,60 @@ def test_a_tracker_sees_an_arm_come_in_but_not_a_lit_background(name, views, tru
     assert not trk.covered
     with pytest.raises(ValueError, match="covered_lost_quality"):
         trk.track(frame, pose, covered_lost_quality=1.5)
+
+
+@pytest.fixture(scope="module")
+def half_covered(truss):
+    """A slow tumble that the arm passes half in front of (2 s at 10 fps, seed 5: 44–55 % visible)."""
+    from hybridpose.render.sequences import SequenceSpec, make_sequence
+
+    camera = Camera.default()
+    spec = SequenceSpec("tumble", frames=20, fps=10, occlusion="arm-partial", seed=5)
+    out = []
+    with Renderer(truss, camera) as r:
+        for f in make_sequence(spec, truss, camera):
+            res = r.render(f.pose, arm=f.arm, sun_scale=f.sun_scale, rng=spec.seed * 1000 + f.index)
+            out.append((Frame(res.rgb, camera, f.timestamp, f.index), f.pose, res.visible_fraction))
+    return out
+
+
+def test_the_arms_edges_are_left_out_where_the_object_was_on_dark_space(view, half_covered):
+    at_truth, blind, wrong = [], [], []
+    for frame, pose, visible in half_covered:
+        if visible < 0.9:
+            at_truth.append(explained_edge_share(view, frame, pose, occluder=True))
+            blind.append(explained_edge_share(view, frame, pose))
+            wrong.append(explained_edge_share(view, frame, off(pose, OFF_DEG, frame.index), occluder=True))
+    # the arm's outline is no part of the truss for any pose to explain...
+    assert len(at_truth) >= 4 and np.median(at_truth) > np.median(blind) + 0.1, (at_truth, blind)
+    # ...while a pose 5° off still leaves the truss's own beams unexplained
+    assert np.median(wrong) < np.median(at_truth) - 0.2, (at_truth, wrong)
+
+
+def test_the_edges_tracker_holds_the_truss_half_behind_the_arm(truss, half_covered):
+    visible = [v for _, _, v in half_covered]
+    assert max(visible[8:13]) < 0.6  # the arm covers about half of it
+    trk = create("tracker", "edges", object=truss)
+    frame0, pose0, _ = half_covered[0]
+    trk.init(frame0, pose0)
+    covered = []
+    for frame, truth, v in half_covered[1:14]:  # through the pass and one frame after
+        m = trk.track(frame, covered_lost_quality=0.3)  # the hybrid's keep_covered_quality
+        covered.append(trk.covered)
+        assert not m.lost, f"frame {frame.index}: lost at {v:.0%} visible (quality {m.quality:.2f})"
+        assert rotation_error_deg(m.pose, truth) < 1.0
+    assert sum(covered) == 5  # it saw the arm on each frame the arm covered
+
+
+def test_an_arm_coming_in_is_an_occluder_not_a_wrong_pose(view, truss):
+    from hybridpose.render.sequences import SequenceSpec, make_sequence
+
+    camera = Camera.default()
+    spec = SequenceSpec("tumble", frames=60, fps=30, occlusion="arm-partial", seed=4)
+    f = make_sequence(spec, truss, camera)[22]  # the arm's edge has reached the band, not the ring
+    with Renderer(truss, camera) as r:
+        frame = Frame(r.render(f.pose, arm=f.arm, sun_scale=f.sun_scale, rng=4022).rgb, camera, f.timestamp, f.index)
+    blind = lit_verdict(view, frame, f.pose)
+    assert not blind.beside and blind.share < 0.995  # unexplained lit pixels count against the true pose...
+    known = lit_verdict(view, frame, f.pose, dark_surround=True)  # ...unless the object was seen on dark space
+    assert known.beside and np.isnan(known.share)

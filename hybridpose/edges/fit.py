@@ -30,7 +30,7 @@ from ..geometry import Pose, line_jacobian
 from . import _kernels
 from .model_view import EdgeSamples, ModelView, thin
 from .shadows import sunlit_agreement
-from .silhouette import LIT_PIXEL_GREY, lit_verdict
+from .silhouette import LIT_PIXEL_GREY, lit_verdict, occluder_mask
 
 MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
@@ -249,7 +249,7 @@ TEXTURE_CONTRAST = 4.0
 
 
 def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
-                         ids: np.ndarray | None = None) -> float:
+                         ids: np.ndarray | None = None, occluder: bool = False) -> float:
     """Share (0..1) of the image's edge pixels around the projected model that lie within
     ``EXPLAIN_TOLERANCE_PX`` of a visible model edge at ``pose``; NaN where that region shows no edge.
 
@@ -261,6 +261,8 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     quality did not flag. On a textured part (many more edges inside its visible faces than just
     outside them: ``TEXTURE_EDGE_DENSITY``, ``TEXTURE_CONTRAST``) the edges on its faces that no model
     edge explains are left out. ``ids``: the view's facet ids of ``pose``, where the caller has them.
+    ``occluder``: the region may show an occluder in front of the object on dark space (the arm);
+    the edges on it (:func:`occluder_mask`) are left out too.
     """
     cam = frame.camera
     ids = view.facet_ids(pose, cam) if ids is None else ids  # one raster for the samples and the faces
@@ -303,6 +305,10 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
         band = (cv2.dilate(faces.astype(np.uint8), np.ones((k, k), np.uint8)) > 0) & ~faces & ~near
         if not band.any() or density > TEXTURE_CONTRAST * found[band].mean():
             edges &= ~faces | near  # on a textured surface only the model's own edges are the object's to explain
+    if occluder:
+        k = 2 * SILHOUETTE_SLACK_PX + 1
+        off = cv2.dilate(faces.astype(np.uint8), np.ones((k, k), np.uint8)) == 0
+        edges &= ~occluder_mask(full[y0:y1, x0:x1] > LIT_PIXEL_GREY, off, float(np.hypot(x1 - x0, y1 - y0)))
     n = int(edges.sum())
     if n == 0:
         return float("nan")
@@ -380,15 +386,19 @@ def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray
 
 
 def quality_verdict(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None,
-                    sunlit: bool = False) -> QualityVerdict:
+                    sunlit: bool = False, dark_surround: bool = False) -> QualityVerdict:
     """:func:`honest_quality` (same arguments), with whether something lit stood beside the object
-    (its lit term's ring: an arm in front on black space, or a lit background)."""
+    (its lit term's ring: an arm in front on black space, or a lit background).
+
+    ``dark_surround``: the caller saw the object on dark space before (a tracker's earlier fits). Then
+    a broad lit thing beside it now is an occluder in front (:func:`~hybridpose.edges.silhouette.
+    occluder_mask`), and both terms leave it out: it is no part of the object for any pose to explain."""
     quality = fit.quality
     ids = view.facet_ids(fit.pose, frame.camera)  # one raster of the fitted pose for every term
-    explained = explained_edge_share(view, frame, fit.pose, gray, ids)
+    lit, beside = lit_verdict(view, frame, fit.pose, gray, ids, dark_surround)
+    explained = explained_edge_share(view, frame, fit.pose, gray, ids, occluder=beside and dark_surround)
     if np.isfinite(explained):
         quality = min(quality, 2.0 * explained - 1.0)
-    lit, beside = lit_verdict(view, frame, fit.pose, gray, ids)
     if np.isfinite(lit):
         quality = min(quality, 1.0 - LIT_SLOPE * (1.0 - lit))
         if sunlit and frame.sun_direction_cam is not None and quality >= SUNLIT_FROM:

@@ -25,6 +25,27 @@ BAND_PX = 10  # lit pixels this close to it must be explained (frame pixels)
 RING_PX = 12  # the ring beyond the band whose lit share tells a dark background from a lit one
 DARK_RING_SHARE = 0.1  # a ring more lit than this is a lit background or an occluder: no verdict
 MIN_SILHOUETTE_PX = 20  # silhouettes smaller than this (at the raster's scale) give no verdict
+# an occluder in front of an object seen on dark space (the arm): the lit pixels off the object's
+# projected silhouette that an opening OCCLUDER_WIDTH_SHARE of the object's diagonal wide leaves (the
+# arm's body stays; a beam of the truss that a wrong pose leaves out does not), grown by
+# OCCLUDER_EDGE_PX (frame pixels) to take in its outline
+OCCLUDER_WIDTH_SHARE = 0.12
+OCCLUDER_EDGE_PX = 3
+
+
+def occluder_mask(lit: np.ndarray, off: np.ndarray, diagonal_px: float, edge_px: float = OCCLUDER_EDGE_PX) -> np.ndarray:
+    """(h, w) bool: the pixels a broad lit occluder covers. ``lit``: (h, w) bool, the lit pixels;
+    ``off``: (h, w) bool, the pixels off the object's projected silhouette (grown by its slack);
+    ``diagonal_px``: the object's projected size, in the same pixels; ``edge_px``: how far the
+    occluder is grown, in the same pixels (0: not at all).
+
+    An opening by a disc, made of two distance transforms: OpenCV's morphology with a kernel this wide
+    costs tens of milliseconds, the transforms under one whatever the width."""
+    radius = max(1.0, 0.5 * OCCLUDER_WIDTH_SHARE * diagonal_px)
+    inner = cv2.distanceTransform((lit & off).astype(np.uint8), cv2.DIST_L2, 3) > radius
+    if not inner.any():
+        return np.zeros(lit.shape, bool)
+    return cv2.distanceTransform((~inner).astype(np.uint8), cv2.DIST_L2, 3) <= radius + max(0.0, edge_px)
 
 
 class LitVerdict(NamedTuple):
@@ -52,10 +73,14 @@ def explained_lit_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndar
 
 
 def lit_verdict(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
-                ids: np.ndarray | None = None) -> LitVerdict:
+                ids: np.ndarray | None = None, dark_surround: bool = False) -> LitVerdict:
     """:func:`explained_lit_share` (same arguments), with whether the ring beyond the band is lit
     (more than ``DARK_RING_SHARE`` of it): something lit beside the object's silhouette — on black
-    space, an occluder such as the arm; on a photo or the Earth, the background itself."""
+    space, an occluder such as the arm; on a photo or the Earth, the background itself.
+
+    ``dark_surround``: the caller saw the object on dark space before (a tracker's earlier fits), so
+    a broad lit thing that reaches the band is an occluder coming in (:func:`occluder_mask`): no
+    verdict and ``beside``, as once it reaches the ring — not a wrong pose's unexplained pixels."""
     cam = frame.camera
     ids = view.facet_ids(pose, cam) if ids is None else ids  # at ID_SCALE of the frame
     mask = (ids > 0).astype(np.uint8)
@@ -80,6 +105,9 @@ def lit_verdict(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | No
     explained, band, outer = grown(slack), grown(BAND_PX + slack), grown(BAND_PX + slack + RING_PX)
     ring = outer & ~band
     if ring.any() and float(lit[ring].mean()) > DARK_RING_SHARE:
+        return LitVerdict(float("nan"), True)
+    if dark_surround and (occluder_mask(lit, ~explained, float(np.hypot(w, h)), 0) & band & ~explained).any():
+        # the arm coming in: not in the ring yet, but it is no part of the object either
         return LitVerdict(float("nan"), True)
     n = int((lit & band).sum())
     if n == 0:

@@ -7,8 +7,10 @@ an init and every start searched wider than frame to frame must also match the s
 pose predicts, cast shadows included (``VERIFIED_FITS``). Below ``lost_quality`` (default 0.5) →
 ``lost``. Where something lit comes to stand beside the object after the track had dark space around
 it — on black space, the arm passing in front — the tracker reports the object ``covered`` (a
-caller may then accept a lower quality: ``track(..., covered_lost_quality=)``). A fit that comes out lost on an object filling the view is tried again from edge fits on
-the shrunk frame (:func:`hybridpose.edges.coarse_to_fine`).
+caller may then accept a lower quality: ``track(..., covered_lost_quality=)``), and the quality
+leaves the occluder's edges out (``quality_verdict(..., dark_surround=)``). A fit that comes out
+lost on an object filling the view is tried again from edge fits on the shrunk frame
+(:func:`hybridpose.edges.coarse_to_fine`).
 """
 from __future__ import annotations
 
@@ -127,7 +129,7 @@ class EdgeTracker(Tracker):
             return None, None, 0.0, False
         if not self.explain:
             return fit.pose, fit.covariance, fit.quality, False
-        verdict = quality_verdict(self.view, frame, fit, gray, sunlit=verify)
+        verdict = quality_verdict(self.view, frame, fit, gray, sunlit=verify, dark_surround=self._dark_around)
         return fit.pose, fit.covariance, verdict.quality, verdict.beside
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):

@@ -176,7 +176,8 @@ class KltPnpTracker(Tracker):
         if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0
-        quality, beside = quality_verdict(self.view, frame, best, gray.astype(np.float32))
+        quality, beside = quality_verdict(self.view, frame, best, gray.astype(np.float32),
+                                          dark_surround=self._dark_around)
         self._note_surround(beside)
         if quality >= self.lost_quality:
             self._refresh(gray, best.pose, frame, klt)

@@ -175,3 +175,26 @@ def test_an_arm_coming_in_is_an_occluder_not_a_wrong_pose(view, truss):
     assert not blind.beside and blind.share < 0.995  # unexplained lit pixels count against the true pose...
     known = lit_verdict(view, frame, f.pose, dark_surround=True)  # ...unless the object was seen on dark space
     assert known.beside and np.isnan(known.share)
+
+
+def test_a_tracker_alone_keeps_its_pose_behind_the_arm_and_finds_the_object_after(truss):
+    from hybridpose.render.sequences import SequenceSpec, make_sequence
+
+    camera = Camera.default()
+    spec = SequenceSpec("fly-around", frames=40, fps=15, occlusion="arm-full", seed=7)
+    trk = create("tracker", "edges", object=truss)
+    flags = []
+    with Renderer(truss, camera) as r:
+        for f in make_sequence(spec, truss, camera):
+            res = r.render(f.pose, arm=f.arm, sun_scale=f.sun_scale, rng=spec.seed * 1000 + f.index)
+            frame = Frame(res.rgb, camera, f.timestamp, f.index)
+            if f.index == 0:
+                trk.init(frame, f.pose)
+                continue
+            m = trk.track(frame)
+            flags.append((res.visible_fraction, not m.lost and rotation_error_deg(m.pose, f.pose) < 2.0))
+    hidden = [k for k, (v, _) in enumerate(flags) if v < 0.05]
+    assert len(hidden) >= 5 and not any(ok for v, ok in flags if v < 0.05)
+    # the fits on the arm's own edges did not drag its pose along: back on the truss once it shows
+    after = [ok for v, ok in flags[hidden[-1] + 1:] if v > 0.9]
+    assert len(after) >= 5 and all(after[2:]), flags

@@ -16,6 +16,10 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 
 MIN_DEPTH_M = 0.01
+# where the object is seen covered, a fit below this quality follows the occluder's edges, not the
+# object: the next search keeps the previous pose (the truss wholly behind the arm, its edges left
+# out of the honest quality: fits at 0.02–0.09; half behind it, right fits at 0.2 and more)
+COVERED_ACCEPT = 0.15
 
 
 class Tracker(ABC):
@@ -146,8 +150,9 @@ class Tracker(ABC):
     def _accept(self, frame: Frame, pose: Pose | None, quality: float) -> None:
         """Remember the result: the next search starts from the solver's pose, even one below
         ``lost_quality`` (a caller with a better idea — the estimator — passes ``prior``); a failed
-        solve keeps the previous pose."""
-        if pose is not None and quality > 0:
+        solve, or one under ``COVERED_ACCEPT`` where the object is seen covered, keeps the previous
+        pose."""
+        if pose is not None and quality > (COVERED_ACCEPT if self.covered else 0.0):
             self.pose = pose
         self.frame = frame
 

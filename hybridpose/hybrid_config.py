@@ -85,8 +85,9 @@ class HybridConfig:
             covered_lost_quality=)``) counts its frame-to-frame fit lost only below
             ``keep_covered_quality`` where it sees the object covered, and below its own threshold
             elsewhere. With 40–50 % of the truss behind the arm a right fit's honest quality is
-            0.26–0.4, under the edge trackers' 0.5; starts, checks and resumes keep the tracker's own
-            threshold (a young track may be a wrong start). Never above the tracker's own; None: off.
+            0.4–0.5 (the arm's own edges left out of it), under the edge trackers' 0.5; starts,
+            checks and resumes keep the tracker's own threshold (a young track may be a wrong
+            start). Never above the tracker's own; None: off.
         keep_quality: the same for a tracker that takes a threshold per call (``track(...,
             lost_quality=)``) but cannot tell when the object is covered: its fits count as lost only
             below this, covered or not (never above its own threshold; None: off).

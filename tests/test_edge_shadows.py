@@ -7,7 +7,7 @@ import trimesh
 from hybridpose.core import Frame
 from hybridpose.edges import ModelView
 from hybridpose.edges.model_view import ID_SCALE
-from hybridpose.edges.shadows import sunlit_mask
+from hybridpose.edges.shadows import facet_sun_cosine, sunlit_mask
 from hybridpose.geometry import Camera, Pose
 from hybridpose.objects import load_object
 from hybridpose.render import Renderer, SpaceLighting, random_poses
@@ -47,6 +47,20 @@ def test_a_cube_shades_the_plate_where_parallel_light_puts_its_shadow(plate_and_
     assert on_top.sum() > 200 and shown[on_top].all()
     from_below = pose.R @ np.array([0.0, 0.0, 1.0])  # light from below: the faces seen are all turned from it
     assert not sunlit_mask(view, pose, camera, from_below).any()
+
+
+def test_each_facets_cosine_to_the_sun_is_taken_in_either_frame(plate_and_cube):
+    view = ModelView(plate_and_cube)
+    q = np.array([0.9, 0.3, -0.2, 0.25])
+    pose = Pose.from_quat_t(q / np.linalg.norm(q), [0.05, -0.02, 1.2])
+    sun_cam = np.array([0.3, -2.0, 1.1])  # any length
+    cosine = facet_sun_cosine(view, pose, sun_cam)
+    # the other way round: each normal turned into the camera frame against the way to the sun there
+    to_sun = -sun_cam / np.linalg.norm(sun_cam)
+    np.testing.assert_allclose(cosine[1:], (view.plane_normal[1:] @ pose.R.T) @ to_sun, atol=1e-12)
+    assert cosine[0] == 0.0  # the background's row
+    top = np.argmax(view.plane_normal[:, 2])  # the cube's top, +z in the object frame
+    assert np.isclose(cosine[top], pose.R[:, 2] @ to_sun)
 
 
 def test_a_sun_direction_that_is_no_direction_is_refused(plate_and_cube):

@@ -28,6 +28,7 @@ import numpy as np
 from ..core import Frame
 from ..geometry import Pose, line_jacobian
 from . import _kernels
+from .image import to_gray
 from .model_view import EdgeSamples, ModelView, thin
 from .shadows import sunlit_agreement
 from .silhouette import LIT_PIXEL_GREY, lit_verdict, occluder_mask
@@ -45,11 +46,6 @@ class EdgeFit:
     quality: float
     rms_px: float
     samples: int
-
-
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 RGB → (H, W) float32 intensity."""
-    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
 
 
 def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_contrast: float = 4.0):

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..geometry import Camera, Pose
 from ..geometry.raster import zbuffer_front_faces
+from .image import to_gray
 from .model_view import ID_SCALE, SUNLIT_COSINE, ModelView
 
 SHADOW_MAP_MAX_PX = 1024  # the shadow map's side at most (a far object needs far fewer)
@@ -28,6 +29,14 @@ LIT_GREY_MIN = 8.0  # a pixel brighter than this grey level may be lit (black sp
 LIT_GREY_SHARE = 0.1  # ... and must be brighter than this share of the silhouette's brightest pixels (p99)
 AGREEMENT_SLACK_PX = 1  # lit pixels this close (raster pixels) to the other set count as matched
 MIN_LIT_PX = 20  # fewer predicted and seen lit pixels than this (raster pixels): no verdict
+
+
+def facet_sun_cosine(view: ModelView, pose: Pose, sun_direction_cam) -> np.ndarray:
+    """(F + 1,) float: per value of the facet-id raster (facet id + 1; 0, the background, has a zero
+    normal), the cosine between the facet's outward normal and the way to the sun, whose light
+    travels along ``sun_direction_cam`` ((3,), camera frame, any length) onto the object at ``pose``."""
+    sun = np.asarray(sun_direction_cam, dtype=np.float64).reshape(3)
+    return view.plane_normal @ (pose.R.T @ -(sun / np.linalg.norm(sun)))
 
 
 def sunlit_mask(view: ModelView, pose: Pose, camera: Camera, sun_direction_cam, ids: np.ndarray | None = None,
@@ -50,7 +59,7 @@ def sunlit_mask(view: ModelView, pose: Pose, camera: Camera, sun_direction_cam, 
         return lit
     facets = ids[rows, cols].astype(np.int64)
     s = pose.R.T @ (sun / np.linalg.norm(sun))                       # the light's travel, object frame
-    turned = view.plane_normal[facets] @ -s > SUNLIT_COSINE
+    turned = facet_sun_cosine(view, pose, sun)[facets] > SUNLIT_COSINE
     rows, cols, facets = rows[turned], cols[turned], facets[turned]  # only these can be lit: lift only them
     if not len(rows):
         return lit
@@ -126,9 +135,8 @@ def sunlit_agreement(view: ModelView, frame, pose: Pose, gray: np.ndarray | None
     if not inside.any():
         return nan
     lit = sunlit_mask(view, pose, cam, frame.sun_direction_cam, ids)
-    sun = np.asarray(frame.sun_direction_cam, dtype=np.float64)
-    cosine = (view.plane_normal @ (pose.R.T @ -(sun / np.linalg.norm(sun))))[ids]  # per facet, then per pixel
-    full = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY) if gray is None else gray
+    cosine = facet_sun_cosine(view, pose, frame.sun_direction_cam)[ids]  # per facet, then per pixel
+    full = to_gray(frame.image) if gray is None else gray
     small = cv2.resize(np.asarray(full, np.float32), (ids.shape[1], ids.shape[0]), interpolation=cv2.INTER_AREA)
     bright = float(np.percentile(small[inside], 99))
     threshold = max(LIT_GREY_MIN, LIT_GREY_SHARE * bright)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core import Frame
 from ..geometry import Pose
+from .image import to_gray
 from .model_view import ID_SCALE, ModelView
 
 LIT_PIXEL_GREY = 12.0  # a pixel brighter than this grey level is lit (black space renders at 0–3)
@@ -93,7 +94,7 @@ def lit_verdict(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | No
     H, W = mask.shape
     x0, y0, x1, y1 = max(x - reach, 0), max(y - reach, 0), min(x + w + reach, W), min(y + h + reach, H)
     mask = mask[y0:y1, x0:x1]
-    full = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY) if gray is None else gray
+    full = to_gray(frame.image) if gray is None else gray
     s = 1.0 / ID_SCALE
     box = full[int(y0 * s):int(np.ceil(y1 * s)), int(x0 * s):int(np.ceil(x1 * s))]
     lit = cv2.resize(np.asarray(box, np.float32), (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA) > LIT_PIXEL_GREY

@@ -107,9 +107,11 @@ def lit_verdict(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | No
     ring = outer & ~band
     if ring.any() and float(lit[ring].mean()) > DARK_RING_SHARE:
         return LitVerdict(float("nan"), True)
-    if dark_surround and (occluder_mask(lit, ~explained, float(np.hypot(w, h)), 0) & band & ~explained).any():
-        # the arm coming in: not in the ring yet, but it is no part of the object either
-        return LitVerdict(float("nan"), True)
+    if dark_surround:
+        stray = lit & band & ~explained  # mostly none at a right pose: the opening then need not run
+        if stray.any() and (occluder_mask(lit, ~explained, float(np.hypot(w, h)), 0) & stray).any():
+            # the arm coming in: not in the ring yet, but it is no part of the object either
+            return LitVerdict(float("nan"), True)
     n = int((lit & band).sum())
     if n == 0:
         return LitVerdict(float("nan"), False)

@@ -57,7 +57,7 @@ import numpy as np
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
 from .fusion.base import adjoint
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
-from .geometry import Camera, Pose
+from .geometry import Camera, Pose, rotvec_to_matrix
 from .hybrid_config import HybridConfig
 from .metrics import rotation_error_deg, rotation_error_rad
 from .objects import ObjectModel
@@ -339,10 +339,32 @@ class HybridEstimator:
             found = fit is not None and not fit.lost
             if (found and fit.quality >= bar
                     and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2):
-                return fit
+                return self._best_turned(frame, m, start, fit, timings)
             if i == 0:  # a slid start must beat the fit from the CNN pose itself
                 bar = max(bar, (fit.quality if found else 0.0) + self.config.switch_quality_margin)
         return None
+
+    def _best_turned(self, frame: Frame, m: Measurement, start: Pose, fit: Measurement, timings: dict) -> Measurement:
+        """``fit`` (the tracker's fit from ``start``, a start accepted for the CNN measurement ``m``), or,
+        where it scores below ``start_sure_quality``, the best of the fits from ``start`` turned by
+        ±``start_turn_deg`` about each camera axis through the object's origin that beats it by
+        ``switch_quality_margin`` and stays within ``m``'s uncertainty (``disagreement_chi2``)."""
+        deg = self.config.start_turn_deg
+        if deg <= 0 or fit.quality >= self.config.start_sure_quality:
+            return fit
+        best, bar = fit, fit.quality + self.config.switch_quality_margin
+        for axis in np.eye(3):
+            for sign in (-1.0, 1.0):
+                turned = Pose(rotvec_to_matrix(sign * np.radians(deg) * axis) @ start.R, start.t)
+                try:
+                    self._timed(timings, "tracker", self.tracker.init, frame, turned)
+                except ValueError:
+                    continue
+                other = self._track_from(frame, turned, timings, self._cnn_search_px(), from_cnn=True)
+                if (not other.lost and other.quality >= bar and other.quality > best.quality
+                        and _mahalanobis2(m.pose, m.covariance, other.pose, other.covariance) <= self.config.disagreement_chi2):
+                    best = other
+        return best
 
     def _starts(self, pose: Pose) -> list[Pose]:
         """``pose``, then ``pose`` with its distance scaled by 1 ± k·``start_depth_step`` (k = 1, 2, …,

@@ -69,6 +69,13 @@ class HybridConfig:
             of ``start_depth_step`` (relative distance), up to ``start_depth_span`` either way and
             nearest first, is tried; the first fit to reach ``start_quality`` and beat the fit from
             the CNN pose by ``switch_quality_margin`` starts the track (0: the CNN pose only).
+        start_turn_deg, start_sure_quality: a start's fit that scores below ``start_sure_quality``
+            may sit in a local minimum a few degrees from the truth (the truss's parallel beams: a
+            CNN pose 6° off fits at 0.66 and holds there for frames). Fits from its start turned by
+            ±``start_turn_deg`` about each camera axis through the object's origin are tried as
+            well; one that beats it by ``switch_quality_margin`` and stays within the CNN pose's
+            uncertainty (``disagreement_chi2``) starts the track instead (0: off). Right starts
+            mostly score 0.8 and more, so the six extra fits run on few frames.
         cnn_search_px: how far (px) a tracker fit started from a CNN pose (a start, a check) searches
             for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
             0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
@@ -122,6 +129,8 @@ class HybridConfig:
     start_depth_step: float = 0.03
     start_depth_span: float = 0.12
     restart_unconfirmed: bool = False
+    start_turn_deg: float = 4.0
+    start_sure_quality: float = 0.8
     cnn_search_px: float = 12.0
     sun_in_cnn_fits: bool = True
     keep_quality: float | None = 0.4
@@ -156,6 +165,10 @@ class HybridConfig:
         if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:
             raise ValueError(f"start_depth_step, start_depth_span: expected relative distances in [0, 1), got "
                              f"{self.start_depth_step}, {self.start_depth_span}")
+        if not 0 <= self.start_turn_deg <= 45:
+            raise ValueError(f"start_turn_deg: expected degrees in [0, 45] (0: off), got {self.start_turn_deg}")
+        if not 0 <= self.start_sure_quality <= 1:
+            raise ValueError(f"start_sure_quality: expected a tracker quality in [0, 1], got {self.start_sure_quality}")
         if not self.cnn_search_px >= 0:
             raise ValueError(f"cnn_search_px: expected ≥ 0 pixels, got {self.cnn_search_px}")
         if not 0 <= self.check_roi_margin <= 2:

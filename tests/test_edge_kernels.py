@@ -217,3 +217,21 @@ def test_visible_edge_samples_agree_with_mujoco_depth(truss, truss_depth_views):
     # (a far-first painter's raster scored 0.90 and 0.83 on these poses)
     assert np.mean(agree_visible) > 0.93
     assert np.mean(agree_hidden) > 0.88
+
+
+def test_draw_segments_matches_cv2_polylines(rng):
+    """The same 1-px lines as cv2.polylines, up to where each breaks a tie between two pixels: every
+    pixel drawn lies within 1 px of one of cv2's and the other way round, and the counts agree; a
+    segment partly outside the raster is clipped, a raster offset shifts it."""
+    a = rng.uniform(-30, 230, (300, 2))
+    b = a + rng.uniform(-15, 15, (300, 2))
+    ours = np.zeros((150, 200), np.uint8)
+    ek.draw_segments(ours, a, b, 0, 0)
+    ref = np.zeros_like(ours)
+    cv2.polylines(ref, list(np.round(np.stack([a, b], 1)).astype(np.int32)), False, 255, 1)
+    near = np.ones((3, 3), np.uint8)
+    assert not (ours & ~cv2.dilate(ref, near)).any() and not (ref & ~cv2.dilate(ours, near)).any()
+    assert abs(int((ours > 0).sum()) - int((ref > 0).sum())) < 0.1 * (ref > 0).sum()
+    shifted = np.zeros((150, 200), np.uint8)
+    ek.draw_segments(shifted, a + [7, 3], b + [7, 3], 7, 3)
+    assert (shifted == ours).all()

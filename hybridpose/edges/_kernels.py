@@ -77,6 +77,25 @@ def search_maps(uv, normals, search_px):
 
 
 @numba.njit(cache=True, nogil=True)
+def draw_segments(mask, a, b, x0, y0):
+    """Set to 255 the pixels of the (h, w) uint8 ``mask`` that the segments from ``a`` (S, 2) to ``b``
+    (S, 2) image px pass through; ``mask``'s top-left pixel is (``x0``, ``y0``) of the image. From
+    the rounded ends, one pixel a step along the longer axis: the 8-connected line that
+    ``cv2.polylines`` draws at thickness 1 (up to how a tie between two pixels is broken), which spends
+    ~0.4 ms turning the hundreds of two-point polylines of a model into C++ vectors."""
+    h, w = mask.shape
+    for s in range(a.shape[0]):
+        ax, ay = round(a[s, 0] - x0), round(a[s, 1] - y0)
+        bx, by = round(b[s, 0] - x0), round(b[s, 1] - y0)
+        steps = int(max(abs(bx - ax), abs(by - ay)))  # one pixel a step along the longer axis
+        for i in range(steps + 1):
+            f = i / max(steps, 1)
+            x, y = int(round(ax + f * (bx - ax))), int(round(ay + f * (by - ay)))
+            if 0 <= x < w and 0 <= y < h:
+                mask[y, x] = 255
+
+
+@numba.njit(cache=True, nogil=True)
 def edge_clearance(uv, normals, tangents_px, edge_ids, width, height, max_px):
     """Pixels (S,) float32 along each sample's normal to the nearest *other* projected model edge
     (``max_px + 1`` where none lies within ``max_px``): the samples (``uv`` (S, 2) px, unit ``normals``

@@ -143,7 +143,7 @@ def main(argv=None) -> None:
     ap.add_argument("--visp-images", default=None, help="the ViSP-images folder (holds mbt/cube.cao)")
     ap.add_argument("--out", default="runs/real_video", help="overlay strips")
     ap.add_argument("--regressor", default=None, help="a checkpoint fitted for cube.cao: adds the hybrid, no initial pose")
-    ap.add_argument("--fusions", default="ukf,isam2,none", help="the hybrid's fusion backends, one row each")
+    ap.add_argument("--fusions", default="isam2,ukf,none", help="the hybrid's fusion backends, one row each")
     args = ap.parse_args(argv)
     import torch
 

@@ -58,7 +58,7 @@ from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
 from .fusion.base import adjoint
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose, rotvec_to_matrix
-from .hybrid_config import HybridConfig
+from .hybrid_config import DEFAULT_FUSION, HybridConfig
 from .metrics import rotation_error_deg, rotation_error_rad
 from .objects import ObjectModel
 
@@ -132,7 +132,7 @@ class HybridEstimator:
 
     @classmethod
     def from_names(cls, object: str | ObjectModel = "truss", tracker: str = "edges", regressor: str = "default",
-                   fusion: str = "ukf", config: HybridConfig | None = None, scale: float = 1.0,
+                   fusion: str = DEFAULT_FUSION, config: HybridConfig | None = None, scale: float = 1.0,
                    tracker_kw: dict | None = None, regressor_kw: dict | None = None,
                    fusion_kw: dict | None = None) -> HybridEstimator:
         """Build every part from :mod:`hybridpose.registry` names.

@@ -7,6 +7,10 @@ from dataclasses import dataclass
 
 from .fusion.base import DEFAULT_GATE_CHI2
 
+# the hybrid's fusion backend unless named: the fixed-lag smoother beat the UKF on the tuning seeds
+# (docs/decisions.md, "isam2 is the default fusion")
+DEFAULT_FUSION = "isam2"
+
 
 @dataclass(frozen=True)
 class HybridConfig:

@@ -69,7 +69,7 @@ def test_smoke_suite_writes_results_report_and_plots(smoke):
     assert all(r["ms_tracker"] > 0 and r["ms_regressor"] > 0 for r in by_mode["hybrid"])
     assert np.nanmedian([r["rot_median_deg"] for r in by_mode["hybrid"]]) < 5.0
     report = (out / "report.md").read_text()
-    assert "Targets for `hybrid (edges+default+ukf)`" in report and "| tracker (edges) |" in report
+    assert "Targets for `hybrid (edges+default+isam2)`" in report and "| tracker (edges) |" in report
     assert "Targets for `tracker (edges)` (from the true first pose" in report
     assert "| run | tracker ms | CNN ms | fusion ms |" in report
     assert (out / "error_vs_distance.png").stat().st_size > 1000 and (out / "speed_accuracy.png").is_file()
@@ -197,7 +197,7 @@ def test_config_fields_are_parsed_by_their_type():
     assert parse_config("keep_quality=none").keep_quality is None
     from hybridpose.bench.runner import RunSpec
     label = RunSpec(mode="hybrid", config=parse_config("keep_quality=none, check_period=5")).label
-    assert label == "hybrid (edges+default+ukf, check_period=5, keep_quality=none)"
+    assert label == "hybrid (edges+default+isam2, check_period=5, keep_quality=none)"
     assert parse_config("keep_quality=0.3, keep_after=8").keep_quality == 0.3
     with pytest.raises(ValueError, match="start_quality: expected a number"):
         parse_config("start_quality=none")
@@ -210,7 +210,7 @@ def test_tracker_options_reach_the_tracker_and_name_the_run():
     specs, _, _ = plan(BenchRequest(out="o", suite="smoke", modes=("tracker", "cnn", "hybrid"),
                                     tracker_options=("max_samples=123", "explain=false")))
     labels = sorted(s.label for s in specs)
-    assert labels == ["cnn (default)", "hybrid (edges+default+ukf; explain=False, max_samples=123)",
+    assert labels == ["cnn (default)", "hybrid (edges+default+isam2; explain=False, max_samples=123)",
                       "tracker (edges; explain=False, max_samples=123)"]
     tracker_spec = next(s for s in specs if s.mode == "tracker")
     _, tracker = _backends(tracker_spec)
@@ -238,8 +238,8 @@ def test_space_lit_frames_carry_the_sun_and_the_unknown_sun_is_an_ablation(smoke
     (tmp_path / "hybridpose.json").write_text(json.dumps({**config, "appearance": {"kind": "random"}}))
     assert not sun_is_only_light(tmp_path / "test" / "000000")
     specs, _, _ = plan(BenchRequest(out="o", suite="smoke", sun=("known", "unknown")))
-    assert sorted(s.label for s in specs) == ["cnn (default)", "hybrid (edges+default+ukf)",
-                                              "hybrid (edges+default+ukf; sun unknown)", "tracker (edges)",
+    assert sorted(s.label for s in specs) == ["cnn (default)", "hybrid (edges+default+isam2)",
+                                              "hybrid (edges+default+isam2; sun unknown)", "tracker (edges)",
                                               "tracker (edges; sun unknown)"]
     assert RunSpec("hybrid", sun=False).key != RunSpec("hybrid").key
     only_unknown, _, _ = plan(BenchRequest(out="o", suite="smoke", sun=("unknown",)))

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..estimator import HybridConfig
+from ..hybrid_config import DEFAULT_FUSION
 from ..io import atomic_write_json, atomic_write_text
 from .report import report_markdown, write_plots
 from .runner import MODES, RunSpec, run_all
@@ -39,7 +40,7 @@ class BenchRequest:
     scale: float = 1.0
     modes: tuple[str, ...] = MODES
     trackers: tuple[str, ...] = ("edges",)
-    fusions: tuple[str, ...] = ("ukf",)
+    fusions: tuple[str, ...] = (DEFAULT_FUSION,)
     regressor: str = "default"
     check_periods: tuple[int, ...] = ()
     configs: tuple[str, ...] = ()  # "name=value,name=value": one more hybrid run per entry

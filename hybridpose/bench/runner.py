@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from ..estimator import HybridConfig
+from ..hybrid_config import DEFAULT_FUSION
 from ..io import atomic_write_json, read_json
 from .modes import (COMPONENTS, load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg,
                     without_sun)
@@ -35,7 +36,7 @@ class RunSpec:
     mode: str = "hybrid"
     tracker: str = "edges"
     regressor: str = "default"
-    fusion: str = "ukf"
+    fusion: str = DEFAULT_FUSION
     object: str = "truss"
     scale: float = 1.0
     config: HybridConfig = field(default_factory=HybridConfig)
@@ -50,7 +51,7 @@ class RunSpec:
 
     @property
     def label(self) -> str:
-        """How the results name this spec: ``tracker (edges)``, ``cnn (default)``, ``hybrid (edges+default+ukf)``."""
+        """How the results name this spec: ``tracker (edges)``, ``cnn (default)``, ``hybrid (edges+default+isam2)``."""
         parts = {"tracker": [self.tracker], "cnn": [Path(self.regressor).stem if self._is_file() else self.regressor],
                  "hybrid": [self.tracker, Path(self.regressor).stem if self._is_file() else self.regressor, self.fusion]}
         extra = "" if self.config == HybridConfig() or self.mode != "hybrid" else f", {self._config_diff()}"

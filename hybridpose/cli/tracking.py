@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import Camera
+from ..hybrid_config import DEFAULT_FUSION
 from .common import backend_options, counter, names, progress
 from .data import verify_dataset
 
@@ -196,7 +197,7 @@ def add_commands(sub) -> None:
                    help="tracker alone from this pose, no CNN, no fusion. JSON: quat_wxyz + t_m (metres), R + t_m, "
                         "or BOP cam_R_m2c + cam_t_m2c (mm); or a ViSP .pos file (tx ty tz in m, θu in rad)")
     k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
-    k.add_argument("--fusion", default="ukf", help="fusion backend of the hybrid (ukf, isam2, none)")
+    k.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
     k.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")
     k.add_argument("--tracker-option", action="append", metavar="NAME=VALUE",
                    help="a keyword of the tracker (repeatable), e.g. explain=false or lost_quality=0.4 for "
@@ -226,7 +227,7 @@ def add_commands(sub) -> None:
     b.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
     b.add_argument("--modes", default="tracker,cnn,hybrid")
     b.add_argument("--trackers", default="edges", help="comma list: tracker-only and hybrid runs per tracker")
-    b.add_argument("--fusions", default="ukf", help="comma list: a hybrid run per tracker × fusion")
+    b.add_argument("--fusions", default=DEFAULT_FUSION, help="comma list: a hybrid run per tracker × fusion")
     b.add_argument("--regressor", default="default", help="registered name or checkpoint file")
     b.add_argument("--check-periods", default="", help="comma list of CNN check periods to ablate (frames)")
     b.add_argument("--config", action="append", default=[],
@@ -278,6 +279,6 @@ def add_commands(sub) -> None:
     d.add_argument("--frames", type=int, default=60)
     d.add_argument("--size", default="640x480")
     d.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")
-    d.add_argument("--fusion", default="ukf", help="fusion backend of the hybrid (ukf, isam2, none)")
+    d.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
     d.add_argument("--seed", type=int, default=1)
     d.set_defaults(func=cmd_demo)

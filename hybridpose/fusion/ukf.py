@@ -92,20 +92,19 @@ def manifold_mean(sigmas: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 @numba.njit(cache=True, nogil=True)
 def _karcher_mean(sigmas: np.ndarray, weights: np.ndarray, iterations: int) -> np.ndarray:
-    # compiled whole: the UKF takes two means a frame, and the Python loop around the batched ⊞/⊟
-    # (a dozen calls) cost more than the maths
-    n = sigmas.shape[0]
+    # compiled whole, on the same ⊞/⊟ kernels: the UKF takes two means a frame, and the Python loop
+    # around the batched calls (a dozen of them) cost more than the maths
+    n, d = sigmas.shape
     mean = sigmas[0].copy()
+    around = np.empty_like(sigmas)
     for _ in range(iterations):
-        R_mean = rotvec_to_matrix_one(np.ascontiguousarray(mean[:3]))
-        RmT = R_mean.T
-        step = np.zeros(6)
         for i in range(n):
-            Ri = rotvec_to_matrix_one(np.ascontiguousarray(sigmas[i, :3]))
-            step += weights[i] * se3_log_one(RmT @ Ri, RmT @ (sigmas[i, 3:6] - mean[3:6]))
-        dR, dt = se3_exp_one(step)
-        mean[:3] = so3_log_one(R_mean @ dR)
-        mean[3:6] = R_mean @ dt + mean[3:6]
+            around[i] = mean
+        diffs = _boxminus_rows(sigmas, around)
+        step = np.zeros(d)
+        for i in range(n):
+            step[:6] += weights[i] * diffs[i, :6]
+        mean = _boxplus_rows(mean.reshape(1, d), step.reshape(1, d))[0]
         if np.abs(step).max() < 1e-12:
             break
     mean[6:] = 0.0

@@ -113,13 +113,15 @@ def check_inputs(obj: ObjectModel, camera: Camera, budget_min: float) -> tuple[f
     return near, far
 
 
-def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 16, **render_kw) -> tuple[float, float]:
+def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, **render_kw) -> tuple[float, float]:
     """(render s/view, training s/view) on this machine: views rendered and written as the training
     set will be (``render_kw``: the fit's own :func:`~hybridpose.datasets.render_random_dataset`
     settings — its photos, lights, shares — on one process; image, depth and masks in BOP files; the
-    GL start-up cancelled out by a shorter run), and forward + backward passes of the ``default``
-    network on 128-px crops. Measured on six views without the fit's photos and sun range, a 60-minute
-    box fit planned 0.024 s a view and rendered at 0.044–0.059: its quarter of the budget became half."""
+    per-call start-up cancelled out by a shorter run, after an untimed one), and forward + backward
+    passes of the ``default`` network on 128-px crops. Measured on six views without the fit's photos
+    and sun range, a 60-minute box fit planned 0.024 s a view and rendered at 0.044–0.059: its quarter
+    of the budget became half. Timed from the process's first render call, the GL and mesh set-up fell
+    in the shorter run only: a truss fit measured 0.018 s a view and rendered at 0.05–0.06."""
     import tempfile
 
     import torch
@@ -131,6 +133,7 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 16, **render_k
     render_kw = {"appearance": AppearanceSpec("random"), "distance_range_m": working_distances(obj, camera),
                  "in_view": True, **render_kw, "workers": 1}
     with tempfile.TemporaryDirectory() as tmp:
+        render_random_dataset(Path(tmp) / "warm", obj, camera, 1, seed=0, **render_kw)
         spent = []
         for n in (2, 2 + views):
             t0 = time.perf_counter()

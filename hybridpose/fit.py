@@ -1,10 +1,14 @@
 """``hybridpose fit``: a CNN pose regressor for any CAD model, on a CPU, within a time budget.
 
-One command renders a randomised training set of the part (cluttered or photo backgrounds, ambient
-and extra lights, random colours: :mod:`hybridpose.render.appearance`), trains the ``default``
-keypoint network on it — starting from the shipped weights, with whole-frame crops so that it finds
-the part itself on any background (``detection="network"``) — calibrates its covariance on held-out
-renders and evaluates it there. Every stage resumes: run the same command again after a stop.
+One command renders a randomised training set of the part, trains the ``default`` keypoint network
+on it starting from the shipped weights, calibrates its covariance on held-out renders and evaluates
+it there. Every stage resumes: run the same command again after a stop. Two looks (``look``):
+
+- ``"random"`` (default), a part on a bench or in a hand: cluttered or photo backgrounds, ambient and
+  extra lights, random colours (:mod:`hybridpose.render.appearance`); whole-frame crops in training
+  so that the network finds the part itself on any background (``detection="network"``);
+- ``"space"``, a part in orbit: black space and the sun alone, as the shipped truss network saw; the
+  part is found as the sunlit pixels (``detection="bright"``).
 
 Layout of ``out``::
 
@@ -40,6 +44,10 @@ TRAIN_BATCH = 32
 # a new object's keypoint heads start afresh even from the shipped features: the from-scratch rate
 # (1.5e-4 left a 40-minute box fit at 127° on its validation views after 3 epochs)
 FIT_LR = 1e-3
+# a start that already knows the part (its keypoints are the part's: re-fitting the built-in truss, or a
+# fit resumed from an earlier one) is fine-tuned at the shipped network's last stages' rate instead
+REFIT_LR = 5e-5
+LOOKS = ("random", "space")
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
 TEXTURED_SHARE = 0.0  # share of training views with a random print on the part (docs/decisions.md)
@@ -86,18 +94,26 @@ def parse_budget(text) -> float:
 
 def working_distances(obj: ObjectModel, camera: Camera) -> tuple[float, float]:
     """(near, far) metres at which the part fills between ≈ 70 % and ≈ 12 % of the image's shorter
-    side — the range a CNN initialisation is asked to cover; the truss gives ≈ 0.4–1.2 m."""
+    side — the range a CNN initialisation is asked to cover (the truss, 0.43 m across, with the default
+    640×480 camera: 0.77–4.5 m)."""
     f = min(camera.fx, camera.fy)
     side = min(camera.width, camera.height)
     return float(f * obj.diameter / (0.7 * side)), float(f * obj.diameter / (0.12 * side))
 
 
-def check_inputs(obj: ObjectModel, camera: Camera, budget_min: float) -> tuple[float, float]:
-    """Refuse, before any long work, what cannot give a usable model; returns the distance range."""
+def check_inputs(obj: ObjectModel, camera: Camera, budget_min: float,
+                 distance_range_m: tuple[float, float] | None = None) -> tuple[float, float]:
+    """Refuse, before any long work, what cannot give a usable model; returns the distance range
+    (``distance_range_m``, metres, where the caller gives one, else :func:`working_distances`)."""
     if not budget_min >= MIN_BUDGET_MIN:
         raise ValueError(f"budget: {budget_min:g} min is too little to train anything on a CPU; "
                          f"give at least {MIN_BUDGET_MIN:g} min (60m is a usable model)")
-    near, far = working_distances(obj, camera)
+    if distance_range_m is None:
+        near, far = working_distances(obj, camera)
+    else:
+        near, far = (float(d) for d in distance_range_m)
+        if not MIN_NEAR_M <= near < far:
+            raise ValueError(f"distances: expected {MIN_NEAR_M:g} <= near < far in metres, got {near:g}, {far:g}")
     px_far = min(camera.fx, camera.fy) * obj.diameter / far
     if obj.diameter > 20.0:
         raise ValueError(f"object: {obj.name} is {obj.diameter:.1f} m across — is the mesh in millimetres? "
@@ -164,14 +180,28 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, **render_k
 
 
 def training_render_settings(backgrounds, distance_range_m, occluded_share: float = 0.0,
-                             textured_share: float = 0.0) -> dict:
+                             textured_share: float = 0.0, look: str = "random") -> dict:
     """The :func:`~hybridpose.datasets.render_random_dataset` settings of a fit's views (its held-out
-    views: without the arm and the print, the shares' defaults)."""
+    views: without the arm and the print, the shares' defaults). Either look has the sun within 85° of
+    the optical axis; ``"space"`` has nothing else: black background, no ambient or fill light."""
     from .render import AppearanceSpec
 
-    looks = AppearanceSpec("random", None if backgrounds is None else str(backgrounds), texture_share=textured_share)
+    looks = AppearanceSpec(look, None if backgrounds is None else str(backgrounds), texture_share=textured_share)
     return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, sun_cone_deg=85.0,
                 sun_scale_range=(0.6, 1.3), occluded_share=occluded_share)
+
+
+def start_learning_rate(start, obj: ObjectModel) -> float:
+    """The training rate for a fit of ``obj`` from the checkpoint ``start`` (None: from scratch):
+    ``REFIT_LR`` where ``start`` was trained on ``obj``'s own keypoints (its heads already place them:
+    the from-scratch rate would throw away what they learnt), else ``FIT_LR`` (new keypoint heads)."""
+    if start is None:
+        return FIT_LR
+    from .regressors.checkpoints import load_checkpoint
+
+    known = (load_checkpoint(start).get("build") or {}).get("keypoints_m")
+    same = known is not None and np.shape(known) == np.shape(obj.keypoints) and np.allclose(known, obj.keypoints, atol=1e-6)
+    return REFIT_LR if same else FIT_LR
 
 
 def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: float,
@@ -206,7 +236,8 @@ def plan_training(plan: FitPlan, spent_min: float) -> FitPlan:
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
         backgrounds=None, workers: int = 1, init_from="default", progress=print,
         plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE,
-        textured_share: float = TEXTURED_SHARE) -> dict:
+        textured_share: float = TEXTURED_SHARE, look: str = "random",
+        distance_range_m: tuple[float, float] | None = None) -> dict:
     """Render, train, calibrate and evaluate a ``default`` keypoint regressor for ``mesh``.
 
     Args:
@@ -225,6 +256,10 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         textured_share: share of the training views whose part carries a random print (photo crops
             or procedural clutter, :func:`~hybridpose.render.appearance.part_texture`): for a part
             with a printed or painted surface; held-out views stay plain.
+        look: ``"random"`` (a part on a bench or in a hand) or ``"space"`` (black space and the
+            sun): see the module docstring. ``backgrounds`` needs ``"random"``.
+        distance_range_m: (near, far) metres of the part in the training and held-out views, where
+            the use is known (an arm's reach); default :func:`working_distances`.
         plan: views and epochs fixed by the caller instead of measured for ``budget`` (its
             ``budget_min`` is then not checked against the minimum, and its training is not
             re-planned after rendering: for tests and small trials). A measured plan's training is
@@ -245,18 +280,24 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     camera = camera or Camera.default()
     measured = plan is None
     budget_min = parse_budget(budget) if plan is None else plan.budget_min
-    distances = check_inputs(obj, camera, budget_min if plan is None else MIN_BUDGET_MIN)
+    distances = check_inputs(obj, camera, budget_min if plan is None else MIN_BUDGET_MIN, distance_range_m)
     record_path = out / "fit.json"
     request = {"mesh": str(mesh), "scale": float(scale), "camera": camera.to_dict(), "budget_min": budget_min,
                "seed": int(seed), "backgrounds": None if backgrounds is None else str(backgrounds),
                "init_from": None if init_from is None else str(init_from),
                # recorded only when set, so that fits made before the option still resume
                **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)}),
-               **({} if textured_share == 0 else {"textured_share": float(textured_share)})}
+               **({} if textured_share == 0 else {"textured_share": float(textured_share)}),
+               **({} if look == "random" else {"look": look}),
+               **({} if distance_range_m is None else {"distance_range_m": list(distances)})}
     if not 0.0 <= occluded_share <= 1.0:
         raise ValueError(f"occluded_share: expected a share of the training views in [0, 1], got {occluded_share}")
     if not 0.0 <= textured_share <= 1.0:
         raise ValueError(f"textured_share: expected a share of the training views in [0, 1], got {textured_share}")
+    if look not in LOOKS:
+        raise ValueError(f"look: expected one of {', '.join(LOOKS)}, got {look!r}")
+    if look == "space" and backgrounds is not None:
+        raise ValueError("backgrounds: photos are backgrounds of the 'random' look; look 'space' has black space")
     if record_path.is_file():
         record = read_json(record_path)
         if record["request"] != request:
@@ -270,7 +311,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
             progress(f"fit: measuring this machine ({obj.name}, {camera.width}×{camera.height})")
             t0 = time.time()
             speeds = measure_speeds(obj, camera, **training_render_settings(
-                backgrounds, distances, occluded_share, textured_share))
+                backgrounds, distances, occluded_share, textured_share, look))
             plan = make_plan(budget_min, *speeds, distances, workers)
             minutes["measure"] = (time.time() - t0) / 60
         record = {"request": request, "plan": asdict(plan), "minutes": minutes, "done": []}
@@ -289,8 +330,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         record["done"].append(name)
         atomic_write_json(record_path, record)
 
-    training_views = training_render_settings(backgrounds, plan.distance_range_m, occluded_share, textured_share)
-    held_out = training_render_settings(backgrounds, plan.distance_range_m)
+    training_views = training_render_settings(backgrounds, plan.distance_range_m, occluded_share, textured_share, look)
+    held_out = training_render_settings(backgrounds, plan.distance_range_m, look=look)
     tick = bar or (lambda _desc: None)
     half = max(1, plan.test_views // 2)
     stage("render", lambda: (
@@ -304,9 +345,10 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     def run_training():
         start = None if init_from is None else str(checkpoint_or_shipped(init_from))
         cfg = TrainConfig(model="default", data=str(out / "data" / "train"), out=str(out / "run"),
-                          epochs=plan.epochs, batch=TRAIN_BATCH, lr=FIT_LR, image_size=IMAGE_SIZE,
-                          val_fraction=0.05, seed=seed, patience=0, schedule="cosine", init_from=start,
-                          time_limit_min=plan.train_min, full_view=FULL_VIEW, workers=1)
+                          epochs=plan.epochs, batch=TRAIN_BATCH, lr=start_learning_rate(start, obj),
+                          image_size=IMAGE_SIZE, val_fraction=0.05, seed=seed, patience=0, schedule="cosine",
+                          init_from=start, time_limit_min=plan.train_min,
+                          full_view=FULL_VIEW if look == "random" else 0.0, workers=1)
         train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
 
@@ -358,13 +400,15 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"# hybridpose fit: {obj.name}", "",
         f"Mesh `{req['mesh']}` (×{req['scale']:g} → metres, {obj.diameter:.3f} m across), camera "
         f"{req['camera']['width']}×{req['camera']['height']}, budget {p['budget_min']:g} min, seed {req['seed']}.", "",
-        f"- Rendered {p['train_views']} training and {p['test_views']} held-out views (random backgrounds, "
-        f"lights and colours; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away"
+        f"- Rendered {p['train_views']} training and {p['test_views']} held-out views ("
+        + ("black space and the sun alone" if req.get("look") == "space" else "random backgrounds, lights and colours")
+        + f"; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away"
         + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views"
            if req.get("occluded_share") else "")
         + (f"; a random print on it in {req['textured_share']:.0%} of the training views"
            if req.get("textured_share") else "") + ").",
-        f"- Trained the `default` network ({IMAGE_SIZE} px, {FULL_VIEW:.0%} whole-frame crops"
+        f"- Trained the `default` network ({IMAGE_SIZE} px, "
+        + ("found as the sunlit pixels" if req.get("look") == "space" else f"{FULL_VIEW:.0%} whole-frame crops")
         + (f"; one unlabelled heatmap of its {len(obj.keypoints)} keypoints, which look alike under its symmetries"
            if obj.symmetric else "") + f") for up to "
         f"{p['epochs']} epochs within {p['train_min']:.0f} min, from `{req['init_from']}`.",

@@ -8,8 +8,8 @@ import pytest
 import trimesh
 
 from hybridpose.cli import main
-from hybridpose.fit import (EVAL_RESERVE_MIN, PLAN_MARGIN, FitPlan, check_inputs, fit, make_plan, measure_speeds,
-                            parse_budget, plan_training, working_distances)
+from hybridpose.fit import (EVAL_RESERVE_MIN, FIT_LR, PLAN_MARGIN, REFIT_LR, FitPlan, check_inputs, fit, make_plan,
+                            measure_speeds, parse_budget, plan_training, start_learning_rate, working_distances)
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
 
@@ -259,6 +259,59 @@ def test_fit_command_refuses_bad_input_with_a_message(box_mesh, tmp_path, capsys
     assert "textured_share: expected a share" in capsys.readouterr().err
     assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--budget", "soon"]) == 2
     assert "budget: expected a time" in capsys.readouterr().err
+    assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--distances", "1.2,0.3"]) == 2
+    assert "distances: expected" in capsys.readouterr().err
+    assert main(["fit", str(box_mesh), "--scale", "0.001", "--out", str(tmp_path / "c"), "--look", "space",
+                 "--backgrounds", str(tmp_path)]) == 2
+    assert "look 'space' has black space" in capsys.readouterr().err
+
+
+def test_a_space_fit_renders_black_space_at_the_given_distances_and_trains_without_whole_frames(
+        box_mesh, tmp_path, monkeypatch):
+    """look='space': the views have the sun alone on black (the part found as its sunlit pixels, so
+    no whole-frame crops); distances given by the user reach the views and the record."""
+    import hybridpose.datasets as datasets
+    import hybridpose.regressors.train as train_module
+
+    calls, runs = [], []
+
+    class Stop(Exception):
+        pass
+
+    def fake_render(out, obj, camera, count, seed=0, **kw):
+        calls.append(kw)
+
+    def no_training(cfg, **kw):
+        runs.append(cfg)
+        raise Stop
+
+    monkeypatch.setattr(datasets, "render_random_dataset", fake_render)
+    monkeypatch.setattr(train_module, "train", no_training)
+    cam = Camera.default().scaled((320, 240))
+    plan = FitPlan(budget_min=6.0, train_views=32, test_views=4, epochs=1, train_min=1.0, render_s_per_view=0.05,
+                   train_s_per_view=0.05, distance_range_m=(0.5, 2.0))
+    out = tmp_path / "fit"
+    with pytest.raises(Stop):
+        fit(box_mesh, out, camera=cam, scale=0.001, plan=plan, look="space", distance_range_m=(0.5, 2.0),
+            progress=lambda *_: None)
+    assert len(calls) == 3 and all(kw["appearance"].kind == "space" for kw in calls)
+    assert all(kw["distance_range_m"] == (0.5, 2.0) for kw in calls)
+    assert runs[0].full_view == 0.0
+    record = json.loads((out / "fit.json").read_text())
+    assert record["request"]["look"] == "space" and record["request"]["distance_range_m"] == [0.5, 2.0]
+    with pytest.raises(ValueError, match="other settings.*look"):
+        fit(box_mesh, out, camera=cam, scale=0.001, plan=plan, distance_range_m=(0.5, 2.0), progress=lambda *_: None)
+
+
+def test_a_start_that_knows_the_part_is_fine_tuned_gently(truss, box_mesh):
+    """The shipped network re-fitted on the truss keeps its keypoint heads: the shipped stages' rate;
+    another part's heads start afresh: the from-scratch rate."""
+    from hybridpose.regressors.checkpoints import shipped_checkpoint
+
+    shipped = shipped_checkpoint("default")
+    assert start_learning_rate(shipped, truss) == REFIT_LR < FIT_LR
+    assert start_learning_rate(shipped, load_object(str(box_mesh), scale=0.001)) == FIT_LR
+    assert start_learning_rate(None, truss) == FIT_LR
 
 
 def test_a_start_from_another_objects_network_keeps_this_objects_keypoints(truss):

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..geometry import Camera
 from ..hybrid_config import DEFAULT_FUSION
-from .common import backend_options, counter, names, progress
+from .common import backend_options, counter, float_pair, names, progress
 from .data import verify_dataset
 
 
@@ -104,7 +104,8 @@ def cmd_fit(args) -> int:
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
         backgrounds=args.backgrounds, workers=args.workers,
         init_from=None if args.init_from == "none" else args.init_from, bar=progress,
-        occluded_share=args.occluded_share, textured_share=args.textured_share)
+        occluded_share=args.occluded_share, textured_share=args.textured_share, look=args.look,
+        distance_range_m=args.distances)
     return 0
 
 
@@ -185,7 +186,7 @@ def cmd_demo(args) -> int:
 
 def add_commands(sub) -> None:
     """Add this module's subcommands to the ``hybridpose`` parser's ``sub``."""
-    from ..fit import OCCLUDED_SHARE, TEXTURED_SHARE
+    from ..fit import LOOKS, OCCLUDED_SHARE, TEXTURED_SHARE
 
     k = sub.add_parser("track", help="track your object through a video or image folder (the hybrid: the CNN "
                                      "initialises; --init-pose: the tracker alone from that pose)")
@@ -261,7 +262,15 @@ def add_commands(sub) -> None:
     f.add_argument("--out", required=True, help="the fit's folder (an interrupted fit resumes there)")
     f.add_argument("--budget", default="60m", help="time for the whole fit: 60m, 1h30m, 90s (default 60m)")
     f.add_argument("--seed", type=int, default=0)
-    f.add_argument("--backgrounds", default=None, metavar="DIR", help="photos: half the training backgrounds are crops of them")
+    f.add_argument("--look", default="random", choices=LOOKS,
+                   help="random: a part on a bench or in a hand (cluttered or photo backgrounds, lights, colours; "
+                        "the network learns to find the part); space: black space and the sun alone, the part "
+                        "found as the sunlit pixels (default random)")
+    f.add_argument("--distances", type=float_pair, default=None, metavar="NEAR,FAR",
+                   help="the part's distances in the views, metres (default: where it fills 70 %% to 12 %% of "
+                        "the image's shorter side)")
+    f.add_argument("--backgrounds", default=None, metavar="DIR",
+                   help="photos: half the training backgrounds are crops of them (look random)")
     f.add_argument("--workers", type=int, default=1, help="render processes")
     f.add_argument("--init-from", default="default",
                    help="checkpoint to start from: 'default' (the shipped network's weights), a path, or 'none'")

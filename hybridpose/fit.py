@@ -183,7 +183,9 @@ def training_render_settings(backgrounds, distance_range_m, occluded_share: floa
                              textured_share: float = 0.0, look: str = "random") -> dict:
     """The :func:`~hybridpose.datasets.render_random_dataset` settings of a fit's views (its held-out
     views: without the arm and the print, the shares' defaults). Either look has the sun within 85° of
-    the optical axis; ``"space"`` has nothing else: black background, no ambient or fill light."""
+    the renderer's default sun direction (:class:`~hybridpose.render.SpaceLighting`, 46° off the
+    optical axis: front-, side- and some back-light); ``"space"`` has nothing else: black background,
+    no ambient or fill light."""
     from .render import AppearanceSpec
 
     looks = AppearanceSpec(look, None if backgrounds is None else str(backgrounds), texture_share=textured_share)

@@ -48,6 +48,8 @@ FIT_LR = 1e-3
 # fit resumed from an earlier one) is fine-tuned at the shipped network's last stages' rate instead
 REFIT_LR = 5e-5
 LOOKS = ("random", "space")
+SUN_CONE_DEG = 85.0  # each view's sun within this of the look's centre direction
+SPACE_SUN_CENTRE = (0.0, 0.0, 1.0)  # the "space" look's: the optical axis (light travelling away from the camera)
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
 TEXTURED_SHARE = 0.0  # share of training views with a random print on the part (docs/decisions.md)
@@ -182,15 +184,18 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, **render_k
 def training_render_settings(backgrounds, distance_range_m, occluded_share: float = 0.0,
                              textured_share: float = 0.0, look: str = "random") -> dict:
     """The :func:`~hybridpose.datasets.render_random_dataset` settings of a fit's views (its held-out
-    views: without the arm and the print, the shares' defaults). Either look has the sun within 85° of
-    the renderer's default sun direction (:class:`~hybridpose.render.SpaceLighting`, 46° off the
-    optical axis: front-, side- and some back-light); ``"space"`` has nothing else: black background,
-    no ambient or fill light."""
-    from .render import AppearanceSpec
+    views: without the arm and the print, the shares' defaults). Each view's sun lies within 85° of a
+    centre direction, at 0.6–1.3 × its intensity. ``"random"``: around the renderer's default sun
+    direction (:class:`~hybridpose.render.SpaceLighting`, 46° off the optical axis: front-, side- and
+    some back-light), beside ambient and fill lights. ``"space"``: the sun alone on black, around the
+    optical axis (light from every side of the image, as the shipped truss network's last stages saw:
+    centred on the default direction, a truss re-fit lost 2° mean on views lit from the far side)."""
+    from .render import AppearanceSpec, SpaceLighting
 
     looks = AppearanceSpec(look, None if backgrounds is None else str(backgrounds), texture_share=textured_share)
-    return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, sun_cone_deg=85.0,
-                sun_scale_range=(0.6, 1.3), occluded_share=occluded_share)
+    lighting = SpaceLighting(sun_direction_cam=SPACE_SUN_CENTRE) if look == "space" else SpaceLighting()
+    return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, lighting=lighting,
+                sun_cone_deg=SUN_CONE_DEG, sun_scale_range=(0.6, 1.3), occluded_share=occluded_share)
 
 
 def start_learning_rate(start, obj: ObjectModel) -> float:
@@ -204,6 +209,27 @@ def start_learning_rate(start, obj: ObjectModel) -> float:
     known = (load_checkpoint(start).get("build") or {}).get("keypoints_m")
     same = known is not None and np.shape(known) == np.shape(obj.keypoints) and np.allclose(known, obj.keypoints, atol=1e-6)
     return REFIT_LR if same else FIT_LR
+
+
+def keep_start_sun(start, checkpoint) -> bool:
+    """Give ``checkpoint`` (a re-fit's export, rewritten in place) the sun record of its ``start`` when
+    the re-fit's own light came from every side (its cone holds the optical axis, so its record asks
+    for no crop turn) while the start's came from one side: the start's features learnt that side, and
+    a fine-tune at ``REFIT_LR`` keeps them, so its crops still want the light turned there
+    (:func:`~hybridpose.regressors.predictor.sun_turn_deg`). A truss re-fit on views lit around the axis
+    measured 5.19° mean on such views with its start's record, 6.31° with its own. Returns whether it
+    changed ``checkpoint``."""
+    from .regressors.checkpoints import load_checkpoint, save_checkpoint
+    from .regressors.predictor import trained_light_azimuth_deg
+
+    start_light = (load_checkpoint(start).get("dataset") or {}).get("lighting")
+    payload = load_checkpoint(checkpoint)
+    dataset = payload.setdefault("dataset", {})
+    if trained_light_azimuth_deg(start_light) is None or trained_light_azimuth_deg(dataset.get("lighting")) is not None:
+        return False
+    dataset["lighting"] = dict(start_light)
+    save_checkpoint(Path(checkpoint), payload)
+    return True
 
 
 def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: float,
@@ -353,6 +379,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                           full_view=FULL_VIEW if look == "random" else 0.0, workers=1)
         train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
+        if cfg.lr == REFIT_LR and keep_start_sun(start, out / "best.pt"):
+            progress("fit: kept the start's sun side (its crops are turned to the light it learnt)")
 
     if measured and "train" not in record["done"] and not record.get("training_planned"):
         plan = plan_training(plan, sum(record["minutes"].values()))

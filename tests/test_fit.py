@@ -12,6 +12,7 @@ from hybridpose.fit import (EVAL_RESERVE_MIN, FIT_LR, PLAN_MARGIN, REFIT_LR, Fit
                             measure_speeds, parse_budget, plan_training, start_learning_rate, working_distances)
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
+from hybridpose.render import SpaceLighting
 
 
 @pytest.fixture(scope="module")
@@ -138,8 +139,11 @@ def test_the_render_speed_is_measured_on_views_like_the_training_views(box_mesh,
         fit(str(box_mesh), tmp_path / "fit", scale=0.001, budget="30m", backgrounds=photos, textured_share=0.25,
             occluded_share=0.2, progress=lambda _line: None)
     measured, training = calls[2], calls[3]
-    for key in ("appearance", "distance_range_m", "sun_cone_deg", "sun_scale_range", "occluded_share", "in_view"):
+    for key in ("appearance", "distance_range_m", "lighting", "sun_cone_deg", "sun_scale_range", "occluded_share",
+                "in_view"):
         assert measured[key] == training[key], key
+    # a part on a bench: the sun's cone around the renderer's default direction, beside other lights
+    assert training["lighting"].sun_direction_cam == SpaceLighting().sun_direction_cam
     assert measured["appearance"].backgrounds == str(photos) and measured["appearance"].texture_share == 0.25
 
 
@@ -269,7 +273,8 @@ def test_fit_command_refuses_bad_input_with_a_message(box_mesh, tmp_path, capsys
 def test_a_space_fit_renders_black_space_at_the_given_distances_and_trains_without_whole_frames(
         box_mesh, tmp_path, monkeypatch):
     """look='space': the views have the sun alone on black (the part found as its sunlit pixels, so
-    no whole-frame crops); distances given by the user reach the views and the record."""
+    no whole-frame crops), its cone around the optical axis (light from every side of the image);
+    distances given by the user reach the views and the record."""
     import hybridpose.datasets as datasets
     import hybridpose.regressors.train as train_module
 
@@ -296,6 +301,7 @@ def test_a_space_fit_renders_black_space_at_the_given_distances_and_trains_witho
             progress=lambda *_: None)
     assert len(calls) == 3 and all(kw["appearance"].kind == "space" for kw in calls)
     assert all(kw["distance_range_m"] == (0.5, 2.0) for kw in calls)
+    assert all(np.allclose(kw["lighting"].sun_direction_cam, (0, 0, 1)) and kw["sun_cone_deg"] == 85 for kw in calls)
     assert runs[0].full_view == 0.0
     record = json.loads((out / "fit.json").read_text())
     assert record["request"]["look"] == "space" and record["request"]["distance_range_m"] == [0.5, 2.0]
@@ -324,3 +330,29 @@ def test_a_start_from_another_objects_network_keeps_this_objects_keypoints(truss
     net = build_model("default", keypoints_m=other, image_size=128)
     _init_from(net, shipped_checkpoint("default"))
     assert np.allclose(net.keypoints_m.numpy(), other, atol=1e-6)
+
+
+def test_a_refit_lit_from_every_side_keeps_its_starts_sun_side(tmp_path):
+    """The start learnt light from one side and its crops are turned to it; a re-fit on views lit
+    around the optical axis (a record that asks for no turn) keeps the start's record; a re-fit lit
+    from one side of its own, or a start with no side, leaves the export as it is."""
+    from hybridpose.fit import keep_start_sun
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
+
+    one_side = {"sun_direction_cam": [0.6, 0.4, 0.7], "sun_cone_deg": 40.0}
+    around_axis = {"sun_direction_cam": [0.0, 0.0, 1.0], "sun_cone_deg": 85.0}
+
+    def write(name, lighting):
+        save_checkpoint(tmp_path / name, {"model": {}, "dataset": {"object": "truss", "lighting": lighting}})
+        return tmp_path / name
+
+    start, no_side = write("start.pt", one_side), write("no_side.pt", around_axis)
+    refit = write("refit.pt", around_axis)
+    assert keep_start_sun(start, refit)
+    assert load_checkpoint(refit)["dataset"] == {"object": "truss", "lighting": one_side}
+    own_side = write("own_side.pt", {"sun_direction_cam": [-0.6, 0.4, 0.7], "sun_cone_deg": 30.0})
+    assert not keep_start_sun(start, own_side)
+    assert load_checkpoint(own_side)["dataset"]["lighting"]["sun_direction_cam"] == [-0.6, 0.4, 0.7]
+    refit2 = write("refit2.pt", around_axis)
+    assert not keep_start_sun(no_side, refit2)
+    assert load_checkpoint(refit2)["dataset"]["lighting"] == around_axis

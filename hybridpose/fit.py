@@ -66,7 +66,8 @@ class FitPlan:
     Attributes:
         budget_min: the budget. train_views, test_views: rendered views. epochs: training epochs
             planned (the run also stops at ``train_min``). train_min: the training run's time limit.
-        render_s_per_view, train_s_per_view: measured on this machine before planning.
+        render_s_per_view, train_s_per_view: measured on this machine before planning (rendering: wall
+            seconds a view on the fit's render processes together).
         distance_range_m: the part's distances in the training views (metres, near, far).
     """
 
@@ -131,10 +132,14 @@ def check_inputs(obj: ObjectModel, camera: Camera, budget_min: float,
     return near, far
 
 
-def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, **render_kw) -> tuple[float, float]:
+def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, workers: int = 1,
+                   **render_kw) -> tuple[float, float]:
     """(render s/view, training s/view) on this machine: views rendered and written as the training
     set will be (``render_kw``: the fit's own :func:`~hybridpose.datasets.render_random_dataset`
-    settings — its photos, lights, shares — on one process; image, depth and masks in BOP files; the
+    settings — its photos, lights, shares — on its ``workers`` processes, so the render time is wall
+    time a view with all of them: a software GL renderer already spreads one process over the cores,
+    and a 2-process truss fit planned as twice one process's rate rendered at 1.1 times it; image,
+    depth and masks in BOP files; the
     per-call start-up cancelled out by a shorter run, after an untimed one), and forward + backward
     passes of the ``default`` network on 128-px crops. Measured on six views without the fit's photos
     and sun range, a 60-minute box fit planned 0.024 s a view and rendered at 0.044–0.059: its quarter
@@ -149,7 +154,7 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, **render_k
     from .render import AppearanceSpec
 
     render_kw = {"appearance": AppearanceSpec("random"), "distance_range_m": working_distances(obj, camera),
-                 "in_view": True, **render_kw, "workers": 1}
+                 "in_view": True, **render_kw, "workers": max(1, int(workers))}
     with tempfile.TemporaryDirectory() as tmp:
         render_random_dataset(Path(tmp) / "warm", obj, camera, 1, seed=0, **render_kw)
         spent = []
@@ -233,11 +238,12 @@ def keep_start_sun(start, checkpoint) -> bool:
 
 
 def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: float,
-              distance_range_m: tuple[float, float], workers: int = 1) -> FitPlan:
-    """Views and epochs for ``budget_min``: ``RENDER_SHARE`` of it renders (on ``workers`` processes),
-    ``TRAIN_SHARE`` trains; more views while an epoch over them still fits at least twice."""
+              distance_range_m: tuple[float, float]) -> FitPlan:
+    """Views and epochs for ``budget_min``: ``RENDER_SHARE`` of it renders (``render_s_per_view``: wall
+    seconds a view on the fit's render processes, :func:`measure_speeds`), ``TRAIN_SHARE`` trains;
+    more views while an epoch over them still fits at least twice."""
     render_s = 60 * budget_min * RENDER_SHARE / PLAN_MARGIN
-    views = int(render_s * max(1, workers) / max(render_s_per_view, 1e-3))
+    views = int(render_s / max(render_s_per_view, 1e-4))
     test = int(np.clip(0.1 * views, *TEST_VIEWS))
     train_min = budget_min * TRAIN_SHARE
     # an epoch over the training views must fit at least twice in the training time
@@ -338,9 +344,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         if plan is None:
             progress(f"fit: measuring this machine ({obj.name}, {camera.width}×{camera.height})")
             t0 = time.time()
-            speeds = measure_speeds(obj, camera, **training_render_settings(
+            speeds = measure_speeds(obj, camera, workers=workers, **training_render_settings(
                 backgrounds, distances, occluded_share, textured_share, look))
-            plan = make_plan(budget_min, *speeds, distances, workers)
+            plan = make_plan(budget_min, *speeds, distances)
             minutes["measure"] = (time.time() - t0) / 60
         record = {"request": request, "plan": asdict(plan), "minutes": minutes, "done": []}
         out.mkdir(parents=True, exist_ok=True)

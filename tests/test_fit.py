@@ -115,6 +115,26 @@ def test_the_render_speed_leaves_out_the_renderer_start_up(box_mesh, monkeypatch
     assert 0.008 < render_s < 0.02
 
 
+def test_the_render_speed_is_measured_on_the_fits_own_render_processes(box_mesh, monkeypatch):
+    """Rendering on two processes is not twice as fast where one process's software GL already uses
+    both cores: the speed is measured with the fit's processes, and the plan takes it as it is (a
+    2-process truss fit planned twice one process's rate and rendered at 1.1 times it)."""
+    import hybridpose.datasets as datasets
+
+    seen = []
+
+    def one_process_speed(out, obj, camera, count, seed=0, workers=1, **kw):
+        seen.append(workers)
+        time.sleep(0.01 * count)  # the same wall time on any number of processes
+
+    monkeypatch.setattr(datasets, "render_random_dataset", one_process_speed)
+    render_s, train_s = measure_speeds(load_object(str(box_mesh), scale=0.001), Camera.default().scaled((320, 240)),
+                                       views=8, workers=2)
+    assert seen == [2, 2, 2] and 0.008 < render_s < 0.02
+    plan = make_plan(60, render_s, train_s, (0.3, 1.2))
+    assert (plan.train_views + plan.test_views) * render_s <= 60 * 60 * 0.25 / PLAN_MARGIN + 1
+
+
 def test_the_render_speed_is_measured_on_views_like_the_training_views(box_mesh, tmp_path, monkeypatch):
     """The plan's render time comes from views with the fit's own photos, lights and shares: measured
     on plain views, a fit's quarter of the budget for rendering once took half of it."""

@@ -168,7 +168,6 @@ class HybridEstimator:
         self.status = "init"
         self._frames = 0  # frames stepped since reset (the one being stepped: not yet counted)
         self._restarts: list[int] = []  # frame counts at which fusion and tracker restarted
-        self._unsure = False  # the last start fitted below unsure_start_quality and no fit since reached it
         self.camera: Camera | None = None
         self.last_timestamp: float | None = None
         self._n = _Counters()
@@ -187,8 +186,7 @@ class HybridEstimator:
         else:
             estimate = self._track(frame, timings)
         self._frames += 1
-        if ((estimate.status in ("tracking", "reinit") and self._unsettled())
-                or (estimate.status in ("init", "tracking", "reinit") and self._unsure)):
+        if estimate.status in ("tracking", "reinit") and self._unsettled():
             estimate = replace(estimate, status="lost")
         self.last_timestamp = frame.timestamp
         timings["total"] = 1000 * (time.perf_counter() - t_start)
@@ -223,9 +221,6 @@ class HybridEstimator:
                 # hand-held camera that stopped)
                 self.last_tracker = retry
                 return self._take_up(frame, retry, timings)
-        bar = self.config.unsure_start_quality
-        if self._unsure and not m.lost and m.quality >= bar:
-            self._unsure = False
         sources = []
         rejected = False
         if m.lost:
@@ -398,7 +393,6 @@ class HybridEstimator:
         self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp)
         self.status = "tracking"
         self._n = _Counters()
-        self._unsure = self._unsure_start(m)
         return self._estimate("tracking", (m.source,))
 
     def _retries(self, previous: Measurement | None) -> bool:
@@ -468,13 +462,6 @@ class HybridEstimator:
             pass
         self._n = _Counters()
         self._restarts.append(self._frames)
-        self._unsure = self._unsure_start(m)
-
-    def _unsure_start(self, m: Measurement) -> bool:
-        """Whether a start from ``m`` is reported lost (pose given) until a tracker fit reaches
-        ``unsure_start_quality``."""
-        bar = self.config.unsure_start_quality
-        return bar is not None and m.quality < bar
 
     def _unsettled(self) -> bool:
         """Restarted twice within ``unstable_window`` frames and not yet ``settle_frames`` frames since:

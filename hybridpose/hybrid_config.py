@@ -33,10 +33,6 @@ class HybridConfig:
         unstable_window, settle_frames: a restart within ``unstable_window`` frames of the previous
             one marks the next ``settle_frames`` frames ``lost`` (pose given, not to be trusted): the CNN
             and the edges keep agreeing on poses that do not hold, a view both get wrong (0: off).
-        unsure_start_quality: a start (init, reinit, the tracker taking up by itself) whose fit scores
-            below this is reported ``lost`` (pose given, not to be trusted) until a tracker fit
-            reaches it: a start a few degrees off fits at 0.65–0.80 and the tracker corrects it over
-            a few frames, where a right one mostly fits above 0.8. None: off.
         tracker_resumes: while lost, the tracker also tries every frame from the fusion's
             prediction and takes up again by itself when its fit is not lost and passes the gate
             (the honest quality keeps it from taking up on the arm), and the fusion starts over from
@@ -146,7 +142,6 @@ class HybridConfig:
     keep_covered_quality: float | None = 0.3
     keep_after: int = 5
     disagreement_deg: float | None = None
-    unsure_start_quality: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "keep_after"):
@@ -162,9 +157,6 @@ class HybridConfig:
         for name in ("disagreement_chi2", "reacquire_chi2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
-        if self.unsure_start_quality is not None and not 0 <= self.unsure_start_quality <= 1:
-            raise ValueError(f"unsure_start_quality: expected a tracker quality in [0, 1] or None, got "
-                             f"{self.unsure_start_quality}")
         if self.disagreement_deg is not None and not 0 < self.disagreement_deg <= 180:
             raise ValueError(f"disagreement_deg: expected an angle in (0, 180] degrees or None, got {self.disagreement_deg}")
         for name in ("keep_quality", "keep_covered_quality"):

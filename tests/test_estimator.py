@@ -630,25 +630,6 @@ def test_restarts_close_together_are_not_trusted_until_tracking_settles():
     assert statuses[-1] == "tracking" and statuses[20:] == reference[20:]  # settled once the restarts stop
 
 
-def test_a_start_that_fits_unsurely_is_not_trusted_until_a_fit_is_sure():
-    """With unsure_start_quality, a start whose fit scores below it is reported lost (its pose
-    given) until a tracker fit reaches it; a start above it is trusted at once."""
-    class Settling(ScriptedTracker):
-        def track(self, frame, prior=None):
-            m = super().track(frame, prior)
-            q = 0.7 if frame.index < 3 else 0.9  # the start and the next two fits unsure, then sure
-            return Measurement(m.pose, m.covariance, q, m.source, m.timestamp)
-
-    config = HybridConfig(check_period=0, probation_frames=0, start_turn_deg=0.0, unsure_start_quality=0.8)
-    out = run(HybridEstimator(Settling(), OracleRegressor(), registry.create("fusion", "ukf"), config), 6)
-    assert [e.status for e in out] == ["lost", "lost", "lost", "tracking", "tracking", "tracking"]
-    assert all(e.pose is not None for e in out)
-    sure = run(HybridEstimator(ScriptedTracker(), OracleRegressor(), registry.create("fusion", "ukf"), config), 3)
-    assert [e.status for e in sure] == ["init", "tracking", "tracking"]
-    with pytest.raises(ValueError, match="unsure_start_quality"):
-        HybridConfig(unsure_start_quality=1.5)
-
-
 def swerve(k: int) -> Pose:
     """The truth, then from frame 10 on a sudden 1.2 m/s along the line of sight (the motion model
     expects nothing like it)."""

@@ -302,7 +302,9 @@ class HybridEstimator:
         if m.pose is not None and previous is not None and previous.pose is not None:
             dt = m.timestamp - previous.timestamp
             motion = getattr(self.fusion, "initial_twist_covariance", np.zeros((6, 6))) * dt**2
-            if _mahalanobis2(previous.pose, previous.covariance + motion, m.pose, m.covariance) <= self.config.reacquire_chi2:
+            cap = self.config.reacquire_deg
+            if (_mahalanobis2(previous.pose, previous.covariance + motion, m.pose, m.covariance) <= self.config.reacquire_chi2
+                    and (cap is None or rotation_error_deg(previous.pose, m.pose) <= cap)):
                 fit = self._confirmed(frame, m, timings)
                 if fit is not None:
                     self._restart(frame, fit, timings)

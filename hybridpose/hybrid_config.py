@@ -47,6 +47,9 @@ class HybridConfig:
             object lost (before that the estimate coasts on the fusion's prediction).
         reacquire_chi2: squared Mahalanobis distance below which two consecutive CNN answers agree
             while lost (both covariances, plus the motion possible in between).
+        reacquire_deg: two consecutive CNN answers further apart than this in rotation (°) never agree,
+            whatever the covariances say: a regressor whose covariance covers its gross errors (a
+            part's fit) lets two answers 65° apart agree. None: the Mahalanobis test alone.
         lost_check_period: frames between CNN answers while lost (1: every frame). Under a long
             occlusion the CNN finds nothing frame after frame; asking it less often is most of the
             hybrid's saving over CNN-only, at up to that many frames' delay in recovering.
@@ -142,6 +145,7 @@ class HybridConfig:
     keep_covered_quality: float | None = 0.3
     keep_after: int = 5
     disagreement_deg: float | None = None
+    reacquire_deg: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "keep_after"):
@@ -157,6 +161,8 @@ class HybridConfig:
         for name in ("disagreement_chi2", "reacquire_chi2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
+        if self.reacquire_deg is not None and not 0 < self.reacquire_deg <= 180:
+            raise ValueError(f"reacquire_deg: expected an angle in (0, 180] degrees or None, got {self.reacquire_deg}")
         if self.disagreement_deg is not None and not 0 < self.disagreement_deg <= 180:
             raise ValueError(f"disagreement_deg: expected an angle in (0, 180] degrees or None, got {self.disagreement_deg}")
         for name in ("keep_quality", "keep_covered_quality"):

@@ -503,6 +503,29 @@ def test_loss_then_reacquisition_by_two_agreeing_cnn_answers():
     assert all(e.status == "tracking" for e in out[26:])
 
 
+class VagueOnceGross(Vague):
+    """Vague, blind while the object is covered, and its first answer after 60° off."""
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return replace(m, pose=tilt(m.pose, 60.0)) if frame.index == 24 else m
+
+
+@pytest.mark.parametrize("reacquire_deg", [None, 20.0])
+def test_two_answers_far_apart_never_agree_with_a_rotation_cap(reacquire_deg):
+    """With a covariance that covers gross errors, a 60°-off answer and the right one after it agree
+    by Mahalanobis distance alone; ``reacquire_deg`` keeps them apart, and the next two agree."""
+    assert HybridConfig().reacquire_deg is None
+    est = HybridEstimator(ScriptedTracker(lost_frames=range(15, 25)), VagueOnceGross(blind=range(15, 24)),
+                          registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, tracker_resumes=False, reacquire_deg=reacquire_deg))
+    out = run(est, 30)
+    first = min(k for k, e in enumerate(out) if k > 15 and e.status == "reinit")
+    assert first == (25 if reacquire_deg is None else 26)
+    with pytest.raises(ValueError, match="reacquire_deg"):
+        HybridConfig(reacquire_deg=0.0)
+
+
 @pytest.mark.parametrize("fusion", registry.available("fusion"))
 def test_every_fusion_backend_runs_the_policy(fusion):
     est = HybridEstimator(ScriptedTracker(drift_at=12), OracleRegressor(), registry.create("fusion", fusion))

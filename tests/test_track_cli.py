@@ -147,6 +147,30 @@ def test_tracker_options_reach_the_tracker(clip, tmp_path, capsys):
     assert "explain: expected true or false" in capsys.readouterr().err
     assert main([*args, "--regressor-option", "fine_tiles=true", "--out", str(tmp_path / "r")]) == 2
     assert "--regressor-option: the tracker alone runs from --init-pose" in capsys.readouterr().err
+    assert main([*args, "--hybrid-option", "reacquire_deg=20", "--out", str(tmp_path / "s")]) == 2
+    assert "--hybrid-option: the tracker alone runs from --init-pose" in capsys.readouterr().err
+
+
+def test_hybrid_options_reach_the_policy(clip, tmp_path, capsys, monkeypatch):
+    from hybridpose.estimator import HybridEstimator
+
+    root, _ = clip
+    seen = []
+    original = HybridEstimator.from_names.__func__
+
+    def spy(cls, *a, **kw):
+        seen.append(kw.get("config"))
+        return original(cls, *a, **kw)
+
+    monkeypatch.setattr(HybridEstimator, "from_names", classmethod(spy))
+    args = ["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"), "--max-frames", "2"]
+    assert main([*args, "--hybrid-option", "reacquire_deg=20", "--hybrid-option", "keep_quality=none",
+                 "--out", str(tmp_path / "h")]) == 0
+    assert seen[0].reacquire_deg == 20 and seen[0].keep_quality is None and seen[0].check_period == 10
+    assert main([*args, "--hybrid-option", "reacquire=20", "--out", str(tmp_path / "i")]) == 2
+    assert "--hybrid-option: expected NAME=VALUE with a name among check_period" in capsys.readouterr().err
+    assert main([*args, "--hybrid-option", "reacquire_deg=0", "--out", str(tmp_path / "j")]) == 2
+    assert "reacquire_deg: expected an angle" in capsys.readouterr().err
 
 
 def test_backend_options_read_values_as_the_defaults_types():

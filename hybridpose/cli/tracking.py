@@ -22,9 +22,15 @@ def cmd_track(args) -> int:
     from ..regressors.options import KeypointOptions
 
     tracker_kw = backend_options(args.tracker_option, get("tracker", args.tracker), "--tracker-option")
+    from ..hybrid_config import HybridConfig
+
     regressor_kw = backend_options(args.regressor_option, KeypointOptions, "--regressor-option")
     if regressor_kw and args.init_pose is not None:
         raise ValueError("--regressor-option: the tracker alone runs from --init-pose; no CNN to set")
+    hybrid_kw = backend_options(args.hybrid_option, HybridConfig, "--hybrid-option")
+    if hybrid_kw and args.init_pose is not None:
+        raise ValueError("--hybrid-option: the tracker alone runs from --init-pose; no hybrid policy to set")
+    config = HybridConfig(**hybrid_kw)
     get("fusion", args.fusion)
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
@@ -43,7 +49,8 @@ def cmd_track(args) -> int:
         from ..tracking import run_hybrid_on_frames
 
         est = HybridEstimator.from_names(object=obj, tracker=args.tracker, regressor=args.regressor,
-                                         fusion=args.fusion, tracker_kw=tracker_kw, regressor_kw=regressor_kw)
+                                         fusion=args.fusion, tracker_kw=tracker_kw, regressor_kw=regressor_kw,
+                                         config=config)
         res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"))
         print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}; "
               f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
@@ -206,6 +213,9 @@ def add_commands(sub) -> None:
     k.add_argument("--regressor-option", action="append", metavar="NAME=VALUE",
                    help="an option of a checkpoint regressor (repeatable; KeypointOptions), e.g. fine_tiles=true "
                         "to look for a small part in finer tiles of the frame")
+    k.add_argument("--hybrid-option", action="append", metavar="NAME=VALUE",
+                   help="a field of the hybrid's policy (repeatable; HybridConfig), e.g. reacquire_deg=20 for a "
+                        "part fitted with hybridpose fit")
     k.add_argument("--sun-dir", default=None, metavar="X,Y,Z",
                    help="in space with the sun the only light: the direction the sunlight travels in the camera "
                         "frame (x right, y down, z forward), e.g. from a sun sensor; the edge fits then leave out "

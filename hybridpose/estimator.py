@@ -34,8 +34,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   that fit: a hand-held camera stops where a constant-velocity model runs on.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
-  consecutive answers agree (``reacquire_chi2``) and the tracker, started from the latest, confirms it
-  (not lost: under the arm the CNN can repeat the same wrong answer, but the edges do not match);
+  consecutive answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the
+  tracker, started from the latest, confirms it (not lost: under the arm the CNN can repeat the same
+  wrong answer, but the edges do not match);
   then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
   from the prediction each frame and takes up again by itself when its fit is good and inside the
   gate (``tracker_resumes``); the fusion then starts over from that fit.

@@ -19,11 +19,10 @@ def cmd_track(args) -> int:
     from ..registry import create, get
     from ..tracking import load_pose, read_frames, track_sequence
 
+    from ..hybrid_config import HybridConfig
     from ..regressors.options import KeypointOptions
 
     tracker_kw = backend_options(args.tracker_option, get("tracker", args.tracker), "--tracker-option")
-    from ..hybrid_config import HybridConfig
-
     regressor_kw = backend_options(args.regressor_option, KeypointOptions, "--regressor-option")
     if regressor_kw and args.init_pose is not None:
         raise ValueError("--regressor-option: the tracker alone runs from --init-pose; no CNN to set")

@@ -383,6 +383,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                           image_size=IMAGE_SIZE, val_fraction=0.05, seed=seed, patience=0, schedule="cosine",
                           init_from=start, time_limit_min=plan.train_min,
                           full_view=FULL_VIEW if look == "random" else 0.0, workers=1)
+        record["learning_rate"] = cfg.lr
         train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
         if cfg.lr == REFIT_LR and keep_start_sun(start, out / "best.pt"):
@@ -460,6 +461,14 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         *([f"**The covariance was not re-calibrated**: {record['calibration_skipped']} — the model needs a larger "
            "budget (or `--backgrounds` closer to the real scenes) before it is usable.", ""]
           if record.get("calibration_skipped") else []),
-        "Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt` or "
-        "`HybridEstimator.from_names(object=MESH, regressor=\"best.pt\")`. The full evaluation: `eval/report.md`.",
+        *(["Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt` or "
+           "`HybridEstimator.from_names(object=MESH, regressor=\"best.pt\")`."]
+          if record.get("learning_rate") == REFIT_LR else
+          # a new part's covariance covers its gross errors: two answers while lost must also lie within 20°
+          # (docs/decisions.md: a box's own-object sequences 2.36° → 0.38° mean)
+          ["Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt --hybrid-option "
+           "reacquire_deg=20` or `HybridEstimator.from_names(object=MESH, regressor=\"best.pt\", "
+           "config=HybridConfig(reacquire_deg=20))` (a new part's network is sometimes far off where it looks "
+           "sure: two of its answers must agree within 20° to restart a lost track)."]),
+        "The full evaluation: `eval/report.md`.",
         ""])

@@ -199,6 +199,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     assert np.isfinite(acc["rot_median_deg"]) and acc["rot_twin_median_deg"] <= acc["rot_median_deg"]
     report = (out / "report.md").read_text()
     assert "within a tracker's basin" in report and "32 training and 44 held-out views" in report and "equivalent poses" in report
+    assert "--hybrid-option reacquire_deg=20" in report  # a new part's network: the policy it wants
     # the rendered views have random looks, not black space
     cfg = json.loads((out / "data" / "train" / "hybridpose.json").read_text())
     assert cfg["appearance"]["kind"] == "random"

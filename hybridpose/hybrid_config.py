@@ -163,10 +163,10 @@ class HybridConfig:
         for name in ("disagreement_chi2", "reacquire_chi2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected a positive squared Mahalanobis distance, got {getattr(self, name)}")
-        if self.reacquire_deg is not None and not 0 < self.reacquire_deg <= 180:
-            raise ValueError(f"reacquire_deg: expected an angle in (0, 180] degrees or None, got {self.reacquire_deg}")
-        if self.disagreement_deg is not None and not 0 < self.disagreement_deg <= 180:
-            raise ValueError(f"disagreement_deg: expected an angle in (0, 180] degrees or None, got {self.disagreement_deg}")
+        for name in ("disagreement_deg", "reacquire_deg"):
+            v = getattr(self, name)
+            if v is not None and not 0 < v <= 180:
+                raise ValueError(f"{name}: expected an angle in (0, 180] degrees or None, got {v}")
         for name in ("keep_quality", "keep_covered_quality"):
             v = getattr(self, name)
             if v is not None and not 0 <= v <= 1:

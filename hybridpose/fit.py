@@ -139,8 +139,8 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, workers: i
     settings — its photos, lights, shares — on its ``workers`` processes, so the render time is wall
     time a view with all of them: a software GL renderer already spreads one process over the cores,
     and a 2-process truss fit planned as twice one process's rate rendered at 1.1 times it; image,
-    depth and masks in BOP files; the
-    per-call start-up cancelled out by a shorter run, after an untimed one), and forward + backward
+    depth and masks in BOP files; the per-call start-up cancelled out by a shorter run, after an
+    untimed one), and forward + backward
     passes of the ``default`` network on 128-px crops. Measured on six views without the fit's photos
     and sun range, a 60-minute box fit planned 0.024 s a view and rendered at 0.044–0.059: its quarter
     of the budget became half. Timed from the process's first render call, the GL and mesh set-up fell
@@ -432,6 +432,13 @@ def held_out_accuracy(report: dict, obj: ObjectModel) -> dict:
 
 def fit_report(record: dict, obj: ObjectModel) -> str:
     p, a, req = record["plan"], record["accuracy"], record["request"]
+    flag = config = why = ""
+    if record.get("learning_rate") != REFIT_LR:
+        # a new part's covariance covers its gross errors: two answers while lost must also lie within 20°
+        # (docs/decisions.md: a box's own-object sequences 2.36° → 0.38° mean)
+        flag, config = " --hybrid-option reacquire_deg=20", ", config=HybridConfig(reacquire_deg=20)"
+        why = (" (a new part's network is sometimes far off where it looks sure: two of its answers must agree "
+               "within 20° to restart a lost track)")
     minutes = " · ".join(f"{k} {v:.1f}" for k, v in record["minutes"].items())
     return "\n".join([
         f"# hybridpose fit: {obj.name}", "",
@@ -461,14 +468,7 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         *([f"**The covariance was not re-calibrated**: {record['calibration_skipped']} — the model needs a larger "
            "budget (or `--backgrounds` closer to the real scenes) before it is usable.", ""]
           if record.get("calibration_skipped") else []),
-        *(["Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt` or "
-           "`HybridEstimator.from_names(object=MESH, regressor=\"best.pt\")`."]
-          if record.get("learning_rate") == REFIT_LR else
-          # a new part's covariance covers its gross errors: two answers while lost must also lie within 20°
-          # (docs/decisions.md: a box's own-object sequences 2.36° → 0.38° mean)
-          ["Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt --hybrid-option "
-           "reacquire_deg=20` or `HybridEstimator.from_names(object=MESH, regressor=\"best.pt\", "
-           "config=HybridConfig(reacquire_deg=20))` (a new part's network is sometimes far off where it looks "
-           "sure: two of its answers must agree within 20° to restart a lost track)."]),
+        f"Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt{flag}` or "
+        f"`HybridEstimator.from_names(object=MESH, regressor=\"best.pt\"{config})`{why}.",
         "The full evaluation: `eval/report.md`.",
         ""])

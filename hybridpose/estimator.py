@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import inspect
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -61,7 +62,7 @@ from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
 from .fusion.base import adjoint
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose, rotvec_to_matrix
-from .hybrid_config import DEFAULT_FUSION, HybridConfig
+from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg, rotation_error_rad
 from .objects import ObjectModel
 
@@ -101,14 +102,17 @@ class HybridEstimator:
         tracker: a :class:`~hybridpose.trackers.base.Tracker` (``init`` / ``track`` / ``reset``).
         regressor: a :class:`~hybridpose.regressors.base.PoseRegressor` (``predict(frame, roi)``).
         fusion: a :class:`~hybridpose.fusion.base.Fusion` (``reset`` / ``predict`` / ``update``).
-        config: the policy's thresholds (:class:`HybridConfig`).
+        config: the policy's thresholds: a :class:`HybridConfig`, used as given; None (default): the
+            defaults with the fields the regressor recommends (``regressor.hybrid_config``: a part's
+            fitted network carries ``reacquire_deg=20``); a mapping of fields: those recommended
+            values with these changed (``{"reacquire_deg": None}`` turns the recommendation off).
 
     ``step(frame)`` returns an :class:`~hybridpose.core.Estimate` per frame: pose (``T_cam_obj``,
     metres; None until the CNN first finds the object), 6×6 covariance, body twist, status, the
     measurement sources fused and the milliseconds per component.
     """
 
-    def __init__(self, tracker, regressor, fusion, config: HybridConfig | None = None) -> None:
+    def __init__(self, tracker, regressor, fusion, config: HybridConfig | Mapping | None = None) -> None:
         for name, obj, methods in (("tracker", tracker, ("init", "track", "reset")),
                                    ("regressor", regressor, ("predict",)),
                                    ("fusion", fusion, ("reset", "predict", "update"))):
@@ -117,9 +121,11 @@ class HybridEstimator:
                 raise TypeError(f"{name}: expected an object with {', '.join(methods)}; "
                                 f"{type(obj).__name__} lacks {', '.join(missing)}")
         self.tracker, self.regressor, self.fusion = tracker, regressor, fusion
-        self.config = config or HybridConfig()
-        if not isinstance(self.config, HybridConfig):
-            raise TypeError(f"config: expected a HybridConfig, got {type(config).__name__}")
+        if config is None or isinstance(config, Mapping):
+            config = recommended_config(getattr(regressor, "hybrid_config", None), config, type(regressor).__name__)
+        if not isinstance(config, HybridConfig):
+            raise TypeError(f"config: expected a HybridConfig, a mapping of its fields or None, got {type(config).__name__}")
+        self.config = config
         self.object: ObjectModel | None = getattr(tracker, "object", None)
         # a tracker whose track() takes search_px searches further from a CNN pose than frame to frame
         # and one that takes lost_quality keeps an established track through a partial occlusion
@@ -135,7 +141,7 @@ class HybridEstimator:
 
     @classmethod
     def from_names(cls, object: str | ObjectModel = "truss", tracker: str = "edges", regressor: str = "default",
-                   fusion: str = DEFAULT_FUSION, config: HybridConfig | None = None, scale: float = 1.0,
+                   fusion: str = DEFAULT_FUSION, config: HybridConfig | Mapping | None = None, scale: float = 1.0,
                    tracker_kw: dict | None = None, regressor_kw: dict | None = None,
                    fusion_kw: dict | None = None) -> HybridEstimator:
         """Build every part from :mod:`hybridpose.registry` names.
@@ -144,6 +150,7 @@ class HybridEstimator:
             object: a built-in object name (``"truss"``), a mesh file, or an :class:`ObjectModel`.
             tracker, fusion: registered names (``registry.available("tracker")`` ...).
             regressor: a registered name, or the path of a trained checkpoint (``runs/x/best.pt``).
+            config: as for the constructor (None: the regressor's recommended policy).
             scale: mesh units → metres for a mesh file (0.001 for mm).
             tracker_kw, regressor_kw, fusion_kw: keyword arguments of each backend.
         """

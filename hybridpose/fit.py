@@ -47,6 +47,10 @@ FIT_LR = 1e-3
 # a start that already knows the part (its keypoints are the part's: re-fitting the built-in truss, or a
 # fit resumed from an earlier one) is fine-tuned at the shipped network's last stages' rate instead
 REFIT_LR = 5e-5
+# the hybrid policy a new part's network recommends: its covariance, calibrated to cover its gross errors,
+# let two answers 65° apart agree and restart a lost track at a wrong pose; within 20° they agree only
+# near the truth (a box's own-object sequences 2.36° → 0.38° mean; docs/decisions.md)
+NEW_PART_POLICY = {"reacquire_deg": 20.0}
 LOOKS = ("random", "space")
 SUN_CONE_DEG = 85.0  # each view's sun within this of the look's centre direction
 SPACE_SUN_CENTRE = (0.0, 0.0, 1.0)  # the "space" look's: the optical axis (light travelling away from the camera)
@@ -237,6 +241,21 @@ def keep_start_sun(start, checkpoint) -> bool:
     return True
 
 
+def record_hybrid_policy(start, checkpoint, refit: bool) -> dict:
+    """Write into ``checkpoint`` (a fit's export, rewritten in place) the hybrid policy recommended
+    for it (``hybrid_config``: :class:`~hybridpose.hybrid_config.HybridConfig` fields the estimator
+    applies where its caller gives no config): for a new part's network, ``NEW_PART_POLICY``; for a
+    re-fit, whatever its ``start`` recommended (the shipped truss network: nothing). Returns it."""
+    from .regressors.checkpoints import load_checkpoint, save_checkpoint
+
+    policy = dict(load_checkpoint(start).get("hybrid_config") or {}) if refit and start is not None else dict(NEW_PART_POLICY)
+    if policy:
+        payload = load_checkpoint(checkpoint)
+        payload["hybrid_config"] = policy
+        save_checkpoint(Path(checkpoint), payload)
+    return policy
+
+
 def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: float,
               distance_range_m: tuple[float, float]) -> FitPlan:
     """Views and epochs for ``budget_min``: ``RENDER_SHARE`` of it renders (``render_s_per_view``: wall
@@ -395,6 +414,11 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         atomic_write_json(record_path, record)
         progress(f"fit: training re-planned for the time left — {plan.epochs} epochs within {plan.train_min:.0f} min")
     stage("train", run_training)
+    if "hybrid_config" not in record:  # also brings a fit made before checkpoints carried their policy up to date
+        start = None if init_from is None else str(checkpoint_or_shipped(init_from))
+        record["hybrid_config"] = record_hybrid_policy(start, out / "best.pt",
+                                                       refit=start_learning_rate(start, obj) == REFIT_LR)
+        atomic_write_json(record_path, record)
 
     def run_calibration():
         try:
@@ -432,13 +456,12 @@ def held_out_accuracy(report: dict, obj: ObjectModel) -> dict:
 
 def fit_report(record: dict, obj: ObjectModel) -> str:
     p, a, req = record["plan"], record["accuracy"], record["request"]
-    flag = config = why = ""
-    if record.get("learning_rate") != REFIT_LR:
-        # a new part's covariance covers its gross errors: two answers while lost must also lie within 20°
-        # (docs/decisions.md: a box's own-object sequences 2.36° → 0.38° mean)
-        flag, config = " --hybrid-option reacquire_deg=20", ", config=HybridConfig(reacquire_deg=20)"
-        why = (" (a new part's network is sometimes far off where it looks sure: two of its answers must agree "
-               "within 20° to restart a lost track)")
+    policy = record.get("hybrid_config") or {}
+    carried = ", ".join(f"{k}={'none' if v is None else format(v, 'g')}" for k, v in policy.items())
+    why = (f" The checkpoint carries the hybrid policy `{carried}`, which both apply"
+           + (" (a new part's network is sometimes far off where it looks sure: two of its answers must agree "
+              "within 20° to restart a lost track)" if "reacquire_deg" in policy else "")
+           + f"; `--hybrid-option NAME=VALUE` (`config={{...}}`) changes it." if policy else "")
     minutes = " · ".join(f"{k} {v:.1f}" for k, v in record["minutes"].items())
     return "\n".join([
         f"# hybridpose fit: {obj.name}", "",
@@ -468,7 +491,7 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         *([f"**The covariance was not re-calibrated**: {record['calibration_skipped']} — the model needs a larger "
            "budget (or `--backgrounds` closer to the real scenes) before it is usable.", ""]
           if record.get("calibration_skipped") else []),
-        f"Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt{flag}` or "
-        f"`HybridEstimator.from_names(object=MESH, regressor=\"best.pt\"{config})`{why}.",
+        f"Use it: `hybridpose track VIDEO --object MESH --camera CAM --regressor best.pt` or "
+        f"`HybridEstimator.from_names(object=MESH, regressor=\"best.pt\")`.{why}",
         "The full evaluation: `eval/report.md`.",
         ""])

@@ -3,7 +3,8 @@ chosen on the tuning seeds of the suites (``hybridpose bench --split tuning``; e
 ``docs/decisions.md``)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
 
 from .fusion.base import DEFAULT_GATE_CHI2
 
@@ -51,7 +52,8 @@ class HybridConfig:
             whatever the covariances say: a regressor whose covariance covers its gross errors (a
             part's fit) lets two answers 65° apart agree. 20 for a fitted plain box: its own-object
             sequences 2.36° → 0.38° mean; on the truss, whose edges reject wrong poses, recoveries
-            come a frame later. None (default): the Mahalanobis test alone.
+            come a frame later. None (default): the Mahalanobis test alone; a part's fitted checkpoint
+            recommends 20 (:func:`recommended_config`).
         lost_check_period: frames between CNN answers while lost (1: every frame). Under a long
             occlusion the CNN finds nothing frame after frame; asking it less often is most of the
             hybrid's saving over CNN-only, at up to that many frames' delay in recovering.
@@ -186,3 +188,35 @@ class HybridConfig:
             raise ValueError(f"cnn_search_px: expected ≥ 0 pixels, got {self.cnn_search_px}")
         if not 0 <= self.check_roi_margin <= 2:
             raise ValueError(f"check_roi_margin: expected a fraction in [0, 2], got {self.check_roi_margin}")
+
+
+def recommended_config(recommended: Mapping | None, overrides: Mapping | None = None,
+                       source: str = "regressor") -> HybridConfig:
+    """The policy for a hybrid whose regressor recommends ``recommended`` (its ``hybrid_config``, a
+    mapping of :class:`HybridConfig` fields; a part's ``hybridpose fit`` records ``reacquire_deg`` in
+    its checkpoint): the defaults with those fields, then the caller's ``overrides`` applied.
+    TypeError naming the unknown fields and where they came from (``source``: the regressor)."""
+    config = HybridConfig()
+    known = {f.name for f in fields(HybridConfig)}
+    for origin, changes in ((f"{source}.hybrid_config (its maker's recommended policy)", recommended or {}),
+                            ("config", overrides or {})):
+        if not isinstance(changes, Mapping):
+            raise TypeError(f"{origin}: expected a mapping of HybridConfig fields, got {type(changes).__name__}")
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise TypeError(f"{origin}: {', '.join(map(str, unknown))} not a field of HybridConfig "
+                            f"(fields: {', '.join(sorted(known))})")
+        config = replace(config, **changes)
+    return config
+
+
+def changes_text(config: HybridConfig) -> str:
+    """The fields of ``config`` that differ from the defaults, as ``"name=value, ..."`` (``none`` for
+    None; ``""`` for the defaults): how results and logs name a policy."""
+    base = HybridConfig()
+    return ", ".join(f"{f.name}={_value_text(getattr(config, f.name))}" for f in fields(HybridConfig)
+                     if getattr(config, f.name) != getattr(base, f.name))
+
+
+def _value_text(value) -> str:
+    return "none" if value is None else str(value).lower() if isinstance(value, bool) else format(value, "g")

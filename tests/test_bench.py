@@ -203,6 +203,24 @@ def test_config_fields_are_parsed_by_their_type():
         parse_config("start_quality=none")
 
 
+def test_a_checkpoints_recommended_policy_is_the_default_row_and_named(tmp_path):
+    """A fitted part's checkpoint recommends ``reacquire_deg``: the default hybrid row runs with it (as
+    the estimator would), its label says so, and every ``--config`` row builds on it."""
+    from hybridpose.bench.command import BenchRequest, plan
+    from hybridpose.regressors.checkpoints import save_checkpoint
+
+    save_checkpoint(tmp_path / "part.pt", {"hybrid_config": {"reacquire_deg": 20.0}})
+    specs, _, _ = plan(BenchRequest(out="o", suite="smoke", modes=("hybrid",), regressor=str(tmp_path / "part.pt"),
+                                    configs=("check_period=5", "reacquire_deg=none")))
+    assert [s.label for s in specs] == ["hybrid (edges+part+isam2, reacquire_deg=20)",
+                                        "hybrid (edges+part+isam2, check_period=5, reacquire_deg=20)",
+                                        "hybrid (edges+part+isam2)"]
+    assert specs[0].config.reacquire_deg == 20.0
+    save_checkpoint(tmp_path / "odd.pt", {"hybrid_config": {"reacquire": 20.0}})
+    with pytest.raises(ValueError, match="--regressor .*odd.pt.hybrid_config.*reacquire not a field of HybridConfig"):
+        plan(BenchRequest(out="o", suite="smoke", regressor=str(tmp_path / "odd.pt")))
+
+
 def test_tracker_options_reach_the_tracker_and_name_the_run():
     from hybridpose.bench.command import BenchRequest, plan
     from hybridpose.bench.runner import RunSpec, _backends

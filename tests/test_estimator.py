@@ -526,6 +526,36 @@ def test_two_answers_far_apart_never_agree_with_a_rotation_cap(reacquire_deg):
         HybridConfig(reacquire_deg=0.0)
 
 
+class RecommendingVague(VagueOnceGross):
+    """As a fitted part's network: it recommends a rotation cap for the hybrid using it."""
+
+    hybrid_config = {"reacquire_deg": 20.0, "check_period": 0}
+
+
+def test_the_regressors_recommended_policy_applies_where_the_caller_gives_none():
+    """No config: the defaults with the regressor's recommended fields; a mapping: those with the
+    caller's changes; a HybridConfig: exactly it. Unknown fields are refused naming their source."""
+    def build(config):
+        return HybridEstimator(ScriptedTracker(lost_frames=range(15, 25)), RecommendingVague(blind=range(15, 24)),
+                               registry.create("fusion", "ukf"), config)
+
+    assert build(None).config == HybridConfig(reacquire_deg=20.0, check_period=0)
+    assert build({"tracker_resumes": False}).config == HybridConfig(reacquire_deg=20.0, check_period=0,
+                                                                    tracker_resumes=False)
+    assert build({"reacquire_deg": None}).config.reacquire_deg is None
+    assert build(HybridConfig()).config == HybridConfig()
+    out = run(build({"tracker_resumes": False}), 30)  # the cap applies: the 60°-off answer starts nothing
+    assert min(k for k, e in enumerate(out) if k > 15 and e.status == "reinit") == 26
+    with pytest.raises(TypeError, match="config: reacquire_degs not a field of HybridConfig"):
+        build({"reacquire_degs": 20.0})
+    bad = RecommendingVague()
+    bad.hybrid_config = {"speed": 2}
+    with pytest.raises(TypeError, match="RecommendingVague.hybrid_config.*speed not a field"):
+        HybridEstimator(ScriptedTracker(), bad, registry.create("fusion", "ukf"))
+    with pytest.raises(TypeError, match="config: expected a HybridConfig, a mapping"):
+        HybridEstimator(ScriptedTracker(), OracleRegressor(), registry.create("fusion", "ukf"), [("check_period", 3)])
+
+
 @pytest.mark.parametrize("fusion", registry.available("fusion"))
 def test_every_fusion_backend_runs_the_policy(fusion):
     est = HybridEstimator(ScriptedTracker(drift_at=12), OracleRegressor(), registry.create("fusion", fusion))

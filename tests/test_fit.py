@@ -199,7 +199,8 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     assert np.isfinite(acc["rot_median_deg"]) and acc["rot_twin_median_deg"] <= acc["rot_median_deg"]
     report = (out / "report.md").read_text()
     assert "within a tracker's basin" in report and "32 training and 44 held-out views" in report and "equivalent poses" in report
-    assert "--hybrid-option reacquire_deg=20" in report  # a new part's network: the policy it wants
+    # a new part's network carries the hybrid policy it wants, and the estimator applies it
+    assert record["hybrid_config"] == {"reacquire_deg": 20.0} and "hybrid policy `reacquire_deg=20`" in report
     # the rendered views have random looks, not black space
     cfg = json.loads((out / "data" / "train" / "hybridpose.json").read_text())
     assert cfg["appearance"]["kind"] == "random"
@@ -215,7 +216,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     from hybridpose.regressors.predictor import CheckpointRegressor
 
     reg = CheckpointRegressor(out / "best.pt")
-    assert reg.detection == "network"
+    assert reg.detection == "network" and reg.hybrid_config == {"reacquire_deg": 20.0}
     # started from the truss network's weights, but with the box's own keypoints
     assert np.allclose(reg.keypoints_m, box.keypoints)
     # the box's corners look alike under its half-turns: one unlabelled heatmap, PnP tries the labellings
@@ -225,6 +226,17 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     again = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None,
                 occluded_share=0.25, textured_share=0.5)
     assert again["minutes"] == record["minutes"] and (out / "best.pt").stat().st_mtime_ns == stamp
+    # a fit made before checkpoints carried their policy gets it when run again, nothing else redone
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
+
+    old = json.loads((out / "fit.json").read_text())
+    del old["hybrid_config"]
+    (out / "fit.json").write_text(json.dumps(old))
+    save_checkpoint(out / "best.pt", {k: v for k, v in load_checkpoint(out / "best.pt").items() if k != "hybrid_config"})
+    upgraded = fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None,
+                   occluded_share=0.25, textured_share=0.5)
+    assert upgraded["hybrid_config"] == {"reacquire_deg": 20.0} and upgraded["minutes"] == record["minutes"]
+    assert CheckpointRegressor(out / "best.pt").hybrid_config == {"reacquire_deg": 20.0}
     with pytest.raises(ValueError, match="other settings.*seed"):
         fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None, occluded_share=0.25,
             textured_share=0.5)
@@ -377,3 +389,24 @@ def test_a_refit_lit_from_every_side_keeps_its_starts_sun_side(tmp_path):
     refit2 = write("refit2.pt", around_axis)
     assert not keep_start_sun(no_side, refit2)
     assert load_checkpoint(refit2)["dataset"]["lighting"] == around_axis
+
+
+def test_a_new_parts_fit_recommends_its_policy_and_a_refit_inherits_its_starts(tmp_path):
+    """A new part's network recommends ``NEW_PART_POLICY``; a re-fit recommends what its start did
+    (the shipped truss network: nothing, and the export is left as it is)."""
+    from hybridpose.fit import NEW_PART_POLICY, record_hybrid_policy
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint, shipped_checkpoint
+
+    def write(name, **extra):
+        save_checkpoint(tmp_path / name, {"model": {}, **extra})
+        return tmp_path / name
+
+    new_part = write("new.pt")
+    assert record_hybrid_policy(shipped_checkpoint("default"), new_part, refit=False) == NEW_PART_POLICY
+    assert load_checkpoint(new_part)["hybrid_config"] == NEW_PART_POLICY
+    refit_of_part = write("refit_part.pt")
+    assert record_hybrid_policy(new_part, refit_of_part, refit=True) == NEW_PART_POLICY
+    assert load_checkpoint(refit_of_part)["hybrid_config"] == NEW_PART_POLICY
+    refit_of_truss = write("refit_truss.pt")
+    assert record_hybrid_policy(shipped_checkpoint("default"), refit_of_truss, refit=True) == {}
+    assert "hybrid_config" not in load_checkpoint(refit_of_truss)

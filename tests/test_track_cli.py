@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from hybridpose import HybridConfig
 from hybridpose.cli import main
 from hybridpose.datasets.bop import pose_to_bop
 from hybridpose.geometry import Camera, Pose
@@ -159,14 +160,26 @@ def test_hybrid_options_reach_the_policy(clip, tmp_path, capsys, monkeypatch):
     original = HybridEstimator.from_names.__func__
 
     def spy(cls, *a, **kw):
-        seen.append(kw.get("config"))
-        return original(cls, *a, **kw)
+        est = original(cls, *a, **kw)
+        seen.append(est.config)
+        return est
 
     monkeypatch.setattr(HybridEstimator, "from_names", classmethod(spy))
     args = ["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"), "--max-frames", "2"]
     assert main([*args, "--hybrid-option", "reacquire_deg=20", "--hybrid-option", "keep_quality=none",
                  "--out", str(tmp_path / "h")]) == 0
     assert seen[0].reacquire_deg == 20 and seen[0].keep_quality is None and seen[0].check_period == 10
+    assert "policy keep_quality=none, reacquire_deg=20;" in capsys.readouterr().out
+    # a checkpoint that recommends a policy gets it with no flag; a flag still changes it
+    from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint, shipped_checkpoint
+
+    save_checkpoint(tmp_path / "fitted.pt", {**load_checkpoint(shipped_checkpoint("default")),
+                                             "hybrid_config": {"reacquire_deg": 20.0}})
+    fitted = [*args, "--regressor", str(tmp_path / "fitted.pt")]
+    assert main([*fitted, "--out", str(tmp_path / "f")]) == 0
+    assert seen[-1].reacquire_deg == 20 and "policy reacquire_deg=20;" in capsys.readouterr().out
+    assert main([*fitted, "--hybrid-option", "reacquire_deg=none", "--out", str(tmp_path / "g")]) == 0
+    assert seen[-1] == HybridConfig() and "policy" not in capsys.readouterr().out
     assert main([*args, "--hybrid-option", "reacquire=20", "--out", str(tmp_path / "i")]) == 2
     assert "--hybrid-option: expected NAME=VALUE with a name among check_period" in capsys.readouterr().err
     assert main([*args, "--hybrid-option", "reacquire_deg=0", "--out", str(tmp_path / "j")]) == 2

@@ -7,14 +7,14 @@ from __future__ import annotations
 import platform
 import subprocess
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from dataclasses import fields as dataclass_fields
 from importlib import metadata
 from pathlib import Path
 from typing import Callable
 
 from ..estimator import HybridConfig
-from ..hybrid_config import DEFAULT_FUSION
+from ..hybrid_config import DEFAULT_FUSION, recommended_config
 from ..io import atomic_write_json, atomic_write_text
 from .report import report_markdown, write_plots
 from .runner import MODES, RunSpec, run_all
@@ -98,7 +98,8 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
             raise ValueError(f"--sun: expected known and/or unknown, got {value!r}")
     if not req.sun:
         raise ValueError("--sun: expected known and/or unknown")
-    variants = [parse_config(text) for text in req.configs]
+    base = default_policy(req.regressor)
+    variants = [parse_config(text, base) for text in req.configs]
     options = {t: tracker_options(t, req.tracker_options) for t in req.trackers}
     specs = []
     if "tracker" in req.modes:
@@ -107,8 +108,7 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
     if "cnn" in req.modes:
         specs.append(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
     if "hybrid" in req.modes:
-        configs = [HybridConfig()] + [replace(HybridConfig(), check_period=p) for p in req.check_periods
-                                      if p != HybridConfig().check_period] + variants
+        configs = [base] + [replace(base, check_period=p) for p in req.check_periods if p != base.check_period] + variants
         specs += [RunSpec("hybrid", tracker=t, regressor=req.regressor, fusion=f, object=req.object, scale=req.scale,
                           config=c, tracker_options=options[t]) for t in req.trackers for f in req.fusions for c in configs]
     # the CNN alone does not use the sun: one run of it, whatever --sun says
@@ -140,8 +140,27 @@ def tracker_options(tracker: str, items) -> tuple:
     return tuple(sorted(kw.items()))
 
 
-def parse_config(text: str) -> HybridConfig:
-    """``"probation_frames=2,check_below_quality=0.7"`` → the default :class:`HybridConfig` with those
+def default_policy(regressor: str) -> HybridConfig:
+    """The hybrid's policy in the default row for ``--regressor`` (a registered name or a checkpoint
+    file): the defaults with the fields the regressor recommends (a part's fitted checkpoint:
+    ``reacquire_deg=20``), as the estimator applies them when given no config; the row's label names
+    every field that differs from the defaults."""
+    from ..registry import available, get
+
+    if regressor in available("regressor"):
+        recommended = getattr(get("regressor", regressor), "hybrid_config", None)
+    else:
+        from ..regressors.checkpoints import load_checkpoint
+
+        recommended = load_checkpoint(regressor).get("hybrid_config")
+    try:
+        return recommended_config(recommended, source=f"--regressor {regressor}")
+    except TypeError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def parse_config(text: str, base: HybridConfig | None = None) -> HybridConfig:
+    """``"probation_frames=2,check_below_quality=0.7"`` → ``base`` (None: the defaults) with those
     fields (``none`` or ``off`` for a field that may be None, such as ``keep_quality``); ValueError
     naming ``--config`` and the known fields otherwise."""
     fields = HybridConfig().__dict__
@@ -164,7 +183,7 @@ def parse_config(text: str) -> HybridConfig:
             changes[key] = type(fields[key])(float(value)) if isinstance(fields[key], int) else float(value)
         except ValueError:
             raise ValueError(f"--config: {key}: expected a number, got {value!r}") from None
-    return replace(HybridConfig(), **changes)
+    return replace(base or HybridConfig(), **changes)
 
 
 def user_scenes(root) -> dict[str, Path]:
@@ -235,7 +254,7 @@ def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Calla
     result = {"config": {"suite": req.suite if req.data is None else None, "data": req.data, "split": req.split,
                          "seeds": seeds, "sequences": sorted(scenes), "workers": req.workers, "ray": req.ray,
                          "runs": [s.label for s in specs], "object": req.object, "scale": req.scale,
-                         "hybrid_config": HybridConfig().__dict__},
+                         "hybrid_config": asdict(default_policy(req.regressor))},
               "versions": _versions(), "commit": _commit(), "seconds": time.time() - t0,
               "rows_reused": stats.get("reused", 0), "rows": rows}
     atomic_write_json(out / "results.json", result)

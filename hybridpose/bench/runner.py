@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from ..estimator import HybridConfig
-from ..hybrid_config import DEFAULT_FUSION
+from ..hybrid_config import DEFAULT_FUSION, changes_text
 from ..io import atomic_write_json, read_json
 from .modes import (COMPONENTS, load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg,
                     without_sun)
@@ -54,7 +54,7 @@ class RunSpec:
         """How the results name this spec: ``tracker (edges)``, ``cnn (default)``, ``hybrid (edges+default+isam2)``."""
         parts = {"tracker": [self.tracker], "cnn": [Path(self.regressor).stem if self._is_file() else self.regressor],
                  "hybrid": [self.tracker, Path(self.regressor).stem if self._is_file() else self.regressor, self.fusion]}
-        extra = "" if self.config == HybridConfig() or self.mode != "hybrid" else f", {self._config_diff()}"
+        extra = "" if self.config == HybridConfig() or self.mode != "hybrid" else f", {changes_text(self.config)}"
         if self.tracker_options and self.mode != "cnn":
             extra = f"; {self._options_text()}{extra}"
         if not self.sun:
@@ -73,9 +73,6 @@ class RunSpec:
     def _is_file(self) -> bool:
         return Path(self.regressor).suffix == ".pt"
 
-    def _config_diff(self) -> str:
-        base, mine = asdict(HybridConfig()), asdict(self.config)
-        return ", ".join(f"{k}={'none' if v is None else format(v, 'g')}" for k, v in mine.items() if v != base[k])
 
 
 def spec_dict(spec: RunSpec) -> dict:

@@ -19,7 +19,7 @@ def cmd_track(args) -> int:
     from ..registry import create, get
     from ..tracking import load_pose, read_frames, track_sequence
 
-    from ..hybrid_config import HybridConfig
+    from ..hybrid_config import HybridConfig, changes_text
     from ..regressors.options import KeypointOptions
 
     tracker_kw = backend_options(args.tracker_option, get("tracker", args.tracker), "--tracker-option")
@@ -29,7 +29,7 @@ def cmd_track(args) -> int:
     hybrid_kw = backend_options(args.hybrid_option, HybridConfig, "--hybrid-option")
     if hybrid_kw and args.init_pose is not None:
         raise ValueError("--hybrid-option: the tracker alone runs from --init-pose; no hybrid policy to set")
-    config = HybridConfig(**hybrid_kw)
+    HybridConfig(**hybrid_kw)  # the values checked before the video is read
     get("fusion", args.fusion)
     obj = load_object(args.object, scale=args.scale)
     camera = load_camera(args.camera)
@@ -49,9 +49,11 @@ def cmd_track(args) -> int:
 
         est = HybridEstimator.from_names(object=obj, tracker=args.tracker, regressor=args.regressor,
                                          fusion=args.fusion, tracker_kw=tracker_kw, regressor_kw=regressor_kw,
-                                         config=config)
+                                         config=hybrid_kw)  # the regressor's recommended policy, these fields changed
+        policy = changes_text(est.config)
         res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"))
-        print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}; "
+        print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}"
+              f"{'; policy ' + policy if policy else ''}; "
               f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
               f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
         return 0
@@ -213,8 +215,9 @@ def add_commands(sub) -> None:
                    help="an option of a checkpoint regressor (repeatable; KeypointOptions), e.g. fine_tiles=true "
                         "to look for a small part in finer tiles of the frame")
     k.add_argument("--hybrid-option", action="append", metavar="NAME=VALUE",
-                   help="a field of the hybrid's policy (repeatable; HybridConfig), e.g. reacquire_deg=20 for a "
-                        "part fitted with hybridpose fit")
+                   help="a field of the hybrid's policy (repeatable; HybridConfig), set over the policy the "
+                        "regressor's checkpoint recommends (a part fitted with hybridpose fit: reacquire_deg=20; "
+                        "reacquire_deg=none turns it off)")
     k.add_argument("--sun-dir", default=None, metavar="X,Y,Z",
                    help="in space with the sun the only light: the direction the sunlight travels in the camera "
                         "frame (x right, y down, z forward), e.g. from a sun sensor; the edge fits then leave out "

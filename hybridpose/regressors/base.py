@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from types import MappingProxyType
 
 import numpy as np
 
@@ -19,6 +21,9 @@ class PoseRegressor(ABC):
     """
 
     name: str = "regressor"
+    # fields of the hybrid's policy (hybridpose.hybrid_config.HybridConfig) this regressor's maker
+    # recommends, applied where a caller gives none: a part's fitted network carries reacquire_deg
+    hybrid_config: Mapping[str, object] = MappingProxyType({})
 
     @abstractmethod
     def predict(self, frame: Frame, roi: tuple[int, int, int, int] | None = None) -> Measurement:

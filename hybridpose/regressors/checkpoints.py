@@ -11,7 +11,8 @@ import torch
 
 from ..io import atomic_write_with
 
-INFERENCE_KEYS = ("config", "model", "build", "dataset", "twins", "calibration", "epoch", "best")
+# hybrid_config: the HybridConfig fields recommended for a hybrid using the network (hybridpose fit)
+INFERENCE_KEYS = ("config", "model", "build", "dataset", "twins", "calibration", "epoch", "best", "hybrid_config")
 # In last.pt only: what --resume needs to continue the run exactly.
 RESUME_ONLY_KEYS = ("optimizer", "scheduler", "torch_rng", "loader_rng")
 WEIGHTS_DIR = Path(__file__).parent / "weights"

@@ -191,6 +191,7 @@ class CheckpointRegressor(PoseRegressor):
         # the image azimuth of the training sun (None: lit from every side, or not recorded)
         self.trained_light_azimuth_deg = trained_light_azimuth_deg(self.dataset.get("lighting"))
         self.calibration = ck.get("calibration")
+        self.hybrid_config = dict(ck.get("hybrid_config") or {})  # the policy its fit recommends (PoseRegressor)
         self.twins = [Pose.from_matrix(np.asarray(m)) for m in ck.get("twins", [])]
         self.has_twin_head = getattr(self.net, "twin_head", None) is not None and bool(self.twins)
         # keypoint models only: the direct (VGG) ones are GPU models, and take the whole frame

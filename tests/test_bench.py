@@ -126,6 +126,15 @@ def test_ray_gives_the_local_results(smoke, tmp_path):
         assert mine == theirs
 
 
+def test_a_ray_cluster_that_does_not_answer_is_an_error_before_any_work(tmp_path, capsys):
+    pytest.importorskip("ray")
+    assert main(["bench", "--suite", "smoke", "--ray", "auto", "--out", str(tmp_path / "o"),
+                 "--cache", str(tmp_path / "cache")]) == 2
+    err = capsys.readouterr().err
+    assert "--ray auto: no Ray cluster answered" in err and "--ray local" in err and "Traceback" not in err
+    assert not (tmp_path / "cache").exists()  # nothing rendered
+
+
 def test_the_untimed_warm_up_changes_no_result(smoke, monkeypatch):
     """Each backend runs a few frames untimed before its first sequence in a process (the first calls
     compile kernels); every run starts afresh, so the rows are those of a run without it."""

@@ -17,7 +17,7 @@ from ..estimator import HybridConfig
 from ..hybrid_config import DEFAULT_FUSION, recommended_config
 from ..io import atomic_write_json, atomic_write_text
 from .report import report_markdown, write_plots
-from .runner import MODES, RunSpec, run_all
+from .runner import MODES, RunSpec, ray_connection, run_all
 from .suite import REPORT_SEEDS, TUNING_SEEDS, render_suite, suite
 
 SUN_CHOICES = ("known", "unknown")
@@ -237,6 +237,12 @@ def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Calla
     specs, scenes, entries = plan(req)
     _check_trackers(specs)
     _check_regressor(req)
+    with ray_connection(req.ray):  # a cluster that does not answer is an error before the rendering
+        return _run(req, specs, scenes, entries, log, progress)
+
+
+def _run(req: BenchRequest, specs: list[RunSpec], scenes: dict[str, Path] | None, entries: list,
+         log: Callable[[str], None], progress: Callable[[str], None] | None) -> dict:
     out = Path(req.out)
     out.mkdir(parents=True, exist_ok=True)
     if scenes is None:

@@ -8,6 +8,7 @@ code the rows are made again, never mixed with the old ones.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
@@ -266,24 +267,44 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
     return [done[(name, s.key)] for name in sorted(scenes) for s in specs]
 
 
-def _run_on_ray(todo: dict[str, list[RunSpec]], scenes: dict[str, Path], address: str):
+@contextlib.contextmanager
+def ray_connection(address: str | None):
+    """This process connected to Ray for the block: ``"local"`` starts a Ray instance here for the run,
+    ``"auto"`` joins the cluster this machine belongs to, anything else is a cluster's address; None
+    (or already connected): nothing to do. Shut down after the block when it connected. ValueError
+    naming ``--ray`` where Ray is not installed or no cluster answers (before any long work)."""
+    if address is None:
+        yield
+        return
     try:
         import ray
     except ImportError:
-        raise ValueError("ray: not installed; pip install \"hybridpose[ray]\" (or run with --workers N)") from None
+        raise ValueError("--ray: Ray is not installed; pip install \"hybridpose[ray]\" (or run with --workers N)") from None
     started = not ray.is_initialized()
     if started:
-        ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
+        try:
+            ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            raise ValueError(f"--ray {address}: no Ray cluster answered ({str(exc).splitlines()[0]}); start one with "
+                             "`ray start --head`, give a running cluster's address, or use --ray local to start "
+                             "one on this machine for the run") from None
     try:
+        yield
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _run_on_ray(todo: dict[str, list[RunSpec]], scenes: dict[str, Path], address: str):
+    with ray_connection(address):
+        import ray
+
         task = ray.remote(run_sequence)
         refs = {task.remote(name, str(scenes[name]), sp): name for name, sp in todo.items()}
         pending = list(refs)
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
             yield refs[ready[0]], ray.get(ready[0])
-    finally:
-        if started:
-            ray.shutdown()
 
 
 def _nanmedian(values) -> float:

@@ -238,14 +238,17 @@ def add_commands(sub) -> None:
     b.add_argument("--data", default=None, help="your BOP sequences (folder) instead of a suite; needs --object")
     b.add_argument("--object", default="truss", help="built-in name or mesh file")
     b.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
-    b.add_argument("--modes", default="tracker,cnn,hybrid")
+    b.add_argument("--modes", default="tracker,cnn,hybrid",
+                   help="comma list among tracker (from the true first pose), cnn (every frame, no prior) and "
+                        "hybrid (no ground truth); default all three, on the same frames")
     b.add_argument("--trackers", default="edges", help="comma list: tracker-only and hybrid runs per tracker")
     b.add_argument("--fusions", default=DEFAULT_FUSION, help="comma list: a hybrid run per tracker × fusion")
     b.add_argument("--regressor", default="default", help="registered name or checkpoint file")
     b.add_argument("--check-periods", default="", help="comma list of CNN check periods to ablate (frames)")
     b.add_argument("--config", action="append", default=[],
                    help="one more hybrid run with these HybridConfig fields, e.g. probation_frames=2,check_period=5 "
-                        "or keep_quality=none (repeatable)")
+                        "or keep_quality=none (repeatable), set over the default row's policy (the defaults, with "
+                        "what the regressor's checkpoint recommends)")
     b.add_argument("--tracker-option", action="append", default=[], metavar="NAME=VALUE",
                    help="a keyword argument of every tracker run, tracker-only and hybrid, e.g. max_samples=800 "
                         "(repeatable; the options a tracker takes: its docstring)")
@@ -254,11 +257,14 @@ def add_commands(sub) -> None:
                         "sun sensors give it (the edge fits leave out edges the sun cannot show); unknown: they "
                         "do not; known,unknown: every run both ways")
     b.add_argument("--workers", type=int, default=1, help="parallel processes (one sequence each)")
-    b.add_argument("--ray", default=None, help="run on Ray: an address, 'auto' or 'local' (pip install 'hybridpose[ray]')")
+    b.add_argument("--ray", default=None,
+                   help="run the sequences as Ray tasks: 'local' (start Ray here for the run), 'auto' (the cluster "
+                        "this machine joined with `ray start`) or a cluster's address (pip install 'hybridpose[ray]')")
     b.add_argument("--video", default=None, help="also write the hybrid's overlay video of this sequence")
     b.add_argument("--limit", type=int, default=None, help="the suite's first N sequences only")
     b.add_argument("--cache", default="runs/bench_cache", help="rendered suite sequences (reused)")
-    b.add_argument("--out", required=True)
+    b.add_argument("--out", required=True,
+                   help="folder for results.json, report.md and the plots (an interrupted run resumes from its rows)")
     b.add_argument("--results-md", default=None, help="rewrite the bench block of this results page (RESULTS.md)")
     b.add_argument("--results-block", default="bench",
                    help="which <!-- NAME:begin --> … <!-- NAME:end --> block of --results-md to rewrite")

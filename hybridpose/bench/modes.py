@@ -188,7 +188,9 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     ellipsoid of the reported covariance (0.9 when calibrated). ``recover_frames``: after each full
     occlusion, the frames from the first frame the object is half visible again until a trusted pose
     within ``RECOVERED_DEG`` (None: never). ``ms_per_frame``: mean wall time of a frame;
-    ``ms_tracker``, ``ms_regressor``, ``ms_fusion``: its mean share per component.
+    ``ms_tracker``, ``ms_regressor``, ``ms_fusion``: its mean share per component; ``ms_by_state``:
+    for the hybrid, ``{state: [total ms, frames]}`` over its states (``tracking``, ``lost``, ``init``,
+    ``reinit``: a real-time budget must hold the costly ones); ``ms_frame_max``: the slowest frame.
     """
     rot, trans, pct, speed, add_err, silent, covered_bad, lost = [], [], [], [], [], 0, 0, 0
     in_basin, edge_px = 0, []
@@ -238,8 +240,10 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
     if points is not None and add_err:
         add_stats = {"add_recall": float(np.mean(np.array(add_err) < 0.1 * obj.diameter)),
                      "add_auc": auc(np.minimum(add_err, 1e9), ADD_AUC_MAX_M)}
+    cam = seq[0].frame.camera
     return {
         "frames": len(seq),
+        "image_size": [cam.width, cam.height],
         "frames_half_visible": considered,
         "coverage": len(rot) / max(considered, 1),
         "rot_mean_deg": float(np.mean(rot_a)),
@@ -262,9 +266,22 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
         "recover_frames": recover,
         "recover_frames_max": max((n for n in recover if n is not None), default=None),
         "ms_per_frame": float(np.mean([r.ms for r in records])),
+        "ms_frame_max": float(np.max([r.ms for r in records])),
+        "ms_by_state": _ms_by_state(records),
         **{f"ms_{part}": float(np.mean([(r.ms_parts or {}).get(part, 0.0) for r in records])) for part in COMPONENTS},
         "cnn_calls_per_100": 100.0 * sum(r.cnn_calls for r in records) / len(records),
     }
+
+
+def _ms_by_state(records: list[FrameRecord]) -> dict[str, list[float]]:
+    """``{status: [total ms, frames]}`` over the records that carry a status (the hybrid's)."""
+    out: dict[str, list[float]] = {}
+    for r in records:
+        if r.status:
+            total = out.setdefault(r.status, [0.0, 0])
+            total[0] += r.ms
+            total[1] += 1
+    return out
 
 
 def _edge_points(obj) -> np.ndarray:

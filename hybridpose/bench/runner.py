@@ -171,6 +171,7 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
                 "distance_m": [round(s.truth.distance_m, 4) for s in seq],
                 "timestamp_s": [round(s.frame.timestamp, 4) for s in seq],
                 "status": [r.status for r in records] if spec.mode == "hybrid" else None,
+                "ms": [round(r.ms, 2) for r in records],
             }
         rows.append(row)
     return rows
@@ -360,5 +361,29 @@ def summarise(rows: list[dict], group: Callable[[dict], str] = lambda r: r["labe
             "ms_per_frame": float(np.mean([r["ms_per_frame"] for r in rs])),
             **{f"ms_{part}": _nanmean([r.get(f"ms_{part}", np.nan) for r in rs]) for part in COMPONENTS},
             "cnn_calls_per_100": float(np.mean([r["cnn_calls_per_100"] for r in rs])),
+            **_frame_time_spread(rs),
         }
     return out
+
+
+# the hybrid's states as the cost table groups them: a start and a restart cost alike
+STATE_GROUPS = {"tracking": ("tracking",), "lost": ("lost",), "starting": ("init", "reinit")}
+
+
+def _frame_time_spread(rs: list[dict]) -> dict:
+    """Pooled frame times of a group's rows: ``ms_frame_p99`` (from the per-frame times where the rows
+    hold them), ``ms_frame_max``, and for the hybrid the mean ms of a frame in each of
+    ``STATE_GROUPS`` (``ms_tracking``, ``ms_lost``, ``ms_starting``; NaN where no frame was)."""
+    times = [t for r in rs for t in ((r.get("per_frame") or {}).get("ms") or ())]
+    out = {"ms_frame_p99": float(np.percentile(times, 99)) if times else float("nan"),
+           "ms_frame_max": _nanmax([r.get("ms_frame_max", np.nan) for r in rs])}
+    for group, states in STATE_GROUPS.items():
+        parts = [(r.get("ms_by_state") or {}).get(state, (0.0, 0)) for r in rs for state in states]
+        frames = sum(n for _, n in parts)
+        out[f"ms_{group}"] = sum(ms for ms, _ in parts) / frames if frames else float("nan")
+    return out
+
+
+def _nanmax(values) -> float:
+    values = np.asarray(values, dtype=float)
+    return float(np.nanmax(values)) if np.any(np.isfinite(values)) else float("nan")

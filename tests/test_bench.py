@@ -188,11 +188,24 @@ def test_the_untimed_warm_up_changes_no_result(smoke, monkeypatch):
     (["--suite", "smoke", "--seeds", "520-530"], "--seeds: the smoke suite has its own seeds"),
     (["--suite", "standard", "--seeds", "nine"], "--seeds: expected seeds like 920-979"),
     (["--data", "x", "--seeds", "520-530"], "--seeds: only with --suite"),
+    (["--suite", "smoke", "--sequences", "approach_*"], "--sequences: 'approach_*' matches none of this run's"),
+    (["--suite", "smoke", "--video", "tumble_none_s1"], "--video: no sequence 'tumble_none_s1' in this run"),
 ])
 def test_bad_names_are_refused_before_any_work(args, message, tmp_path, capsys):
     assert main(["bench", *args, "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "c").exists()  # nothing rendered
+
+
+def test_sequences_are_chosen_by_name_patterns():
+    from hybridpose.bench.command import BenchRequest, plan
+
+    _, _, entries = plan(BenchRequest(out="o", suite="standard", sequences=("approach_arm-*", "tumble-fast_none_s503")))
+    names = [e.name for e in entries]
+    assert len(names) == 21 and "tumble-fast_none_s503" in names
+    assert all(n.startswith("approach_arm-") for n in names if n != "tumble-fast_none_s503")
+    _, _, limited = plan(BenchRequest(out="o", suite="standard", sequences=("approach_arm-*",), limit=3))
+    assert [e.name for e in limited] == [n for n in names if n != "tumble-fast_none_s503"][:3]
 
 
 def test_tracker_targets_name_the_worst_kind_of_sequence():

@@ -4,6 +4,7 @@ Every input is checked before any long work starts; the rows of an interrupted r
 """
 from __future__ import annotations
 
+import fnmatch
 import platform
 import subprocess
 import time
@@ -52,6 +53,7 @@ class BenchRequest:
     limit: int | None = None
     cache: str = "runs/bench_cache"
     seeds: tuple[int, ...] | None = None  # the split's seeds instead of its default twenty
+    sequences: tuple[str, ...] = ()  # shell-style patterns of sequence names to run (none: all)
 
 
 def _commit() -> str:
@@ -118,11 +120,34 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
     if req.data is not None:
         if req.seeds is not None:
             raise ValueError("--seeds: only with --suite (your --data sequences are what they are)")
-        return specs, user_scenes(req.data), []
+        scenes = user_scenes(req.data)
+        scenes = {name: scenes[name] for name in chosen(list(scenes), req.sequences)}
+        _check_video(req.video, list(scenes))
+        return specs, scenes, []
     if req.suite is None:
         raise ValueError("--suite or --data: say which sequences to run")
-    entries = suite(req.suite, req.split, req.seeds)[: req.limit]
+    entries = suite(req.suite, req.split, req.seeds)
+    keep = set(chosen([e.name for e in entries], req.sequences))
+    entries = [e for e in entries if e.name in keep][: req.limit]
+    _check_video(req.video, [e.name for e in entries])
     return specs, None, entries
+
+
+def chosen(names: list[str], patterns: tuple[str, ...]) -> list[str]:
+    """The sequence ``names`` that match any of ``patterns`` (shell-style, ``tumble_*``; none: all);
+    ValueError naming ``--sequences`` for a pattern that matches nothing (before anything is rendered)."""
+    keep = [n for n in names if not patterns or any(fnmatch.fnmatchcase(n, p) for p in patterns)]
+    for pattern in patterns:
+        if not any(fnmatch.fnmatchcase(n, pattern) for n in names):
+            kinds = sorted({n.rsplit("_s", 1)[0] for n in names})
+            raise ValueError(f"--sequences: {pattern!r} matches none of this run's sequences (NAME_sSEED; kinds: "
+                             f"{', '.join(kinds[:14])}{' …' if len(kinds) > 14 else ''}), e.g. {names[0]!r}")
+    return keep
+
+
+def _check_video(video: str | None, names: list[str]) -> None:
+    if video is not None and video not in names:
+        raise ValueError(f"--video: no sequence {video!r} in this run; e.g. {', '.join(sorted(names)[:3])}")
 
 
 def tracker_options(tracker: str, items) -> tuple:
@@ -249,8 +274,6 @@ def _run(req: BenchRequest, specs: list[RunSpec], scenes: dict[str, Path] | None
         log(f"bench: {len(entries)} sequences of suite {req.suite!r} ({req.split}) — rendering what is not cached "
             f"in {req.cache}")
         scenes = render_suite(entries, req.cache)
-    if req.video is not None and req.video not in scenes:
-        raise ValueError(f"--video: no sequence {req.video!r} in this run; e.g. {', '.join(sorted(scenes)[:3])}")
     log(f"bench: {len(specs)} runs × {len(scenes)} sequences, {req.workers} worker(s)"
         + (f" on Ray ({req.ray})" if req.ray else ""))
     t0 = time.time()

@@ -84,7 +84,8 @@ def cmd_bench(args) -> int:
                        fusions=names(args.fusions), regressor=args.regressor, check_periods=periods,
                        configs=tuple(args.config), tracker_options=tuple(args.tracker_option), sun=names(args.sun),
                        workers=args.workers, ray=args.ray, video=args.video, limit=args.limit, cache=args.cache,
-                       seeds=parse_seeds(args.seeds) if args.seeds else None)
+                       seeds=parse_seeds(args.seeds) if args.seeds else None,
+                       sequences=tuple(t.strip() for t in (args.sequences or "").split(",") if t.strip()))
     bar: list = []  # made at the first finished sequence, after every input was checked
 
     def progress(name: str) -> None:
@@ -261,6 +262,9 @@ def add_commands(sub) -> None:
                    help="run the sequences as Ray tasks: 'local' (start Ray here for the run), 'auto' (the cluster "
                         "this machine joined with `ray start`) or a cluster's address (pip install 'hybridpose[ray]')")
     b.add_argument("--video", default=None, help="also write the hybrid's overlay video of this sequence")
+    b.add_argument("--sequences", default=None, metavar="PATTERNS",
+                   help="comma list of shell-style patterns of the sequences to run (NAME_sSEED), e.g. "
+                        "'approach_arm-*' or 'tumble_none_s503,fly-around_*'; default all")
     b.add_argument("--limit", type=int, default=None, help="the suite's first N sequences only")
     b.add_argument("--cache", default="runs/bench_cache", help="rendered suite sequences (reused)")
     b.add_argument("--out", required=True,

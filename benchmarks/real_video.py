@@ -7,6 +7,7 @@ initial pose ``cube.0.pos`` that ViSP's tracker tutorials use), from Debian's / 
     apt-get download visp-images-data && dpkg -x visp-images-data_*.deb visp
     python benchmarks/real_video.py --visp-images /usr/share/visp-images-data/ViSP-images
     # cam.json: {"width": 640, "height": 480, "fx": px, "fy": py, "cx": u0, "cy": v0} of mbt/cube.xml
+    # (fit needs the image size, which a tracker configuration does not give; track takes it from the frames)
     # PHOTOS: scikit-image's sample photos (benchmarks/own_object.py, training_photos)
     hybridpose fit DIR/mbt/cube.cao --camera cam.json --budget 40m --backgrounds PHOTOS --textured-share 0.5 --out runs/visp_cube
     python benchmarks/real_video.py --visp-images DIR --regressor runs/visp_cube/best.pt   # + the hybrid and the
@@ -33,7 +34,6 @@ import argparse
 import os
 import sys
 import time
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import cv2
@@ -66,26 +66,14 @@ def find_visp_images(arg: str | None) -> Path:
                      "&& dpkg -x visp-images-data_*.deb DIR) and pass DIR/usr/share/visp-images-data/ViSP-images")
 
 
-def visp_camera(xml_path: Path, width: int, height: int):
-    """The pinhole camera of a ViSP tracker config (``<camera>``: u0, v0, px, py; no distortion)."""
-    from hybridpose.geometry import Camera
-
-    cam = ET.parse(xml_path).getroot().find("camera")
-    if cam is None:
-        raise SystemExit(f"{xml_path}: no <camera> element")
-    value = {k: float(cam.find(k).text) for k in ("u0", "v0", "px", "py")}
-    return Camera.from_dict({"width": width, "height": height, "fx": value["px"], "fy": value["py"],
-                             "cx": value["u0"], "cy": value["v0"]})
-
-
 def visp_sequence(images: Path, model: Path, config: Path, first_pose: Path):
     """(frames, camera, object, first pose) of one of ViSP's tracker sequences: the ``.pgm`` frames of
     ``images`` (30 fps), the ``.cao`` ``model``, the camera of the tracker ``config`` and the ``.pos`` pose."""
+    from hybridpose.geometry import load_camera
     from hybridpose.objects import load_object
-    from hybridpose.tracking import load_pose, read_frames
+    from hybridpose.tracking import first_frame_size, load_pose, read_frames
 
-    first = cv2.imread(str(sorted(images.glob("*.pgm"))[0]), cv2.IMREAD_GRAYSCALE)
-    camera = visp_camera(config, first.shape[1], first.shape[0])
+    camera = load_camera(config, image_size=first_frame_size(images))  # the config gives no image size
     return list(read_frames(images, camera, fps=30)), camera, load_object(model), load_pose(first_pose)
 
 

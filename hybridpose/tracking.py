@@ -89,6 +89,20 @@ def read_frames(source, camera: Camera, fps: float | None = None) -> Iterator[Fr
 
     Timestamps: frame index / fps (the video's own rate, else ``fps``, else 30).
     """
+    for bgr, index, rate, where in _raw_frames(source, fps):
+        yield _frame(bgr, camera, index, rate, where)
+
+
+def first_frame_size(source) -> tuple[int, int]:
+    """(W, H) pixels of the first frame of a video file or image folder (errors as :func:`read_frames`)."""
+    first = next(_raw_frames(source, None), None)
+    if first is None:
+        raise ValueError(f"{source}: no frame could be read")
+    return first[0].shape[1], first[0].shape[0]
+
+
+def _raw_frames(source, fps: float | None) -> Iterator[tuple[np.ndarray, int, float, Path]]:
+    """(BGR image, index, frames per second, where it came from) of each frame of ``source``."""
     source = Path(source)
     if source.is_dir():
         files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
@@ -99,7 +113,7 @@ def read_frames(source, camera: Camera, fps: float | None = None) -> Iterator[Fr
             bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
             if bgr is None:
                 raise ValueError(f"{f}: unreadable image")
-            yield _frame(bgr, camera, i, rate, f)
+            yield bgr, i, rate, f
         return
     if not source.is_file():
         raise FileNotFoundError(f"{source}: no such video file or image folder")
@@ -115,7 +129,7 @@ def read_frames(source, camera: Camera, fps: float | None = None) -> Iterator[Fr
             ok, bgr = cap.read()
             if not ok:
                 break
-            yield _frame(bgr, camera, i, rate, source)
+            yield bgr, i, rate, source
             i += 1
     finally:
         cap.release()

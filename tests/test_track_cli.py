@@ -70,6 +70,20 @@ def test_track_video_file(clip, tmp_path):
     assert max(rotation_error_deg(p, t) for p, t in zip(poses, truth)) < 3.0  # mp4 compression costs a little
 
 
+def test_track_with_a_visp_tracker_configuration_as_the_camera(clip, tmp_path, capsys):
+    """ViSP's tracker configuration gives px, py, u0, v0 and no image size: the frames give it."""
+    root, truth = clip
+    cam = json.loads((root / "camera.json").read_text())
+    (tmp_path / "cube.xml").write_text(f"<?xml version='1.0'?><conf><camera><u0>{cam['cx']}</u0><v0>{cam['cy']}</v0>"
+                                       f"<px>{cam['fx']}</px><py>{cam['fy']}</py></camera></conf>")
+    assert main(["track", str(root / "png"), "--object", "truss", "--camera", str(tmp_path / "cube.xml"),
+                 "--init-pose", str(root / "pose.json"), "--max-frames", "4", "--out", str(tmp_path / "x")]) == 0
+    poses, _ = _read_poses(tmp_path / "x" / "poses.csv")
+    assert max(rotation_error_deg(p, t) for p, t in zip(poses, truth)) < 1.0
+    assert main(["fit", "truss", "--camera", str(tmp_path / "cube.xml"), "--out", str(tmp_path / "f")]) == 2
+    assert "fit renders views of that size; write a camera file with width and height" in capsys.readouterr().err
+
+
 def test_track_with_the_suns_direction(clip, tmp_path, capsys):
     """The clip is lit by the renderer's sun: given its direction the tracker still holds the truss;
     a direction that is none is refused naming the option."""

@@ -120,7 +120,7 @@ def test_a_folder_of_pgm_images_is_read_as_rgb_frames(tmp_path):
     np.testing.assert_array_equal(frames[1].image[..., 0], cv2.imread(str(tmp_path / "image0001.pgm"), cv2.IMREAD_GRAYSCALE))
 
 
-def test_the_real_video_benchmark_reads_visps_camera_and_says_where_to_get_the_data(tmp_path, monkeypatch):
+def test_visps_tracker_camera_reads_and_the_real_video_benchmark_says_where_to_get_the_data(tmp_path, monkeypatch):
     import sys
     from pathlib import Path
 
@@ -129,7 +129,9 @@ def test_the_real_video_benchmark_reads_visps_camera_and_says_where_to_get_the_d
 
     (tmp_path / "cube.xml").write_text("<?xml version='1.0'?><conf><camera><u0>338.7</u0><v0>234.5</v0>"
                                        "<px>547.7</px><py>542.1</py></camera></conf>")
-    cam = real_video.visp_camera(tmp_path / "cube.xml", 640, 480)
+    from hybridpose.geometry import load_camera
+
+    cam = load_camera(tmp_path / "cube.xml", image_size=(640, 480))
     np.testing.assert_allclose(cam.K, [[547.7, 0, 338.7], [0, 542.1, 234.5], [0, 0, 1]])
     monkeypatch.delenv("VISP_INPUT_IMAGE_PATH", raising=False)
     with pytest.raises(SystemExit, match="apt-get download visp-images-data"):

@@ -34,7 +34,8 @@ def counter(desc: str, unit: str = "frame"):
 
 
 def base_camera(args) -> Camera:
-    cam = load_camera(args.camera) if getattr(args, "camera", None) else Camera.default()
+    # a camera file without an image size (a ViSP tracker configuration) calibrates frames of --size
+    cam = load_camera(args.camera, image_size=args.size) if getattr(args, "camera", None) else Camera.default()
     return cam.scaled(args.size) if args.size else cam
 
 

@@ -17,7 +17,7 @@ def cmd_track(args) -> int:
     from ..geometry import load_camera
     from ..objects import load_object
     from ..registry import create, get
-    from ..tracking import load_pose, read_frames, track_sequence
+    from ..tracking import first_frame_size, load_pose, read_frames, track_sequence
 
     from ..hybrid_config import HybridConfig, changes_text
     from ..regressors.options import KeypointOptions
@@ -32,7 +32,8 @@ def cmd_track(args) -> int:
     HybridConfig(**hybrid_kw)  # the values checked before the video is read
     get("fusion", args.fusion)
     obj = load_object(args.object, scale=args.scale)
-    camera = load_camera(args.camera)
+    # a camera file without an image size (a ViSP tracker configuration) calibrates these frames
+    camera = load_camera(args.camera, image_size=first_frame_size(args.source))
     frames = read_frames(args.source, camera, args.fps)
     if args.sun_dir is not None:
         from ..geometry.checks import as_unit_direction
@@ -107,9 +108,14 @@ def cmd_bench(args) -> int:
 
 def cmd_fit(args) -> int:
     from ..fit import fit
-    from ..geometry import load_camera
+    from ..geometry import NoImageSize, load_camera
 
-    camera = load_camera(args.camera) if args.camera else None
+    try:
+        camera = load_camera(args.camera) if args.camera else None
+    except NoImageSize as exc:  # a ViSP tracker configuration: fit renders views, so it needs their size
+        raise ValueError(f"--camera: {exc}: fit renders views of that size; write a camera file with width and "
+                         "height, e.g. JSON {\"width\": 640, \"height\": 480, \"fx\": px, \"fy\": py, "
+                         "\"cx\": u0, \"cy\": v0}") from None
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
         backgrounds=args.backgrounds, workers=args.workers,
         init_from=None if args.init_from == "none" else args.init_from, bar=progress,

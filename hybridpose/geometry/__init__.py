@@ -3,7 +3,8 @@
 Conventions: ``Pose`` is ``T_cam_obj`` (object → OpenCV camera frame, metres); quaternions are
 Hamilton (w, x, y, z); tangent vectors are ``[ω (rad), v (m)]`` with right perturbation.
 """
-from .camera import Camera, line_jacobian, load_camera, parse_size, projection_jacobian, save_camera
+from .camera import Camera, line_jacobian, parse_size, projection_jacobian, save_camera
+from .camera_files import NoImageSize, load_camera
 from .checks import as_points3d, as_rotation_matrix, as_unit_direction, as_unit_quat
 from .pose import Pose
 from .rotations import (
@@ -24,7 +25,7 @@ from .rotations import (
 from .se3 import se3_exp, se3_log, so3_left_jacobian
 
 __all__ = [
-    "Camera", "Pose", "load_camera", "save_camera", "parse_size", "projection_jacobian", "line_jacobian",
+    "Camera", "Pose", "load_camera", "NoImageSize", "save_camera", "parse_size", "projection_jacobian", "line_jacobian",
     "as_points3d", "as_rotation_matrix", "as_unit_direction", "as_unit_quat",
     "matrix_to_quat_wxyz", "matrix_to_rotvec", "quat_angle_between", "quat_canonical", "quat_conjugate",
     "quat_multiply", "quat_slerp", "quat_to_rotvec", "quat_wxyz_to_matrix", "random_quat",

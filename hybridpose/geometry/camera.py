@@ -204,26 +204,6 @@ class Camera:
         return img
 
 
-def load_camera(path) -> Camera:
-    """Read a camera file (.json or .yaml/.yml) with width, height, K (or fx, fy, cx, cy), dist."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"camera file not found: {path}")
-    text = path.read_text()
-    try:
-        if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            data = yaml.safe_load(text)
-        else:
-            data = json.loads(text)
-    except Exception as exc:  # noqa: BLE001 — any parser error becomes one message naming the file
-        raise ValueError(f"{path}: cannot parse camera file ({exc})") from exc
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a mapping with width, height, K")
-    return Camera.from_dict(data)
-
-
 def save_camera(camera: Camera, path) -> None:
     Path(path).write_text(json.dumps(camera.to_dict(), indent=2))
 

@@ -33,8 +33,11 @@ log = logging.getLogger(__name__)
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 POSE_FIELDS = ["frame", "timestamp_s", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m"]
-HYBRID_FIELDS = POSE_FIELDS + ["status", "sources", "ms"]
-TRACKER_FIELDS = POSE_FIELDS + ["quality", "lost"]
+# 1-σ of the pose as reported (Pose.covariance_in_camera): rotation about the camera's x, y, z (°), and
+# of tx, ty, tz themselves (m); empty where there is no pose or no uncertainty (a given initial pose)
+SIGMA_FIELDS = ["sd_rx_deg", "sd_ry_deg", "sd_rz_deg", "sd_tx_m", "sd_ty_m", "sd_tz_m"]
+HYBRID_FIELDS = POSE_FIELDS + SIGMA_FIELDS + ["status", "sources", "ms"]
+TRACKER_FIELDS = POSE_FIELDS + SIGMA_FIELDS + ["quality", "lost"]
 STATUS_COLOURS = {"tracking": (60, 255, 60), "init": (255, 220, 0), "reinit": (255, 220, 0), "lost": (255, 60, 60)}
 # browsers play H.264 .mp4 and VP9/VP8 .webm; MPEG-4 Part 2 ('mp4v') only as a last resort
 VIDEO_CODECS = (("avc1", ".mp4"), ("VP90", ".webm"), ("VP80", ".webm"), ("mp4v", ".mp4"))
@@ -193,6 +196,14 @@ class VideoFile:
         return self.path
 
 
+def _sigma_cells(pose: Pose | None, covariance: np.ndarray | None) -> list[str]:
+    """The ``SIGMA_FIELDS`` cells of a pose and its (6, 6) right-perturbation covariance."""
+    if pose is None or covariance is None:
+        return [""] * len(SIGMA_FIELDS)
+    sd = np.sqrt(np.clip(np.diag(pose.covariance_in_camera(covariance)), 0.0, None))
+    return [f"{np.degrees(v):.4f}" for v in sd[:3]] + [f"{v:.6f}" for v in sd[3:]]
+
+
 def _pose_cells(frame: Frame, pose: Pose | None) -> list:
     cells = ([f"{v:.9f}" for v in pose.quat_wxyz] + [f"{v:.6f}" for v in pose.t]) if pose is not None else [""] * 7
     return [frame.index, f"{frame.timestamp:.6f}", *cells]
@@ -267,12 +278,13 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
                          progress: Callable[[int], None] | None = None,
                          on_frame: Callable[[Frame, Estimate, np.ndarray], None] | None = None) -> RunResult:
     """``estimator.step`` over ``frames`` (no initial pose). The video's edges: green tracking, yellow
-    (re)initialised, red lost (the predicted pose); ``poses.csv`` adds status, sources and ms."""
+    (re)initialised, red lost (the predicted pose); ``poses.csv`` adds the 1-σ of the pose (``SIGMA_FIELDS``),
+    status, sources and ms."""
     obj = estimator.object
 
     def step(frame: Frame):
         e = estimator.step(frame)
-        cells = [e.status, "+".join(e.sources), f"{e.timings_ms['total']:.2f}"]
+        cells = [*_sigma_cells(e.pose, e.covariance), e.status, "+".join(e.sources), f"{e.timings_ms['total']:.2f}"]
         return (e, e.pose, e.status != "lost", e.status == "lost", e.status == "reinit", e.timings_ms["total"], cells,
                 draw_estimate(frame, obj, e, f"#{frame.index}"))
 
@@ -291,11 +303,13 @@ def track_sequence(frames: Iterator[Frame], tracker, init_pose: Pose, out, max_f
                    progress: Callable[[int], None] | None = None,
                    on_frame: Callable[[Frame, Measurement, np.ndarray], None] | None = None) -> RunResult:
     """A tracker alone from ``init_pose`` at the first frame (no CNN, no fusion); ``poses.csv`` adds
-    quality and lost (a lost frame has empty pose cells; the video shows the tracker's last pose in red)."""
+    the 1-σ of each fit, quality and lost (a lost frame has empty pose cells; the video shows the tracker's
+    last pose in red)."""
     first = [True]
 
     def step(frame: Frame):
         t0 = time.perf_counter()
+        given = first[0]  # the initial pose the user gave: no uncertainty of ours to report
         if first[0]:
             first[0] = False
             tracker.init(frame, init_pose)
@@ -304,6 +318,7 @@ def track_sequence(frames: Iterator[Frame], tracker, init_pose: Pose, out, max_f
             m = tracker.track(frame)
         elapsed = 1000 * (time.perf_counter() - t0)
         overlay = draw_tracking(frame, tracker.object, m, f"{tracker.name} #{frame.index}", getattr(tracker, "pose", None))
-        return m, m.pose, not m.lost, m.lost, False, elapsed, [f"{m.quality:.4f}", int(m.lost)], overlay
+        cells = [*_sigma_cells(m.pose, None if given else m.covariance), f"{m.quality:.4f}", int(m.lost)]
+        return m, m.pose, not m.lost, m.lost, False, elapsed, cells, overlay
 
     return _run(frames, step, out, TRACKER_FIELDS, max_frames, progress, on_frame)

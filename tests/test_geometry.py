@@ -145,6 +145,23 @@ def test_pose_algebra(rng):
         assert a.interpolate(b, 0.0).allclose(a, atol=1e-12) and a.interpolate(b, 1.0).allclose(b, atol=1e-9)
 
 
+def test_covariance_in_camera_matches_sampled_errors_of_r_and_t(rng):
+    """Errors sampled on the right perturbation, measured as scipy sees R'·Rᵀ and as t' − t, spread
+    as the camera-frame covariance says."""
+    pose = Pose.from_rotvec_t(rng.normal(size=3), [0.1, -0.05, 0.8])
+    L = rng.normal(size=(6, 6)) * np.r_[[0.01] * 3, [0.002] * 3][:, None]
+    cov = L @ L.T
+    xi = rng.multivariate_normal(np.zeros(6), cov, size=20000)
+    moved = [pose.retract(x) for x in xi]
+    d_theta = Rotation.from_matrix(np.array([m.R @ pose.R.T for m in moved])).as_rotvec()
+    d_t = np.array([m.t - pose.t for m in moved])
+    sampled = np.cov(np.c_[d_theta, d_t].T)
+    want = pose.covariance_in_camera(cov)
+    assert np.allclose(sampled, want, atol=0.03 * np.abs(want).max())
+    with pytest.raises(ValueError, match="covariance"):
+        pose.covariance_in_camera(np.eye(3))
+
+
 def test_pose_is_immutable():
     p = Pose.identity()
     with pytest.raises(ValueError):

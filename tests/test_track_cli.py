@@ -51,6 +51,8 @@ def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
     out = tmp_path / "run"
     poses, rows = _read_poses(out / "poses.csv")
     assert len(poses) == len(truth) and rows[0]["frame"] == "0"
+    # the pose given has no uncertainty of ours; the tracker's fits carry theirs
+    assert rows[0]["sd_rx_deg"] == "" and all(float(r["sd_tz_m"]) > 0 for r in rows[1:] if r["lost"] == "0")
     assert np.median([rotation_error_deg(p, t) for p, t in zip(poses, truth)]) < 1.0
     gt = json.loads((out / "scene_gt.json").read_text())
     assert np.allclose(gt["5"][0]["cam_t_m2c"], poses[5].t * 1000, atol=1e-3)  # BOP is in mm
@@ -145,6 +147,12 @@ def test_track_without_an_initial_pose_runs_the_hybrid(clip, tmp_path, capsys):
                                                 [float(r[k]) for k in ("tx_m", "ty_m", "tz_m")]), t) for r, t in trusted]
     assert len(errs) >= 10 and np.median(errs) < 1.0
     assert len(list(out.glob("overlay.*"))) == 1 and "with the hybrid" in capsys.readouterr().out
+    # each trusted pose comes with its 1-σ: small against the truss, and the truth mostly within 3 σ of it
+    sd = np.array([[float(r[k]) for k in ("sd_rx_deg", "sd_ry_deg", "sd_rz_deg", "sd_tx_m", "sd_ty_m", "sd_tz_m")]
+                   for r, _ in trusted])
+    assert np.all(sd > 0) and np.all(sd[:, :3] < 5.0) and np.all(sd[:, 3:] < 0.05)
+    t_err = np.array([[float(r[k]) for k in ("tx_m", "ty_m", "tz_m")] - t.t for r, t in trusted])
+    assert np.mean(np.abs(t_err) <= 3 * sd[:, 3:]) >= 0.8
 
 
 def test_tracker_options_reach_the_tracker(clip, tmp_path, capsys):

@@ -119,6 +119,17 @@ class Pose:
         """(6,) ``ξ`` with ``self.retract(ξ) == other``."""
         return (self.inverse() @ other).log()
 
+    def covariance_in_camera(self, covariance) -> np.ndarray:
+        """A (6, 6) covariance over this pose's right perturbation ``[ω, v]`` (the convention of every
+        covariance in hybridpose) as that of ``[δθ, δt]`` in the camera frame, with ``R' = Exp(δθ)·R``
+        and ``t' = t + δt``: ``B Σ Bᵀ`` with ``B = diag(R, R)`` (first order). ``δt`` (m, camera axes) is
+        the error of ``t`` itself and ``δθ`` (rad) a rotation about the camera axes — what a navigation
+        filter given ``R`` and ``t`` expects (``hybridpose track`` writes its standard deviations)."""
+        cov = as_array(covariance, "covariance", (6, 6))
+        B = np.zeros((6, 6))
+        B[:3, :3] = B[3:, 3:] = self.R
+        return B @ cov @ B.T
+
     def interpolate(self, other: "Pose", alpha: float) -> "Pose":
         """Slerp on rotation and linear interpolation on translation (alpha 0 → self, 1 → other).
 

@@ -26,7 +26,7 @@ import numpy as np
 from .core import Estimate, Frame, Measurement
 from .geometry import Camera, Pose
 from .io import atomic_write_json, atomic_write_text, read_json
-from .viz import draw_wireframe, put_label
+from .viz import SITE_LEGEND, draw_edge_sites, draw_wireframe, put_label
 
 log = logging.getLogger(__name__)
 
@@ -274,19 +274,30 @@ def draw_estimate(frame: Frame, obj, e: Estimate, label: str | None) -> np.ndarr
     return img if label is None else put_label(img, f"{label}  {e.status.upper()}")
 
 
+def with_sites(image: np.ndarray, sites) -> np.ndarray:
+    """``image`` with a tracker's last edge sites drawn (:func:`~hybridpose.viz.draw_edge_sites`) and
+    their legend along the bottom."""
+    return put_label(draw_edge_sites(image, sites), SITE_LEGEND, bottom=True)
+
+
 def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: int | None = None,
                          progress: Callable[[int], None] | None = None,
-                         on_frame: Callable[[Frame, Estimate, np.ndarray], None] | None = None) -> RunResult:
+                         on_frame: Callable[[Frame, Estimate, np.ndarray], None] | None = None,
+                         draw_sites: bool = False) -> RunResult:
     """``estimator.step`` over ``frames`` (no initial pose). The video's edges: green tracking, yellow
-    (re)initialised, red lost (the predicted pose); ``poses.csv`` adds the 1-σ of the pose (``SIGMA_FIELDS``),
-    status, sources and ms."""
+    (re)initialised, red lost (the predicted pose); with ``draw_sites`` also the sites of the tracker's
+    last edge fit of the frame (:func:`with_sites`). ``poses.csv`` adds the 1-σ of the pose
+    (``SIGMA_FIELDS``), status, sources and ms."""
     obj = estimator.object
 
     def step(frame: Frame):
         e = estimator.step(frame)
         cells = [*_sigma_cells(e.pose, e.covariance), e.status, "+".join(e.sources), f"{e.timings_ms['total']:.2f}"]
+        overlay = draw_estimate(frame, obj, e, f"#{frame.index}")
+        if draw_sites:
+            overlay = with_sites(overlay, getattr(estimator.tracker, "last_sites", None))
         return (e, e.pose, e.status != "lost", e.status == "lost", e.status == "reinit", e.timings_ms["total"], cells,
-                draw_estimate(frame, obj, e, f"#{frame.index}"))
+                overlay)
 
     return _run(frames, step, out, HYBRID_FIELDS, max_frames, progress, on_frame)
 
@@ -301,10 +312,11 @@ def draw_tracking(frame: Frame, obj, m: Measurement, label: str, pose: Pose | No
 
 def track_sequence(frames: Iterator[Frame], tracker, init_pose: Pose, out, max_frames: int | None = None,
                    progress: Callable[[int], None] | None = None,
-                   on_frame: Callable[[Frame, Measurement, np.ndarray], None] | None = None) -> RunResult:
+                   on_frame: Callable[[Frame, Measurement, np.ndarray], None] | None = None,
+                   draw_sites: bool = False) -> RunResult:
     """A tracker alone from ``init_pose`` at the first frame (no CNN, no fusion); ``poses.csv`` adds
     the 1-σ of each fit, quality and lost (a lost frame has empty pose cells; the video shows the tracker's
-    last pose in red)."""
+    last pose in red, and with ``draw_sites`` its edge fit's sites: :func:`with_sites`)."""
     first = [True]
 
     def step(frame: Frame):
@@ -318,6 +330,8 @@ def track_sequence(frames: Iterator[Frame], tracker, init_pose: Pose, out, max_f
             m = tracker.track(frame)
         elapsed = 1000 * (time.perf_counter() - t0)
         overlay = draw_tracking(frame, tracker.object, m, f"{tracker.name} #{frame.index}", getattr(tracker, "pose", None))
+        if draw_sites:
+            overlay = with_sites(overlay, getattr(tracker, "last_sites", None))
         cells = [*_sigma_cells(m.pose, None if given else m.covariance), f"{m.quality:.4f}", int(m.lost)]
         return m, m.pose, not m.lost, m.lost, False, elapsed, cells, overlay
 

@@ -50,6 +50,39 @@ def draw_axes(image: np.ndarray, T_cam_obj: Pose, camera: Camera, length_m: floa
     return img
 
 
+# the moving-edge sites' colours (RGB), as ViSP tells its sites apart by why they were kept or rejected
+SITE_COLOURS = {"inlier": (0, 255, 255), "outlier": (255, 40, 40), "lit_no_edge": (255, 160, 0),
+                "dark_no_edge": (130, 130, 130)}
+# ASCII only: OpenCV's Hershey fonts draw nothing else
+SITE_LEGEND = "sites: cyan matched, red rejected, orange no edge (lit line), grey no edge (dark)"
+
+
+def draw_edge_sites(image: np.ndarray, sites) -> np.ndarray:
+    """Copy of ``image`` (H, W, 3) uint8 RGB with an edge fit's sites
+    (:class:`~hybridpose.edges.fit.EdgeSites`): each model sample at the fitted pose as a dot —
+    cyan where its match is an inlier, red (with a line to the edge it found) where the fit rejected
+    that match, orange where its lit search line showed no edge (evidence against the pose), grey
+    where a dark one showed none — the picture ViSP's moving-edge tracker draws."""
+    img = np.ascontiguousarray(image).copy()
+    if sites is None:
+        return img
+    h, w = img.shape[:2]
+    uv, matched = np.asarray(sites.uv, float), np.asarray(sites.matched, float)
+    has_match = np.all(np.isfinite(matched), axis=1)
+    kinds = (("dark_no_edge", ~has_match & ~sites.lit_no_edge), ("lit_no_edge", sites.lit_no_edge),
+             ("outlier", has_match & ~sites.inlier), ("inlier", sites.inlier))
+    for kind, mask in kinds:
+        colour = SITE_COLOURS[kind]
+        for i in np.flatnonzero(mask & np.all(np.isfinite(uv), axis=1)):
+            u, v = (int(round(x)) for x in uv[i])
+            if not (0 <= u < w and 0 <= v < h):
+                continue
+            if kind == "outlier":
+                cv2.line(img, (u, v), tuple(int(round(x)) for x in matched[i]), colour, 1, cv2.LINE_AA)
+            cv2.circle(img, (u, v), 1, colour, -1)
+    return img
+
+
 def draw_mask_contour(image: np.ndarray, mask: np.ndarray, color=(255, 0, 255), thickness: int = 1) -> np.ndarray:
     """Copy of ``image`` with the outline of a boolean mask."""
     img = np.ascontiguousarray(image).copy()
@@ -58,10 +91,12 @@ def draw_mask_contour(image: np.ndarray, mask: np.ndarray, color=(255, 0, 255), 
     return img
 
 
-def put_label(image: np.ndarray, text: str) -> np.ndarray:
+def put_label(image: np.ndarray, text: str, bottom: bool = False) -> np.ndarray:
+    """Copy of ``image`` with one line of white-on-black text at its top (or ``bottom``) left."""
     img = np.ascontiguousarray(image).copy()
+    y = img.shape[0] - 7 if bottom else 16
     for color, th in (((0, 0, 0), 3), ((255, 255, 255), 1)):
-        cv2.putText(img, text, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, color, th, cv2.LINE_AA)
+        cv2.putText(img, text, (5, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, color, th, cv2.LINE_AA)
     return img
 
 

@@ -86,6 +86,40 @@ def test_track_with_a_visp_tracker_configuration_as_the_camera(clip, tmp_path, c
     assert "fit renders views of that size; write a camera file with width and height" in capsys.readouterr().err
 
 
+def test_the_overlay_shows_the_trackers_sites_on_request(clip, tmp_path):
+    """--draw-sites: the overlay carries the edge fit's sites (cyan where matched) and their legend,
+    for the tracker alone and for the hybrid; without it, none."""
+    from hybridpose.estimator import HybridEstimator
+    from hybridpose.geometry import load_camera
+    from hybridpose.objects import load_object
+    from hybridpose.registry import create
+    from hybridpose.tracking import load_pose, read_frames, run_hybrid_on_frames, track_sequence
+    from hybridpose.viz import SITE_COLOURS
+
+    root, _ = clip
+    truss, camera = load_object("truss"), load_camera(root / "camera.json")
+
+    def cyan_pixels(run, **kw):
+        seen = []
+        run(list(read_frames(root / "png", camera))[:3], out=tmp_path / f"o{len(seen)}", max_frames=3,
+            on_frame=lambda frame, result, overlay: seen.append(int(np.all(overlay == SITE_COLOURS["inlier"], -1).sum())),
+            **kw)
+        return seen
+
+    def alone(frames, **kw):
+        return track_sequence(frames, create("tracker", "edges", object=truss), load_pose(root / "pose.json"), **kw)
+
+    def hybrid(frames, **kw):
+        return run_hybrid_on_frames(frames, HybridEstimator.from_names(object=truss), **kw)
+
+    for run in (alone, hybrid):
+        assert all(n > 100 for n in cyan_pixels(run, draw_sites=True)[1:])
+        assert cyan_pixels(run) == [0, 0, 0]
+    assert main(["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+                 "--init-pose", str(root / "pose.json"), "--max-frames", "2", "--draw-sites",
+                 "--out", str(tmp_path / "cli")]) == 0
+
+
 def test_track_with_the_suns_direction(clip, tmp_path, capsys):
     """The clip is lit by the renderer's sun: given its direction the tracker still holds the truss;
     a direction that is none is refused naming the option."""

@@ -115,6 +115,30 @@ def test_bad_input_gets_clear_errors_and_never_nan(name, truss, tumble):
         trk.track(frame0)
 
 
+@pytest.mark.parametrize("name", ["edges", "klt-pnp", "rapid", "rapid-ols", "rapid-gos"])
+def test_edge_refining_trackers_show_their_sites(name, truss, tumble):
+    """Each edge fit leaves its moving-edge sites: most matches are inliers on a clean render (the
+    sites with no match lie on edges the sun leaves dark), each inlier lies within the fit's 2-px
+    inlier distance of the edge it matched, and the overlay draws them in their colour."""
+    from hybridpose.viz import SITE_COLOURS, draw_edge_sites
+
+    trk = create("tracker", name, object=truss)
+    frame0, pose0, _ = tumble[0]
+    trk.init(frame0, pose0)
+    frame, gt, _ = tumble[5]
+    m = trk.track(frame)
+    sites = trk.last_sites
+    assert sites is not None and not m.lost
+    inl, matched = sites.inlier, np.all(np.isfinite(sites.matched), axis=1)
+    assert inl.sum() >= 40 and inl.sum() / matched.sum() > 0.6 and not np.any(inl & ~matched)
+    assert np.median(np.linalg.norm(sites.uv[inl] - sites.matched[inl], axis=1)) < 2.0
+    drawn = draw_edge_sites(frame.image, sites)
+    u, v = np.round(sites.uv[inl][0]).astype(int)
+    assert tuple(drawn[v, u]) == SITE_COLOURS["inlier"] and not np.shares_memory(drawn, frame.image)
+    trk.reset()
+    assert create("tracker", name, object=truss).last_sites is None
+
+
 def test_a_wider_search_reaches_a_start_beyond_the_frame_to_frame_range(truss, tumble):
     """Starts 11 px from the truth's projection in twelve directions (beyond ``edges``' frame-to-frame
     range): a 16-px search (what the hybrid gives a fit from a CNN pose) converges from more of them."""

@@ -52,7 +52,8 @@ def cmd_track(args) -> int:
                                          fusion=args.fusion, tracker_kw=tracker_kw, regressor_kw=regressor_kw,
                                          config=hybrid_kw)  # the regressor's recommended policy, these fields changed
         policy = changes_text(est.config)
-        res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"))
+        res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"),
+                                   draw_sites=args.draw_sites)
         print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}"
               f"{'; policy ' + policy if policy else ''}; "
               f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
@@ -60,7 +61,8 @@ def cmd_track(args) -> int:
         return 0
     pose0 = load_pose(args.init_pose)
     tracker = create("tracker", args.tracker, object=obj, **tracker_kw)
-    res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=counter("track"))
+    res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=counter("track"),
+                         draw_sites=args.draw_sites)
     print(f"track: {res.frames} frames with {args.tracker} ({res.ms_per_frame:.1f} ms/frame, {res.lost} flagged lost) → "
           f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
     return 0
@@ -231,6 +233,9 @@ def add_commands(sub) -> None:
                         "the model edges the sun cannot show")
     k.add_argument("--fps", type=float, default=None, help="frame rate for image folders (default 30)")
     k.add_argument("--max-frames", type=int, default=None)
+    k.add_argument("--draw-sites", action="store_true",
+                   help="draw the tracker's moving-edge sites on the overlay, as ViSP does: cyan matched, red "
+                        "rejected (a line to the edge it found), orange no edge on a lit line, grey no edge in the dark")
     k.add_argument("--out", required=True, help="folder for the overlay video, poses.csv, scene_gt.json")
     k.set_defaults(func=cmd_track)
 

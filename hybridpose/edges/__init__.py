@@ -11,6 +11,7 @@ refines its pose and chooses between end-for-end twins with it.
 """
 from .fit import (
     EdgeFit,
+    EdgeSites,
     explained_edge_share,
     fit_edges,
     fit_from_proposals,
@@ -25,7 +26,7 @@ from .pyramid import coarse_to_fine, projected_diagonal_px
 from .shadows import sunlit_agreement, sunlit_mask
 from .silhouette import explained_lit_share, lit_verdict
 
-__all__ = ["EdgeFit", "EdgeSamples", "ModelView", "coarse_to_fine", "edge_distances_px", "explained_edge_share",
+__all__ = ["EdgeFit", "EdgeSamples", "EdgeSites", "ModelView", "coarse_to_fine", "edge_distances_px", "explained_edge_share",
            "explained_lit_share", "fit_edges", "fit_from_proposals", "honest_quality", "lit_verdict",
            "projected_diagonal_px", "quality_verdict", "search_edges",
            "sunlit_agreement", "sunlit_mask", "to_gray"]

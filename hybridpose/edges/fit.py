@@ -38,14 +38,47 @@ LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on b
 
 
 @dataclass(frozen=True)
+class EdgeSites:
+    """What a fit saw, per model edge sample of its last search (the moving-edge sites ViSP draws).
+
+    Attributes:
+        uv: (S, 2) float px, the samples projected at the fitted pose.
+        matched: (S, 2) float px, the image edge found along each sample's normal (NaN: none).
+        inlier: (S,) bool, matched and within the fit's inlier distance of the fitted edge.
+        lit_no_edge: (S,) bool, no edge found on a lit search line (evidence against the pose: an
+            occluder in front, or the pose wrong); no edge on a dark line says nothing.
+    """
+
+    uv: np.ndarray
+    matched: np.ndarray
+    inlier: np.ndarray
+    lit_no_edge: np.ndarray
+
+
+@dataclass(frozen=True)
 class EdgeFit:
-    """Result of :func:`fit_edges`: pose, covariance (6, 6) over ``[ω, v]``, inlier fraction, RMS px."""
+    """Result of :func:`fit_edges`: pose, covariance (6, 6) over ``[ω, v]``, inlier fraction, RMS px,
+    inlier samples, and the sites of its last search (:class:`EdgeSites`, for pictures)."""
 
     pose: Pose
     covariance: np.ndarray
     quality: float
     rms_px: float
     samples: int
+    sites: EdgeSites | None = None
+
+
+def _sites(points: np.ndarray, pose: Pose, K: np.ndarray, target: np.ndarray, valid: np.ndarray,
+           inlier_of_valid: np.ndarray, brightness: np.ndarray) -> EdgeSites:
+    """:class:`EdgeSites` of searched samples ``points`` (S, 3) m: ``target`` (S, 2) px their matches,
+    ``valid`` (S,) which matched, ``inlier_of_valid`` the inliers among those, ``brightness`` (S,)
+    their search lines' mean grey."""
+    cam_pts = points @ pose.R.T + pose.t
+    uv = cam_pts[:, :2] / cam_pts[:, 2:3] * K[[0, 1], [0, 1]] + K[:2, 2]
+    matched = np.where(valid[:, None], target, np.nan)
+    inlier = np.zeros(len(points), bool)
+    inlier[np.flatnonzero(valid)[inlier_of_valid]] = True
+    return EdgeSites(uv=uv, matched=matched, inlier=inlier, lit_no_edge=~valid & (brightness > LIT_GREY))
 
 
 def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_contrast: float = 4.0):
@@ -198,7 +231,8 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
         if valid.sum() < 6:
             return None
         target = uv[keep] + offset[:, None] * normals[keep]
-        n, X, m = normals[keep][valid], points[keep][valid], target[valid]
+        points = points[keep]
+        n, X, m = normals[keep][valid], points[valid], target[valid]
     pose = Pose(R, t)
     uv, Jn = line_jacobian(pose, X, K, n)
     r = np.einsum("si,si->s", n, uv - m)
@@ -215,7 +249,8 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     cov = covariance_scale * max(sigma2, 0.05) * np.linalg.pinv(Jn[inl].T @ Jn[inl])
     support = min(1.0, float(inl.sum()) / MIN_SUPPORT)
     return EdgeFit(pose=pose, covariance=0.5 * (cov + cov.T), quality=support * ratio,
-                   rms_px=float(np.sqrt(np.mean(r[inl] ** 2))), samples=int(inl.sum()))
+                   rms_px=float(np.sqrt(np.mean(r[inl] ** 2))), samples=int(inl.sum()),
+                   sites=_sites(points, pose, K, target, valid, inl, brightness))
 
 
 GOOD_FIT = 0.7  # a fit this good from the first proposal is kept without trying the next

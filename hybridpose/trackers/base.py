@@ -35,6 +35,9 @@ class Tracker(ABC):
             to stand beside it where the track had dark space around it (on black space, only an
             occluder such as the arm does that). A backend that cannot tell leaves it False.
         tells_covered: True for a backend (an instance, where its options decide) that sets ``covered``.
+        last_sites: the moving-edge sites of the last ``init`` or ``track`` call's edge fit
+            (:class:`~hybridpose.edges.fit.EdgeSites`: samples, matches, inliers; what
+            :func:`~hybridpose.viz.draw_edge_sites` draws), or None where it made none.
 
     Subclasses implement :meth:`_init` and :meth:`_track`; one that can tell what stands beside the
     object calls :meth:`_note_surround` from ``_track`` and sets ``tells_covered``.
@@ -55,6 +58,7 @@ class Tracker(ABC):
         self.frame: Frame | None = None
         self.covered = False
         self._dark_around = False  # whether this track has seen dark space around the object
+        self.last_sites = None
 
     # --- public API --------------------------------------------------------------------------------
     def init(self, frame: Frame, pose: Pose) -> None:
@@ -62,6 +66,7 @@ class Tracker(ABC):
         self._check_frame(frame)
         self._check_pose(pose, "pose")
         self.covered = self._dark_around = False
+        self.last_sites = None
         self._init(frame, pose)
         self.pose, self.frame = pose, frame
 
@@ -99,6 +104,7 @@ class Tracker(ABC):
                 raise ValueError(f"{name}: expected a quality in [0, 1] or None, got {value}")
         threshold = self.lost_quality if lost_quality is None else float(lost_quality)
         self.covered = False
+        self.last_sites = None
         try:
             if search_px is None:
                 pose, cov, quality = self._track(frame, start)

@@ -90,11 +90,13 @@ class EdgeTracker(Tracker):
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         self._unverified = VERIFIED_FITS
-        if self._fit(frame, pose, outer=1) is None:
+        fit = self._fit(frame, pose, outer=1)
+        if fit is None:
             raise ValueError(
                 f"pose: fewer than 6 model edges of {self.object.name!r} match image edges at the initial pose "
                 "— is the object in view and the pose right?"
             )
+        self.last_sites = fit.sites
 
     def _fit(self, frame: Frame, start: Pose, outer: int = 3, gray=None, search_px: int | None = None):
         return fit_edges(self.view, frame, start, gray=gray, search_px=search_px or self.search_px,
@@ -109,15 +111,16 @@ class EdgeTracker(Tracker):
         gray = to_gray(frame.image)  # one conversion for the fits and their qualities
         verify = self._unverified > 0 or (search_px is not None and search_px > self.search_px)
         self._unverified = max(0, self._unverified - 1)
-        pose, cov, quality, beside = self._fit_once(frame, start, gray, search_px, verify)
+        pose, cov, quality, beside, sites = self._fit_once(frame, start, gray, search_px, verify)
         if (quality < self.lost_quality and self.coarse_min_px > 0
                 and projected_diagonal_px(self.view, start, frame.camera) >= self.coarse_min_px):
             # an object this large may lie beyond any full-resolution search: fit the shrunk frames first
             coarse = self._fit_once(frame, coarse_to_fine(self.view, frame, start), gray, search_px, verify)
             if coarse[2] > quality:
-                pose, cov, quality, beside = coarse
+                pose, cov, quality, beside, sites = coarse
         if pose is not None:
             self._note_surround(beside)
+        self.last_sites = sites
         return pose, cov, quality
 
     def _fit_once(self, frame: Frame, start: Pose, gray: np.ndarray, search_px: int | None = None,
@@ -126,11 +129,11 @@ class EdgeTracker(Tracker):
         extra = 0 if search_px is None else max(0, int(np.ceil(np.log2(search_px / self.search_px))))
         fit = self._fit(frame, start, outer=3 + extra, gray=gray, search_px=search_px)
         if fit is None:
-            return None, None, 0.0, False
+            return None, None, 0.0, False, None
         if not self.explain:
-            return fit.pose, fit.covariance, fit.quality, False
+            return fit.pose, fit.covariance, fit.quality, False, fit.sites
         verdict = quality_verdict(self.view, frame, fit, gray, sunlit=verify, dark_surround=self._dark_around)
-        return fit.pose, fit.covariance, verdict.quality, verdict.beside
+        return fit.pose, fit.covariance, verdict.quality, verdict.beside, fit.sites
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):
         return self._track(frame, start, search_px=max(self.search_px, int(np.ceil(search_px))))

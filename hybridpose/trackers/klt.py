@@ -176,6 +176,7 @@ class KltPnpTracker(Tracker):
         if best is None:
             self._carry(gray, np.zeros(len(self.uv), bool), None)
             return None, None, 0.0
+        self.last_sites = best.sites
         quality, beside = quality_verdict(self.view, frame, best, gray.astype(np.float32),
                                           dark_surround=self._dark_around)
         self._note_surround(beside)

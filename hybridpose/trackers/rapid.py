@@ -120,6 +120,7 @@ class RapidTracker(Tracker):
                                   polish=self.polish)
         if best is None:
             return None, None, 0.0
+        self.last_sites = best.sites
         verdict = quality_verdict(self.view, frame, best, gray, dark_surround=self._dark_around)
         self._note_surround(verdict.beside)
         return best.pose, best.covariance, verdict.quality

@@ -1,7 +1,7 @@
 """The data that flows between the parts: ``Frame`` in, ``Measurement`` and ``Estimate`` out."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -59,6 +59,14 @@ class Frame:
                                     "the sunlight travels in the camera frame (x right, y down, z forward)")
             sun.flags.writeable = False
             object.__setattr__(self, "sun_direction_cam", sun)
+
+    def undistorted(self) -> "Frame":
+        """This frame as a pinhole camera sees it (:meth:`Camera.undistort`: same K, same camera frame,
+        so poses and the sun's direction hold); itself where the camera has no distortion. The edge
+        fits and the CNN work on pinhole images."""
+        if not self.camera.dist:
+            return self
+        return replace(self, image=self.camera.undistort(self.image), camera=self.camera.pinhole())
 
 
 @dataclass(frozen=True, eq=False)

@@ -187,6 +187,7 @@ class HybridEstimator:
         self._check_frame(frame)
         timings = {"tracker": 0.0, "regressor": 0.0, "fusion": 0.0}
         t_start = time.perf_counter()
+        frame = frame.undistorted()  # once for the tracker and the CNN, which both model a pinhole
         if self.status == "init":
             estimate = self._initialise(frame, timings)
         elif self.status == "lost":

@@ -16,7 +16,7 @@ import logging
 import os
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -274,9 +274,12 @@ def draw_estimate(frame: Frame, obj, e: Estimate, label: str | None) -> np.ndarr
     return img if label is None else put_label(img, f"{label}  {e.status.upper()}")
 
 
-def with_sites(image: np.ndarray, sites) -> np.ndarray:
-    """``image`` with a tracker's last edge sites drawn (:func:`~hybridpose.viz.draw_edge_sites`) and
-    their legend along the bottom."""
+def with_sites(image: np.ndarray, sites, camera: Camera) -> np.ndarray:
+    """``image`` (of ``camera``) with a tracker's last edge sites drawn
+    (:func:`~hybridpose.viz.draw_edge_sites`; the fits' pinhole pixels put where ``camera``'s lens
+    shows them) and their legend along the bottom."""
+    if sites is not None and camera.dist:
+        sites = replace(sites, uv=camera.distort_pixels(sites.uv), matched=camera.distort_pixels(sites.matched))
     return put_label(draw_edge_sites(image, sites), SITE_LEGEND, bottom=True)
 
 
@@ -295,7 +298,7 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
         cells = [*_sigma_cells(e.pose, e.covariance), e.status, "+".join(e.sources), f"{e.timings_ms['total']:.2f}"]
         overlay = draw_estimate(frame, obj, e, f"#{frame.index}")
         if draw_sites:
-            overlay = with_sites(overlay, getattr(estimator.tracker, "last_sites", None))
+            overlay = with_sites(overlay, getattr(estimator.tracker, "last_sites", None), frame.camera)
         return (e, e.pose, e.status != "lost", e.status == "lost", e.status == "reinit", e.timings_ms["total"], cells,
                 overlay)
 
@@ -331,7 +334,7 @@ def track_sequence(frames: Iterator[Frame], tracker, init_pose: Pose, out, max_f
         elapsed = 1000 * (time.perf_counter() - t0)
         overlay = draw_tracking(frame, tracker.object, m, f"{tracker.name} #{frame.index}", getattr(tracker, "pose", None))
         if draw_sites:
-            overlay = with_sites(overlay, getattr(tracker, "last_sites", None))
+            overlay = with_sites(overlay, getattr(tracker, "last_sites", None), frame.camera)
         cells = [*_sigma_cells(m.pose, None if given else m.covariance), f"{m.quality:.4f}", int(m.lost)]
         return m, m.pose, not m.lost, m.lost, False, elapsed, cells, overlay
 

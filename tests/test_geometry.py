@@ -209,6 +209,26 @@ def test_camera_project_matches_cv2(rng, dist):
         np.testing.assert_allclose(cam.project(pts, pose), ref.reshape(-1, 2), atol=1e-6)
 
 
+def test_undistortion_matches_cv2_and_distort_pixels_inverts_it(rng):
+    """Camera.undistort against cv2.undistort; distort_pixels against cv2.undistortPoints; a frame of
+    a pinhole camera is its own undistorted frame."""
+    from hybridpose.core import Frame
+
+    lens = Camera(320, 240, 300.0, 302.0, 161.0, 118.5, (-0.3, 0.1, 0.001, -0.002, 0.0))
+    image = rng.integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
+    ours = lens.undistort(image).astype(int)
+    ref = cv2.undistort(image, lens.K, np.asarray(lens.dist)).astype(int)
+    assert np.mean(np.abs(ours - ref) <= 1) > 0.99
+    raw = rng.uniform([20, 20], [300, 220], size=(50, 2))
+    pinhole_px = cv2.undistortPoints(raw.reshape(-1, 1, 2), lens.K, np.asarray(lens.dist), P=lens.K).reshape(-1, 2)
+    np.testing.assert_allclose(lens.distort_pixels(pinhole_px), raw, atol=0.01)  # undistortPoints iterates
+    assert np.all(np.isnan(lens.distort_pixels([[np.nan, np.nan]])))
+    frame = Frame(image, lens, 0.0)
+    assert frame.undistorted().camera == lens.pinhole() and not frame.undistorted().camera.dist
+    plain = Frame(image, lens.pinhole(), 0.0)
+    assert plain.undistorted() is plain
+
+
 def test_camera_scaled_keeps_fov_and_pixel_centres():
     cam = Camera.default()
     assert abs(cam.hfov_deg - 56.14) < 0.01

@@ -21,7 +21,6 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -569,11 +568,8 @@ class CheckpointRegressor(PoseRegressor):
         return self._keypoint_measurement(frame, res, pose, quality)
 
     def _undistorted(self, frame: Frame) -> tuple[np.ndarray, Camera]:
-        cam = frame.camera
-        if not any(cam.dist):
-            return frame.image, cam
-        image = cv2.undistort(frame.image, cam.K, np.asarray(cam.dist))
-        return image, Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+        pinhole = frame.undistorted()
+        return pinhole.image, pinhole.camera
 
     def _predict_direct(self, frame: Frame, roi) -> Measurement:
         image, cam = self._undistorted(frame)

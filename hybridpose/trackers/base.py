@@ -67,6 +67,8 @@ class Tracker(ABC):
         self._check_pose(pose, "pose")
         self.covered = self._dark_around = False
         self.last_sites = None
+        self._camera = frame.camera  # as given: the next frames must come from it
+        frame = frame.undistorted()  # the edge fits model a pinhole camera
         self._init(frame, pose)
         self.pose, self.frame = pose, frame
 
@@ -92,8 +94,9 @@ class Tracker(ABC):
         if self.pose is None or self.frame is None:
             raise RuntimeError(f"{self.name}: track() called before init(frame, pose)")
         self._check_frame(frame)
-        if frame.camera != self.frame.camera:
-            raise ValueError(f"frame.camera: {frame.camera} differs from the camera given to init ({self.frame.camera})")
+        if frame.camera != self._camera:
+            raise ValueError(f"frame.camera: {frame.camera} differs from the camera given to init ({self._camera})")
+        frame = frame.undistorted()
         start = self.pose if prior is None else prior
         if prior is not None:
             self._check_pose(prior, "prior")

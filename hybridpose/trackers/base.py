@@ -55,7 +55,8 @@ class Tracker(ABC):
         if not 0.0 <= self.lost_quality <= 1.0:
             raise ValueError(f"lost_quality: expected a value in [0, 1], got {lost_quality}")
         self.pose: Pose | None = None
-        self.frame: Frame | None = None
+        self.frame: Frame | None = None  # the last frame, undistorted
+        self._camera = None  # the camera of init's frame, distortion and all
         self.covered = False
         self._dark_around = False  # whether this track has seen dark space around the object
         self.last_sites = None

@@ -274,13 +274,14 @@ def draw_estimate(frame: Frame, obj, e: Estimate, label: str | None) -> np.ndarr
     return img if label is None else put_label(img, f"{label}  {e.status.upper()}")
 
 
-def with_sites(image: np.ndarray, sites, camera: Camera) -> np.ndarray:
+def with_sites(image: np.ndarray, sites, camera: Camera, legend: bool = True) -> np.ndarray:
     """``image`` (of ``camera``) with a tracker's last edge sites drawn
     (:func:`~hybridpose.viz.draw_edge_sites`; the fits' pinhole pixels put where ``camera``'s lens
-    shows them) and their legend along the bottom."""
+    shows them) and, with ``legend``, their legend along the bottom."""
     if sites is not None and camera.dist:
         sites = replace(sites, uv=camera.distort_pixels(sites.uv), matched=camera.distort_pixels(sites.matched))
-    return put_label(draw_edge_sites(image, sites), SITE_LEGEND, bottom=True)
+    drawn = draw_edge_sites(image, sites)
+    return put_label(drawn, SITE_LEGEND, bottom=True) if legend else drawn
 
 
 def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: int | None = None,

@@ -55,6 +55,27 @@ def test_demo(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "demo"), "--frames", "12", "--size", "160x120"]) == 0
     assert (tmp_path / "demo" / "verify.png").is_file()
     assert np.asarray(read_image(tmp_path / "demo" / "verify.png")).mean() > 1
+    # at 160×120 the CNN never starts the hybrid: no tracked frame, no picture of the tracker's sites
+    assert not (tmp_path / "demo" / "sites.png").exists()
+
+
+def test_the_demos_picture_of_the_edge_sites(truss):
+    """The demo's sites.png: the object's box enlarged to at least 560 px, cyan sites on the truss."""
+    from hybridpose.cli.tracking import sites_picture
+    from hybridpose.core import Estimate, Frame
+    from hybridpose.geometry import Camera, Pose
+    from hybridpose.registry import create
+    from hybridpose.render import Renderer
+
+    cam, pose = Camera.default(), Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.0, 0.0, 0.7])
+    with Renderer(truss, cam) as r:
+        frame = Frame(r.render(pose).rgb, cam, 0.0)
+    trk = create("tracker", "edges", object=truss)
+    trk.init(frame, pose)
+    m = trk.track(frame)
+    picture = sites_picture(frame, Estimate(pose=m.pose, covariance=m.covariance, timestamp=0.0, status="tracking"),
+                            trk.last_sites, truss)
+    assert picture.shape[1] >= 560 and np.all(picture == (0, 255, 255), axis=-1).sum() > 200
 
 
 def test_user_mesh_in_mm_renders_and_verifies_from_the_dataset_model(tmp_path, truss, capsys):

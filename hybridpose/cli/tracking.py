@@ -150,7 +150,7 @@ def cmd_demo(args) -> int:
     from ..objects import load_object
     from ..registry import create, get
     from ..render.sequences import SequenceSpec
-    from ..tracking import draw_estimate, run_hybrid_on_frames
+    from ..tracking import draw_estimate, run_hybrid_on_frames, with_sites
     from ..viz import contact_sheet, plot_error_over_time
 
     get("tracker", args.tracker), get("fusion", args.fusion)  # unknown names refused before rendering
@@ -170,13 +170,17 @@ def cmd_demo(args) -> int:
     estimator = HybridEstimator(create("tracker", args.tracker, object=obj), regressor,
                                 create("fusion", args.fusion))
     keep = set(np.linspace(0, len(seq) - 1, 8).round().astype(int).tolist())
-    tiles, labels, hybrid, calls = [], [], [], [0]
+    tiles, labels, hybrid, calls, sites = [], [], [], [0], []
 
     def collect(frame, e, overlay):
         if frame.index in keep:  # labelled after resizing, so the sheet's labels stay legible
             tiles.append(draw_estimate(frame, obj, e, None))
             err = f"{rotation_error_deg(e.pose, seq[len(hybrid)].truth):.1f} deg" if e.pose is not None else "no pose"
             labels.append(f"#{frame.index} {e.status.upper()} {err}")
+        # the edge sites of the clearest tracked frame (the first one fully in view)
+        visible = seq[len(hybrid)].visible
+        if e.status == "tracking" and (not sites or sites[0][0] < min(visible, 0.99)):
+            sites[:] = [(visible, sites_picture(frame, e, estimator.tracker.last_sites, obj))]
         hybrid.append(hybrid_record(e, estimator.regressor_calls - calls[0]))
         calls[0] = estimator.regressor_calls
 
@@ -185,6 +189,8 @@ def cmd_demo(args) -> int:
     records = {"tracker": run_tracker(seq, create("tracker", args.tracker, object=obj)),
                "cnn": run_cnn(seq, regressor), "hybrid": hybrid}
     write_image(out / "tracking.png", contact_sheet(tiles, columns=4, labels=labels))
+    if sites:
+        write_image(out / "sites.png", sites[0][1])
     errors = {mode: [np.nan if e is None else e for e in trusted_errors_deg(seq, recs)] for mode, recs in records.items()}
     plot_error_over_time(out / "error_over_time.png", [s.frame.timestamp for s in seq], errors,
                          [s.visible for s in seq], title=f"tumble + arm, seed {args.seed}",
@@ -197,8 +203,31 @@ def cmd_demo(args) -> int:
     print("  (frames: share with a trusted pose; silent: frames > 5° off not flagged lost; recovery: frames after "
           "a full occlusion until ≤ 2°)")
     print(f"demo: hybrid overlay (green tracking, yellow (re)init, red lost) → {res.video}; "
-          f"{out / 'tracking.png'}; error over time → {out / 'error_over_time.png'}")
+          f"{out / 'tracking.png'}; error over time → {out / 'error_over_time.png'}"
+          + (f"; the edge tracker's sites on a clear frame → {out / 'sites.png'}" if sites else ""))
     return 0
+
+
+def sites_picture(frame, estimate, sites, obj, width_px: int = 560):
+    """The frame around the object, enlarged (at least twice, to ``width_px`` wide), with the model at
+    the estimate and the tracker's edge sites (what the tracker saw: ``hybridpose track --draw-sites``)."""
+    import cv2
+
+    from ..tracking import draw_estimate, with_sites
+    from ..viz import SITE_LEGEND, put_label
+
+    image = with_sites(draw_estimate(frame, obj, estimate, None), sites, frame.camera, legend=False)
+    box = frame.camera.image_box(obj.bbox_corners, estimate.pose)
+    h, w = image.shape[:2]
+    if box is not None:
+        pad = 10
+        x0, y0 = max(int(box[0]) - pad, 0), max(int(box[1]) - pad, 0)
+        x1, y1 = min(int(np.ceil(box[2])) + pad, w), min(int(np.ceil(box[3])) + pad, h)
+        if x1 - x0 >= 16 and y1 - y0 >= 16:
+            image = image[y0:y1, x0:x1]
+    scale = max(2.0, width_px / image.shape[1])
+    image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    return put_label(put_label(image, f"#{frame.index} {estimate.status.upper()}: edge sites"), SITE_LEGEND, bottom=True)
 
 
 def add_commands(sub) -> None:

@@ -100,7 +100,9 @@ def add_commands(sub) -> None:
     r.add_argument("--frames", type=int, default=300)
     r.add_argument("--fps", type=float, default=30.0)
     r.add_argument("--size", default=None, help="N or WxH; the camera is rescaled, field of view kept")
-    r.add_argument("--camera", default=None, help="camera file (.json/.yaml: width, height, K); default 640×480 f=600")
+    r.add_argument("--camera", default=None,
+                   help="camera file (ours: .json/.yaml with width, height, K; ROS camera_info; OpenCV FileStorage; "
+                        "ViSP XML, its size from --size where it gives none); default 640×480 f=600")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--background", choices=BACKGROUNDS, default="black")
     r.add_argument("--sun-dir", type=sun_dir, default=(0.6, 0.4, 0.7), help="sunlight direction x,y,z in the camera frame")

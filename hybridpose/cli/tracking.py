@@ -239,7 +239,10 @@ def add_commands(sub) -> None:
     k.add_argument("source", help="video file (.mp4/.avi/...) or folder of images (.png/.jpg/.pgm/...)")
     k.add_argument("--object", required=True, help="built-in name or mesh file (.obj/.ply/.stl, ViSP .cao)")
     k.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
-    k.add_argument("--camera", required=True, help="camera file (.json/.yaml: width, height, K or fx/fy/cx/cy, dist)")
+    k.add_argument("--camera", required=True,
+                   help="camera file: ours (.json/.yaml: width, height, K or fx/fy/cx/cy, dist), a ROS camera_info "
+                        "YAML, an OpenCV FileStorage calibration (YAML/XML), a ViSP camera XML or tracker "
+                        "configuration (its image size then comes from the frames)")
     k.add_argument("--init-pose", default=None,
                    help="tracker alone from this pose, no CNN, no fusion. JSON: quat_wxyz + t_m (metres), R + t_m, "
                         "or BOP cam_R_m2c + cam_t_m2c (mm); or a ViSP .pos file (tx ty tz in m, θu in rad)")
@@ -320,7 +323,9 @@ def add_commands(sub) -> None:
                                    "views, trains, calibrates and evaluates on this CPU (resumable)")
     f.add_argument("mesh", help="the part's mesh file (.obj/.ply/.stl) or a built-in object name")
     f.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
-    f.add_argument("--camera", default=None, help="camera file (.json/.yaml); default 640×480, f = 600 px")
+    f.add_argument("--camera", default=None,
+                   help="camera file (ours, ROS camera_info, OpenCV FileStorage or ViSP XML, with its image size); "
+                        "default 640×480, f = 600 px")
     f.add_argument("--out", required=True, help="the fit's folder (an interrupted fit resumes there)")
     f.add_argument("--budget", default="60m", help="time for the whole fit: 60m, 1h30m, 90s (default 60m)")
     f.add_argument("--seed", type=int, default=0)

@@ -296,7 +296,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     Args:
         mesh: a mesh file (metres, or ``scale`` to metres) or a built-in object name.
         out: the fit's folder (layout: module docstring); an interrupted fit resumes there.
-        camera: the camera the part will be seen with (default 640×480, f = 600 px).
+        camera: the camera the part will be seen with (default 640×480, f = 600 px). Its views are
+            rendered through its pinhole model (same K): the regressor undistorts each frame before
+            its network sees it.
         budget: the time for the whole fit (``"60m"``, ``"1h"``, minutes as a number).
         seed: seeds of the training (``seed``), held-out (``seed + 1``) and calibration (``seed + 2``)
             renders and of the training run.
@@ -331,6 +333,10 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     out = Path(out)
     obj = load_object(str(mesh), scale=scale)
     camera = camera or Camera.default()
+    if camera.dist:
+        progress("fit: the views are rendered with the camera's pinhole model (same K); frames are undistorted "
+                 "before the network sees them")
+        camera = camera.pinhole()
     measured = plan is None
     budget_min = parse_budget(budget) if plan is None else plan.budget_min
     distances = check_inputs(obj, camera, budget_min if plan is None else MIN_BUDGET_MIN, distance_range_m)

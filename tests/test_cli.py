@@ -59,6 +59,18 @@ def test_demo(tmp_path, capsys):
     assert not (tmp_path / "demo" / "sites.png").exists()
 
 
+def test_a_camera_with_lens_distortion_renders_through_its_pinhole(tmp_path, capsys):
+    import json
+
+    (tmp_path / "lens.json").write_text(json.dumps({"width": 160, "height": 120, "fx": 150, "fy": 150, "cx": 79.5,
+                                                    "cy": 59.5, "dist": [-0.2, 0.05, 0, 0, 0]}))
+    assert main(["render", "--camera", str(tmp_path / "lens.json"), "--kind", "random", "--count", "1",
+                 "--out", str(tmp_path / "ds")]) == 0
+    assert "pinhole model (same K" in capsys.readouterr().out
+    written = json.loads((tmp_path / "ds" / "camera.json").read_text())
+    assert written["fx"] == 150 and not written.get("dist")
+
+
 def test_the_demos_picture_of_the_edge_sites(truss):
     """The demo's sites.png: the object's box enlarged to at least 560 px, cyan sites on the truss."""
     from hybridpose.cli.tracking import sites_picture

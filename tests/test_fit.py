@@ -167,6 +167,31 @@ def test_the_render_speed_is_measured_on_views_like_the_training_views(box_mesh,
     assert measured["appearance"].backgrounds == str(photos) and measured["appearance"].texture_share == 0.25
 
 
+def test_a_camera_with_lens_distortion_is_rendered_through_its_pinhole(box_mesh, tmp_path, monkeypatch):
+    """The renderer is a pinhole and the regressor undistorts every frame: a calibrated camera's views
+    are rendered with its K and no distortion, and the fit says so."""
+    import hybridpose.datasets as datasets
+
+    seen, lines = [], []
+
+    class Stop(Exception):
+        pass
+
+    def fake_render(out, obj, camera, count, seed=0, **kw):
+        seen.append(camera)
+        raise Stop
+
+    monkeypatch.setattr(datasets, "render_random_dataset", fake_render)
+    lens = Camera(640, 480, 610.0, 612.0, 321.0, 238.0, (-0.2, 0.05, 0.0, 0.0, 0.0))
+    box = load_object(str(box_mesh), scale=0.001)
+    plan = FitPlan(budget_min=2.0, train_views=8, test_views=4, epochs=1, train_min=1.0, render_s_per_view=0.05,
+                   train_s_per_view=0.05, distance_range_m=working_distances(box, lens))
+    with pytest.raises(Stop):
+        fit(str(box_mesh), tmp_path / "fit", camera=lens, scale=0.001, plan=plan, progress=lines.append)
+    assert seen[0] == lens.pinhole() and not seen[0].dist
+    assert any("pinhole model (same K)" in line for line in lines)
+
+
 def test_what_cannot_work_is_refused_before_long_work(box_mesh):
     cam = Camera.default()
     in_mm = load_object(str(box_mesh))

@@ -17,6 +17,9 @@ def cmd_render(args) -> int:
 
     obj = load_object(args.object, scale=args.scale)
     camera = base_camera(args)
+    if camera.dist:  # the renderer is a pinhole; what is trained on these views undistorts its frames
+        print("render: rendering through the camera's pinhole model (same K, no lens distortion)")
+        camera = camera.pinhole()
     lighting = SpaceLighting(sun_direction_cam=args.sun_dir, sun_intensity=args.sun, exposure=args.exposure,
                              background=args.background)
     sensor = SensorModel(blur_sigma_px=args.blur, noise_std=args.noise, gamma=args.gamma)

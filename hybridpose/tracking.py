@@ -96,6 +96,61 @@ def read_frames(source, camera: Camera, fps: float | None = None) -> Iterator[Fr
         yield _frame(bgr, camera, index, rate, where)
 
 
+def with_sun(frames: Iterator[Frame], sun_dir: str) -> Iterator[Frame]:
+    """``frames`` carrying the sun's direction (``Frame.sun_direction_cam``: the way sunlight travels in
+    the camera frame, x right, y down, z forward) from ``sun_dir``: ``"x,y,z"`` for every frame, or a
+    CSV file of it over time, as a sun sensor logs it — columns ``timestamp_s`` (seconds, the frames'
+    clock: index / fps) or ``frame`` (index), and ``x``, ``y``, ``z``. By time the direction between
+    two rows is interpolated (normalised linear) and held before the first and after the last; by
+    frame only the listed frames carry one. Read at once: ValueError naming ``--sun-dir`` (and the
+    line) before any frame is read."""
+    sun_at = _sun_lookup(sun_dir)
+    return (f if (sun := sun_at(f)) is None else replace(f, sun_direction_cam=sun) for f in frames)
+
+
+def _sun_lookup(sun_dir: str) -> Callable[[Frame], np.ndarray | None]:
+    from .geometry.checks import as_unit_direction
+
+    path = Path(sun_dir)
+    if not path.is_file():
+        try:
+            sun = as_unit_direction([float(x) for x in sun_dir.split(",")], "--sun-dir")
+        except ValueError as exc:
+            raise ValueError(f"--sun-dir: expected x,y,z, the direction the sunlight travels in the camera frame, "
+                             f"or a CSV file of it over time; got {sun_dir!r}") from exc
+        return lambda frame: sun
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    columns = set(rows[0]) if rows else set()
+    key = "timestamp_s" if "timestamp_s" in columns else "frame" if "frame" in columns else None
+    if key is None or not {"x", "y", "z"} <= columns:
+        raise ValueError(f"--sun-dir: {path}: expected a header with timestamp_s (or frame), x, y, z; got "
+                         f"{', '.join(sorted(columns)) or 'no rows'}")
+    at, dirs = [], []
+    for i, row in enumerate(rows, start=2):  # line numbers as an editor shows them, after the header
+        try:
+            at.append(float(row[key]))
+            dirs.append(as_unit_direction([float(row[c]) for c in "xyz"], "direction"))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"--sun-dir: {path}: line {i}: expected numbers {key}, x, y, z (a direction, not "
+                             f"zero): {exc}") from None
+    at_a, dirs_a = np.asarray(at), np.asarray(dirs)
+    if np.any(np.diff(at_a) <= 0):
+        raise ValueError(f"--sun-dir: {path}: {key} must increase from line to line")
+    if key == "frame":
+        by_frame = dict(zip(at_a.astype(int).tolist(), dirs_a))
+        return lambda frame: by_frame.get(frame.index)
+
+    def at_time(frame: Frame) -> np.ndarray:
+        k = int(np.searchsorted(at_a, frame.timestamp))
+        if k == 0 or k == len(at_a):
+            return dirs_a[min(k, len(at_a) - 1)]
+        w = (frame.timestamp - at_a[k - 1]) / (at_a[k] - at_a[k - 1])
+        return (1 - w) * dirs_a[k - 1] + w * dirs_a[k]  # Frame normalises it
+
+    return at_time
+
+
 def first_frame_size(source) -> tuple[int, int]:
     """(W, H) pixels of the first frame of a video file or image folder (errors as :func:`read_frames`)."""
     first = next(_raw_frames(source, None), None)

@@ -134,6 +134,37 @@ def test_track_with_the_suns_direction(clip, tmp_path, capsys):
     assert "--sun-dir: expected x,y,z" in capsys.readouterr().err
 
 
+def test_the_suns_direction_over_time_from_a_sun_sensor_log(clip, tmp_path, capsys):
+    """--sun-dir FILE.csv: by time, interpolated between rows and held beyond them; by frame, only
+    the listed frames; a bad log refused naming its line."""
+    from hybridpose.core import Frame
+    from hybridpose.geometry import Camera
+    from hybridpose.tracking import with_sun
+
+    frames = [Frame(np.zeros((4, 4, 3), np.uint8), Camera.default().scaled(4), k / 10, k) for k in range(4)]
+    (tmp_path / "sun.csv").write_text("timestamp_s,x,y,z\n0.05,1,0,0\n0.25,0,1,0\n")
+    got = [f.sun_direction_cam for f in with_sun(frames, str(tmp_path / "sun.csv"))]
+    np.testing.assert_allclose(got[0], [1, 0, 0])                         # before the first row: held
+    np.testing.assert_allclose(got[1], [0.75, 0.25, 0] / np.hypot(0.75, 0.25))  # 0.1 s: a quarter of the way
+    np.testing.assert_allclose(got[3], [0, 1, 0])                         # after the last: held
+    (tmp_path / "by_frame.csv").write_text("frame,x,y,z\n1,0,0,1\n")
+    assert [f.sun_direction_cam is None for f in with_sun(frames, str(tmp_path / "by_frame.csv"))] == [True, False, True, True]
+    root, truth = clip
+    sun = SpaceLighting().sun_direction_cam
+    (tmp_path / "log.csv").write_text("timestamp_s,x,y,z\n" + "".join(f"{t},{sun[0]},{sun[1]},{sun[2]}\n" for t in (0, 1)))
+    args = ["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+            "--init-pose", str(root / "pose.json")]
+    assert main([*args, "--sun-dir", str(tmp_path / "log.csv"), "--out", str(tmp_path / "run")]) == 0
+    poses, _ = _read_poses(tmp_path / "run" / "poses.csv")
+    assert np.median([rotation_error_deg(p, t) for p, t in zip(poses, truth)]) < 1.0
+    (tmp_path / "bad.csv").write_text("timestamp_s,x,y,z\n0,1,0,0\n0.1,0,0,0\n")
+    assert main([*args, "--sun-dir", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "b")]) == 2
+    assert "bad.csv: line 3: expected numbers timestamp_s, x, y, z" in capsys.readouterr().err
+    (tmp_path / "cols.csv").write_text("t,sx,sy,sz\n0,1,0,0\n")
+    assert main([*args, "--sun-dir", str(tmp_path / "cols.csv"), "--out", str(tmp_path / "c")]) == 2
+    assert "expected a header with timestamp_s (or frame), x, y, z" in capsys.readouterr().err
+
+
 def test_pose_file_formats_agree(tmp_path):
     q = np.array([0.9, 0.1, -0.3, 0.2])
     p = Pose.from_quat_t(q / np.linalg.norm(q), [0.05, -0.02, 0.7])

@@ -2,7 +2,6 @@
 sequence benchmark), ``fit`` (a CNN for your own object) and ``demo``."""
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -36,14 +35,9 @@ def cmd_track(args) -> int:
     camera = load_camera(args.camera, image_size=first_frame_size(args.source))
     frames = read_frames(args.source, camera, args.fps)
     if args.sun_dir is not None:
-        from ..geometry.checks import as_unit_direction
+        from ..tracking import with_sun
 
-        try:
-            sun = as_unit_direction([float(x) for x in args.sun_dir.split(",")], "--sun-dir")
-        except ValueError as exc:
-            raise ValueError(f"--sun-dir: expected x,y,z, the direction the sunlight travels in the camera frame, "
-                             f"got {args.sun_dir!r}") from exc
-        frames = (replace(f, sun_direction_cam=sun) for f in frames)
+        frames = with_sun(frames, args.sun_dir)
     if args.init_pose is None:
         from ..estimator import HybridEstimator
         from ..tracking import run_hybrid_on_frames
@@ -259,10 +253,11 @@ def add_commands(sub) -> None:
                    help="a field of the hybrid's policy (repeatable; HybridConfig), set over the policy the "
                         "regressor's checkpoint recommends (a part fitted with hybridpose fit: reacquire_deg=20; "
                         "reacquire_deg=none turns it off)")
-    k.add_argument("--sun-dir", default=None, metavar="X,Y,Z",
+    k.add_argument("--sun-dir", default=None, metavar="X,Y,Z|CSV",
                    help="in space with the sun the only light: the direction the sunlight travels in the camera "
-                        "frame (x right, y down, z forward), e.g. from a sun sensor; the edge fits then leave out "
-                        "the model edges the sun cannot show")
+                        "frame (x right, y down, z forward), e.g. from a sun sensor — one for every frame, or a CSV "
+                        "file of it over time (columns timestamp_s or frame, x, y, z; interpolated between rows); "
+                        "the edge fits then leave out the model edges the sun cannot show")
     k.add_argument("--fps", type=float, default=None, help="frame rate for image folders (default 30)")
     k.add_argument("--max-frames", type=int, default=None)
     k.add_argument("--draw-sites", action="store_true",

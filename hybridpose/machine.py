@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import os
 import platform
+import subprocess
+from importlib import metadata
 from pathlib import Path
 
 # instruction sets that decide how fast oneDNN/MKL run convolutions and matrix products
@@ -61,3 +63,28 @@ def cpu_label(record: dict) -> str:
     if record.get("torch_cpu_capability"):
         parts.append(str(record["torch_cpu_capability"]))
     return ", ".join(parts)
+
+
+# the packages whose versions a result depends on (recorded beside it)
+RESULT_PACKAGES = ("hybridpose", "numpy", "opencv-contrib-python-headless", "onnxruntime", "torch", "filterpy",
+                   "gtsam", "mujoco")
+
+
+def git_commit() -> str:
+    """The short commit of the hybridpose source that runs ("unknown" outside a git checkout)."""
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def package_versions() -> dict:
+    """``{"python", "machine", and each installed package of RESULT_PACKAGES: its version}``."""
+    out = {"python": platform.python_version(), "machine": platform.machine()}
+    for pkg in RESULT_PACKAGES:
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out

@@ -60,6 +60,11 @@ def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
     cap = cv2.VideoCapture(str(video))
     assert cap.isOpened() and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(truth)
     assert "12 frames with edges" in capsys.readouterr().out
+    # what was run, with what, on what: enough to run it again and compare
+    record = json.loads((out / "run.json").read_text())
+    assert record["mode"] == "tracker" and record["frames"] == 12 and record["options"]["tracker"] == "edges"
+    assert record["camera"]["width"] == 640 and record["object"]["name"] == "truss" and record["versions"]["numpy"]
+    assert record["cpu"]["cpus"] >= 1 and "policy" not in record
 
 
 def test_track_video_file(clip, tmp_path):
@@ -212,6 +217,8 @@ def test_track_without_an_initial_pose_runs_the_hybrid(clip, tmp_path, capsys):
                                                 [float(r[k]) for k in ("tx_m", "ty_m", "tz_m")]), t) for r, t in trusted]
     assert len(errs) >= 10 and np.median(errs) < 1.0
     assert len(list(out.glob("overlay.*"))) == 1 and "with the hybrid" in capsys.readouterr().out
+    record = json.loads((out / "run.json").read_text())
+    assert record["mode"] == "hybrid" and record["policy"]["fields"]["check_period"] == 10 and record["reinits"] >= 0
     # each trusted pose comes with its 1-σ: small against the truss, and the truth mostly within 3 σ of it
     sd = np.array([[float(r[k]) for k in ("sd_rx_deg", "sd_ry_deg", "sd_rz_deg", "sd_tx_m", "sd_ty_m", "sd_tz_m")]
                    for r, _ in trusted])

@@ -5,18 +5,16 @@ Every input is checked before any long work starts; the rows of an interrupted r
 from __future__ import annotations
 
 import fnmatch
-import platform
-import subprocess
 import time
 from dataclasses import asdict, dataclass, replace
 from dataclasses import fields as dataclass_fields
-from importlib import metadata
 from pathlib import Path
 from typing import Callable
 
 from ..estimator import HybridConfig
 from ..hybrid_config import DEFAULT_FUSION, recommended_config
 from ..io import atomic_write_json, atomic_write_text
+from ..machine import git_commit, package_versions
 from .report import report_markdown, write_plots
 from .runner import MODES, RunSpec, ray_connection, run_all
 from .suite import REPORT_SEEDS, TUNING_SEEDS, render_suite, suite
@@ -54,25 +52,6 @@ class BenchRequest:
     cache: str = "runs/bench_cache"
     seeds: tuple[int, ...] | None = None  # the split's seeds instead of its default twenty
     sequences: tuple[str, ...] = ()  # shell-style patterns of sequence names to run (none: all)
-
-
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def _versions() -> dict:
-    out = {"python": platform.python_version(), "machine": platform.machine()}
-    for pkg in ("hybridpose", "numpy", "opencv-contrib-python-headless", "onnxruntime", "torch", "filterpy", "gtsam",
-                "mujoco"):
-        try:
-            out[pkg] = metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            pass
-    return out
 
 
 def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list]:
@@ -284,7 +263,7 @@ def _run(req: BenchRequest, specs: list[RunSpec], scenes: dict[str, Path] | None
                          "seeds": seeds, "sequences": sorted(scenes), "workers": req.workers, "ray": req.ray,
                          "runs": [s.label for s in specs], "object": req.object, "scale": req.scale,
                          "hybrid_config": asdict(default_policy(req.regressor))},
-              "versions": _versions(), "commit": _commit(), "seconds": time.time() - t0,
+              "versions": package_versions(), "commit": git_commit(), "seconds": time.time() - t0,
               "rows_reused": stats.get("reused", 0), "rows": rows}
     atomic_write_json(out / "results.json", result)
     plots = write_plots(out, result)

@@ -2,6 +2,7 @@
 sequence benchmark), ``fit`` (a CNN for your own object) and ``demo``."""
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -48,18 +49,36 @@ def cmd_track(args) -> int:
         policy = changes_text(est.config)
         res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"),
                                    draw_sites=args.draw_sites)
+        write_run_record(res, args, obj, camera, policy={"fields": asdict(est.config), "changed": policy})
         print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}"
               f"{'; policy ' + policy if policy else ''}; "
               f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
-              f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
+              f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}, {res.out / 'run.json'}")
         return 0
     pose0 = load_pose(args.init_pose)
     tracker = create("tracker", args.tracker, object=obj, **tracker_kw)
     res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=counter("track"),
                          draw_sites=args.draw_sites)
+    write_run_record(res, args, obj, camera)
     print(f"track: {res.frames} frames with {args.tracker} ({res.ms_per_frame:.1f} ms/frame, {res.lost} flagged lost) → "
-          f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}")
+          f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}, {res.out / 'run.json'}")
     return 0
+
+
+def write_run_record(res, args, obj, camera, policy: dict | None = None) -> None:
+    """``OUT/run.json``: what a run of ``track`` was asked (its options), with what (object, camera,
+    the hybrid's policy), what it gave (frames, lost, re-initialised, ms a frame) and on what (commit,
+    package versions, CPU) — to rerun it and compare."""
+    from ..io import atomic_write_json
+    from ..machine import describe_cpu, git_commit, package_versions
+
+    options = {k: v for k, v in vars(args).items() if k != "func"}
+    atomic_write_json(res.out / "run.json", {
+        "options": options, "mode": "tracker" if args.init_pose is not None else "hybrid",
+        "object": {"name": obj.name, "diameter_m": obj.diameter, "symmetric": obj.symmetric},
+        "camera": camera.to_dict(), **({"policy": policy} if policy is not None else {}),
+        "frames": res.frames, "lost": res.lost, "reinits": res.reinits, "ms_per_frame": res.ms_per_frame,
+        "commit": git_commit(), "versions": package_versions(), "cpu": describe_cpu()})
 
 
 def cmd_bench(args) -> int:

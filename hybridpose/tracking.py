@@ -36,8 +36,12 @@ POSE_FIELDS = ["frame", "timestamp_s", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "
 # 1-σ of the pose as reported (Pose.covariance_in_camera): rotation about the camera's x, y, z (°), and
 # of tx, ty, tz themselves (m); empty where there is no pose or no uncertainty (a given initial pose)
 SIGMA_FIELDS = ["sd_rx_deg", "sd_ry_deg", "sd_rz_deg", "sd_tx_m", "sd_ty_m", "sd_tz_m"]
-HYBRID_FIELDS = POSE_FIELDS + SIGMA_FIELDS + ["status", "sources", "ms"]
-TRACKER_FIELDS = POSE_FIELDS + SIGMA_FIELDS + ["quality", "lost"]
+# and the whole covariance of [δθx, δθy, δθz (rad), δtx, δty, δtz (m)] in the camera frame, for a navigation
+# filter: its upper triangle, row by row (rad², rad·m, m²)
+_AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
+COV_FIELDS = [f"cov_{a}_{b}" for i, a in enumerate(_AXES) for b in _AXES[i:]]
+HYBRID_FIELDS = POSE_FIELDS + SIGMA_FIELDS + COV_FIELDS + ["status", "sources", "ms"]
+TRACKER_FIELDS = POSE_FIELDS + SIGMA_FIELDS + COV_FIELDS + ["quality", "lost"]
 STATUS_COLOURS = {"tracking": (60, 255, 60), "init": (255, 220, 0), "reinit": (255, 220, 0), "lost": (255, 60, 60)}
 # browsers play H.264 .mp4 and VP9/VP8 .webm; MPEG-4 Part 2 ('mp4v') only as a last resort
 VIDEO_CODECS = (("avc1", ".mp4"), ("VP90", ".webm"), ("VP80", ".webm"), ("mp4v", ".mp4"))
@@ -252,11 +256,13 @@ class VideoFile:
 
 
 def _sigma_cells(pose: Pose | None, covariance: np.ndarray | None) -> list[str]:
-    """The ``SIGMA_FIELDS`` cells of a pose and its (6, 6) right-perturbation covariance."""
+    """The ``SIGMA_FIELDS`` and ``COV_FIELDS`` cells of a pose and its (6, 6) right-perturbation covariance."""
     if pose is None or covariance is None:
-        return [""] * len(SIGMA_FIELDS)
-    sd = np.sqrt(np.clip(np.diag(pose.covariance_in_camera(covariance)), 0.0, None))
-    return [f"{np.degrees(v):.4f}" for v in sd[:3]] + [f"{v:.6f}" for v in sd[3:]]
+        return [""] * (len(SIGMA_FIELDS) + len(COV_FIELDS))
+    cov = pose.covariance_in_camera(covariance)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return ([f"{np.degrees(v):.4f}" for v in sd[:3]] + [f"{v:.6f}" for v in sd[3:]]
+            + [f"{v:.6e}" for v in cov[np.triu_indices(6)]])
 
 
 def _pose_cells(frame: Frame, pose: Pose | None) -> list:

@@ -225,6 +225,16 @@ def test_track_without_an_initial_pose_runs_the_hybrid(clip, tmp_path, capsys):
     assert np.all(sd > 0) and np.all(sd[:, :3] < 5.0) and np.all(sd[:, 3:] < 0.05)
     t_err = np.array([[float(r[k]) for k in ("tx_m", "ty_m", "tz_m")] - t.t for r, t in trusted])
     assert np.mean(np.abs(t_err) <= 3 * sd[:, 3:]) >= 0.8
+    # the whole camera-frame covariance too (upper triangle): its diagonal is the σ², and it is one
+    from hybridpose.tracking import COV_FIELDS
+
+    r0 = trusted[0][0]
+    upper = np.array([float(r0[k]) for k in COV_FIELDS])
+    cov = np.zeros((6, 6))
+    cov[np.triu_indices(6)] = upper
+    cov = cov + np.triu(cov, 1).T
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), np.r_[np.radians(sd[0, :3]), sd[0, 3:]], atol=2e-6)  # σ columns: µm, 1e-4°
+    assert np.all(np.linalg.eigvalsh(cov) > 0) and len(COV_FIELDS) == 21 and "cov_rx_tz" in COV_FIELDS
 
 
 def test_tracker_options_reach_the_tracker(clip, tmp_path, capsys):

@@ -339,9 +339,7 @@ def with_sites(image: np.ndarray, sites, camera: Camera, legend: bool = True) ->
     """``image`` (of ``camera``) with a tracker's last edge sites drawn
     (:func:`~hybridpose.viz.draw_edge_sites`; the fits' pinhole pixels put where ``camera``'s lens
     shows them) and, with ``legend``, their legend along the bottom."""
-    if sites is not None and camera.dist:
-        sites = replace(sites, uv=camera.distort_pixels(sites.uv), matched=camera.distort_pixels(sites.matched))
-    drawn = draw_edge_sites(image, sites)
+    drawn = draw_edge_sites(image, sites, camera.distort_pixels if camera.dist else None)
     return put_label(drawn, SITE_LEGEND, bottom=True) if legend else drawn
 
 

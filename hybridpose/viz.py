@@ -57,17 +57,20 @@ SITE_COLOURS = {"inlier": (0, 255, 255), "outlier": (255, 40, 40), "lit_no_edge"
 SITE_LEGEND = "sites: cyan matched, red rejected, orange no edge (lit line), grey no edge (dark)"
 
 
-def draw_edge_sites(image: np.ndarray, sites) -> np.ndarray:
+def draw_edge_sites(image: np.ndarray, sites, to_image=None) -> np.ndarray:
     """Copy of ``image`` (H, W, 3) uint8 RGB with an edge fit's sites
     (:class:`~hybridpose.edges.fit.EdgeSites`): each model sample at the fitted pose as a dot —
     cyan where its match is an inlier, red (with a line to the edge it found) where the fit rejected
     that match, orange where its lit search line showed no edge (evidence against the pose), grey
-    where a dark one showed none — the picture ViSP's moving-edge tracker draws."""
+    where a dark one showed none — the picture ViSP's moving-edge tracker draws. ``to_image``: maps
+    (N, 2) fit pixels (an undistorted image's) to ``image``'s, e.g. ``Camera.distort_pixels``."""
     img = np.ascontiguousarray(image).copy()
     if sites is None:
         return img
     h, w = img.shape[:2]
     uv, matched = np.asarray(sites.uv, float), np.asarray(sites.matched, float)
+    if to_image is not None:
+        uv, matched = to_image(uv), to_image(matched)
     has_match = np.all(np.isfinite(matched), axis=1)
     kinds = (("dark_no_edge", ~has_match & ~sites.lit_no_edge), ("lit_no_edge", sites.lit_no_edge),
              ("outlier", has_match & ~sites.inlier), ("inlier", sites.inlier))

@@ -19,6 +19,8 @@ its rim a single line: the quality collapses.
 """
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -37,11 +39,13 @@ MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class EdgeSites:
     """What a fit saw, per model edge sample of its last search (the moving-edge sites ViSP draws).
+    Made from the fit's own arrays; the pictures' values are worked out when first asked for (a fit
+    that nobody draws costs nothing more).
 
-    Attributes:
+    Properties:
         uv: (S, 2) float px, the samples projected at the fitted pose.
         matched: (S, 2) float px, the image edge found along each sample's normal (NaN: none).
         inlier: (S,) bool, matched and within the fit's inlier distance of the fitted edge.
@@ -49,10 +53,32 @@ class EdgeSites:
             occluder in front, or the pose wrong); no edge on a dark line says nothing.
     """
 
-    uv: np.ndarray
-    matched: np.ndarray
-    inlier: np.ndarray
-    lit_no_edge: np.ndarray
+    points: np.ndarray          # (S, 3) m, the searched samples
+    pose: Pose                  # the fitted pose
+    K: np.ndarray               # (3, 3) px
+    target: np.ndarray          # (S, 2) px, where each search ended (meaningful where valid)
+    valid: np.ndarray           # (S,) bool, the search found an edge
+    inlier_of_valid: np.ndarray  # (valid.sum(),) bool
+    brightness: np.ndarray      # (S,) mean grey of each search line
+
+    @functools.cached_property
+    def uv(self) -> np.ndarray:
+        cam_pts = self.points @ self.pose.R.T + self.pose.t
+        return cam_pts[:, :2] / cam_pts[:, 2:3] * self.K[[0, 1], [0, 1]] + self.K[:2, 2]
+
+    @functools.cached_property
+    def matched(self) -> np.ndarray:
+        return np.where(self.valid[:, None], self.target, np.nan)
+
+    @functools.cached_property
+    def inlier(self) -> np.ndarray:
+        inlier = np.zeros(len(self.points), bool)
+        inlier[np.flatnonzero(self.valid)[self.inlier_of_valid]] = True
+        return inlier
+
+    @functools.cached_property
+    def lit_no_edge(self) -> np.ndarray:
+        return ~self.valid & (self.brightness > LIT_GREY)
 
 
 @dataclass(frozen=True)
@@ -66,19 +92,6 @@ class EdgeFit:
     rms_px: float
     samples: int
     sites: EdgeSites | None = None
-
-
-def _sites(points: np.ndarray, pose: Pose, K: np.ndarray, target: np.ndarray, valid: np.ndarray,
-           inlier_of_valid: np.ndarray, brightness: np.ndarray) -> EdgeSites:
-    """:class:`EdgeSites` of searched samples ``points`` (S, 3) m: ``target`` (S, 2) px their matches,
-    ``valid`` (S,) which matched, ``inlier_of_valid`` the inliers among those, ``brightness`` (S,)
-    their search lines' mean grey."""
-    cam_pts = points @ pose.R.T + pose.t
-    uv = cam_pts[:, :2] / cam_pts[:, 2:3] * K[[0, 1], [0, 1]] + K[:2, 2]
-    matched = np.where(valid[:, None], target, np.nan)
-    inlier = np.zeros(len(points), bool)
-    inlier[np.flatnonzero(valid)[inlier_of_valid]] = True
-    return EdgeSites(uv=uv, matched=matched, inlier=inlier, lit_no_edge=~valid & (brightness > LIT_GREY))
 
 
 def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_contrast: float = 4.0):
@@ -250,7 +263,7 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     support = min(1.0, float(inl.sum()) / MIN_SUPPORT)
     return EdgeFit(pose=pose, covariance=0.5 * (cov + cov.T), quality=support * ratio,
                    rms_px=float(np.sqrt(np.mean(r[inl] ** 2))), samples=int(inl.sum()),
-                   sites=_sites(points, pose, K, target, valid, inl, brightness))
+                   sites=EdgeSites(points, pose, K, target, valid, inl, brightness))
 
 
 GOOD_FIT = 0.7  # a fit this good from the first proposal is kept without trying the next

@@ -280,35 +280,42 @@ class RunResult:
     ms_per_frame: float
     video: Path
     out: Path
+    interrupted: bool = False  # stopped by the user (Ctrl-C): the outputs hold the frames done
 
 
 def _run(frames: Iterator[Frame], step: Callable[[Frame], tuple], out, fields: list[str], max_frames: int | None,
          progress: Callable[[int], None] | None, on_frame: Callable | None) -> RunResult:
     """The loop both runs share: ``step(frame)`` → (result for ``on_frame``, pose written or None, trusted,
-    lost, reinit, ms, extra csv cells, overlay); video, poses.csv and scene_gt.json written at the end."""
+    lost, reinit, ms, extra csv cells, overlay); video, poses.csv and scene_gt.json written at the end —
+    also when the user stops the run (Ctrl-C), with the frames done by then."""
     from .datasets.bop import pose_to_bop
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows, scene_gt, video, ms, lost, reinits = [], {}, None, [], 0, 0
+    rows, scene_gt, video, ms, lost, reinits, interrupted = [], {}, None, [], 0, 0, False
     try:
-        for k, frame in enumerate(frames):
-            if max_frames is not None and k >= max_frames:
-                break
-            if video is None:
-                video = VideoFile(out / "overlay", 30.0, (frame.camera.width, frame.camera.height))
-            result, pose, trusted, was_lost, reinit, elapsed, cells, overlay = step(frame)
-            ms.append(elapsed)
-            lost += int(was_lost)
-            reinits += int(reinit)
-            rows.append(_pose_cells(frame, pose) + cells)
-            if pose is not None and trusted:
-                scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(pose)}]
-            video.write(overlay)
-            if on_frame:
-                on_frame(frame, result, overlay)
-            if progress:
-                progress(k + 1)
+        try:
+            for k, frame in enumerate(frames):
+                if max_frames is not None and k >= max_frames:
+                    break
+                if video is None:
+                    video = VideoFile(out / "overlay", 30.0, (frame.camera.width, frame.camera.height))
+                result, pose, trusted, was_lost, reinit, elapsed, cells, overlay = step(frame)
+                ms.append(elapsed)
+                lost += int(was_lost)
+                reinits += int(reinit)
+                rows.append(_pose_cells(frame, pose) + cells)
+                if pose is not None and trusted:
+                    scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(pose)}]
+                video.write(overlay)
+                if on_frame:
+                    on_frame(frame, result, overlay)
+                if progress:
+                    progress(k + 1)
+        except KeyboardInterrupt:  # a long video stopped by hand: keep what was tracked
+            if not rows:
+                raise
+            interrupted = True
         if not rows:
             raise ValueError("source: no frames to track")
         path = video.close()
@@ -322,7 +329,8 @@ def _run(frames: Iterator[Frame], step: Callable[[Frame], tuple], out, fields: l
     w.writerows(rows)
     atomic_write_text(out / "poses.csv", buf.getvalue())
     atomic_write_json(out / "scene_gt.json", scene_gt)
-    return RunResult(frames=len(rows), lost=lost, reinits=reinits, ms_per_frame=float(np.mean(ms)), video=path, out=out)
+    return RunResult(frames=len(rows), lost=lost, reinits=reinits, ms_per_frame=float(np.mean(ms)), video=path, out=out,
+                     interrupted=interrupted)
 
 
 # --- the two runs ----------------------------------------------------------------------------------

@@ -67,6 +67,30 @@ def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
     assert record["cpu"]["cpus"] >= 1 and "policy" not in record
 
 
+def test_a_run_stopped_by_the_user_keeps_the_frames_it_tracked(clip, tmp_path, monkeypatch, capsys):
+    """Ctrl-C in the middle of a long video: the overlay, poses.csv, scene_gt.json and run.json hold
+    the frames done, and the exit status is 130."""
+    import hybridpose.tracking as tracking
+
+    root, _ = clip
+    real = tracking.read_frames
+
+    def stopped_after_three(source, camera, fps=None):
+        for k, frame in enumerate(real(source, camera, fps)):
+            if k == 3:
+                raise KeyboardInterrupt
+            yield frame
+
+    monkeypatch.setattr(tracking, "read_frames", stopped_after_three)
+    out = tmp_path / "stopped"
+    assert main(["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+                 "--init-pose", str(root / "pose.json"), "--out", str(out)]) == 130
+    poses, _ = _read_poses(out / "poses.csv")
+    assert len(poses) == 3 and len(json.loads((out / "scene_gt.json").read_text())) == 3
+    assert json.loads((out / "run.json").read_text())["interrupted"] is True and list(out.glob("overlay.*"))
+    assert "stopped by the user after 3 frames" in capsys.readouterr().out
+
+
 def test_track_video_file(clip, tmp_path):
     root, truth = clip
     assert main(["track", str(root / "clip.mp4"), "--object", "truss", "--camera", str(root / "camera.json"),

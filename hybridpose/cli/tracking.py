@@ -54,7 +54,7 @@ def cmd_track(args) -> int:
               f"{'; policy ' + policy if policy else ''}; "
               f"{res.ms_per_frame:.1f} ms/frame, {res.lost} lost, {res.reinits} re-initialised) → "
               f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}, {res.out / 'run.json'}")
-        return 0
+        return _finished(res)
     pose0 = load_pose(args.init_pose)
     tracker = create("tracker", args.tracker, object=obj, **tracker_kw)
     res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=counter("track"),
@@ -62,6 +62,14 @@ def cmd_track(args) -> int:
     write_run_record(res, args, obj, camera)
     print(f"track: {res.frames} frames with {args.tracker} ({res.ms_per_frame:.1f} ms/frame, {res.lost} flagged lost) → "
           f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}, {res.out / 'run.json'}")
+    return _finished(res)
+
+
+def _finished(res) -> int:
+    """The exit status of a track run: 0, or 130 (as a shell reports Ctrl-C) where the user stopped it."""
+    if res.interrupted:
+        print(f"track: stopped by the user after {res.frames} frames; the outputs hold those frames")
+        return 130
     return 0
 
 
@@ -78,6 +86,7 @@ def write_run_record(res, args, obj, camera, policy: dict | None = None) -> None
         "object": {"name": obj.name, "diameter_m": obj.diameter, "symmetric": obj.symmetric},
         "camera": camera.to_dict(), **({"policy": policy} if policy is not None else {}),
         "frames": res.frames, "lost": res.lost, "reinits": res.reinits, "ms_per_frame": res.ms_per_frame,
+        "interrupted": res.interrupted,
         "commit": git_commit(), "versions": package_versions(), "cpu": describe_cpu()})
 
 

@@ -462,8 +462,10 @@ def held_out_accuracy(report: dict, obj: ObjectModel) -> dict:
 
 def fit_report(record: dict, obj: ObjectModel) -> str:
     p, a, req = record["plan"], record["accuracy"], record["request"]
+    from .hybrid_config import changes_text, recommended_config
+
     policy = record.get("hybrid_config") or {}
-    carried = ", ".join(f"{k}={'none' if v is None else format(v, 'g')}" for k, v in policy.items())
+    carried = changes_text(recommended_config(policy))  # named as bench rows and track's log name it
     why = (f" The checkpoint carries the hybrid policy `{carried}`, which both apply"
            + (" (a new part's network is sometimes far off where it looks sure: two of its answers must agree "
               "within 20° to restart a lost track)" if "reacquire_deg" in policy else "")

@@ -75,7 +75,6 @@ class RunSpec:
         return Path(self.regressor).suffix == ".pt"
 
 
-
 def spec_dict(spec: RunSpec) -> dict:
     d = asdict(spec)
     d.pop("threads")

@@ -172,7 +172,7 @@ def cmd_demo(args) -> int:
     from ..objects import load_object
     from ..registry import create, get
     from ..render.sequences import SequenceSpec
-    from ..tracking import draw_estimate, run_hybrid_on_frames, with_sites
+    from ..tracking import draw_estimate, run_hybrid_on_frames
     from ..viz import contact_sheet, plot_error_over_time
 
     get("tracker", args.tracker), get("fusion", args.fusion)  # unknown names refused before rendering

@@ -19,7 +19,8 @@ ROLES = ("object", "trajectory", "tracker", "regressor", "fusion")
 _BUILTIN_MODULES: dict[str, tuple[str, ...]] = {
     "object": ("hybridpose.objects.truss",),
     "trajectory": ("hybridpose.render.trajectories",),
-    "tracker": ("hybridpose.trackers.edges", "hybridpose.trackers.klt", "hybridpose.trackers.rapid"),
+    "tracker": ("hybridpose.trackers.edges", "hybridpose.trackers.klt", "hybridpose.trackers.rapid",
+                "hybridpose.trackers.combined"),
     "regressor": ("hybridpose.regressors.predictor",),
     "fusion": ("hybridpose.fusion.ukf", "hybridpose.fusion.passthrough", "hybridpose.fusion.isam2"),
 }

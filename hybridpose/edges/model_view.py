@@ -153,6 +153,23 @@ class ModelView:
         lam = np.where(ok, np.sum(n * (p0 - origin), axis=-1) / np.where(ok, denom, 1.0), 0.0)
         return d, lam, ok & (lam > 0)
 
+    def surface_fixed(self, pose: Pose, camera: Camera, uv: np.ndarray, ids: np.ndarray, r: int = 2,
+                      tol_m: float = 0.002) -> np.ndarray:
+        """(N,) True where the ray of each pixel ``uv`` (N, 2) meets every facet seen within ±``r`` px
+        in the full-resolution facet-id raster ``ids`` at the same depth (within ``tol_m`` metres): a
+        point fixed on the object (a corner of the geometry, a point of a face's print). False at
+        occlusion boundaries (a beam in front of another) and on the silhouette, where an image corner
+        is no point of the object."""
+        h, w = ids.shape
+        c = np.round(uv).astype(int)
+        off = np.arange(-r, r + 1)
+        ys = np.clip(c[:, 1, None, None] + off[None, :, None], 0, h - 1)
+        xs = np.clip(c[:, 0, None, None] + off[None, None, :], 0, w - 1)
+        f = ids[ys, xs].reshape(len(uv), -1)                                  # (N, (2r+1)²)
+        _, lam, ok = self.ray_plane_depths(pose, camera, uv, f)
+        depth_spread = np.where(ok, lam, -np.inf).max(1) - np.where(ok, lam, np.inf).min(1)  # ray parameter = depth
+        return ok.all(1) & (depth_spread < tol_m)
+
     # --- visible samples ----------------------------------------------------------------------------
     def step_px(self, pose: Pose, camera: Camera) -> float:
         """The samples' spacing in pixels at the depth of the object's nearest point (≥ 1)."""
@@ -197,6 +214,14 @@ class ModelView:
         crease = facing[:, 0] & facing[:, 1] & (self.faces[index, 0] != self.faces[index, 1])
         outline_lit = np.where(facing[:, 0], lit[:, 0], lit[:, 1]) | (not dark_background)
         return np.where(crease, lit[:, 0] | lit[:, 1], outline_lit)
+
+    def silhouette_index(self, index: np.ndarray, pose: Pose) -> np.ndarray:
+        """The samples of ``index`` (S,) on the silhouette at ``pose``: on a crease between a face turned
+        to the camera and one turned away (the outline of a closed polyhedral mesh)."""
+        index = np.asarray(index, dtype=np.int64)
+        normals = self.face_normals[self.faces[index]]                                   # (S, 2, 3)
+        facing = self._normal_dot_point[index] + normals @ (pose.R.T @ pose.t) < 0         # (S, 2)
+        return index[facing[:, 0] != facing[:, 1]]
 
     def samples_at(self, pose: Pose, camera: Camera, index: np.ndarray, margin_px: float | None = None) -> EdgeSamples:
         """The samples ``index`` projected at ``pose`` (no visibility test: the trackers decide

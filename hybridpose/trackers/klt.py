@@ -90,24 +90,8 @@ class KltPnpTracker(Tracker):
             return np.zeros((0, 2), np.float32), np.zeros((0, 3))
         uv = pts.reshape(-1, 2) + (x0, y0)
         X, ok = self.view.lift(pose, frame.camera, uv, ids=ids)
-        ok &= self._surface_fixed(pose, frame, uv, ids)
+        ok &= self.view.surface_fixed(pose, frame.camera, uv, ids)
         return uv[ok].astype(np.float32), X[ok]
-
-    def _surface_fixed(self, pose: Pose, frame: Frame, uv: np.ndarray, ids: np.ndarray, r: int = 2,
-                       tol_m: float = 0.002) -> np.ndarray:
-        """(N,) True where the pixel's ray meets every facet seen within ±r px at the same depth
-        (within ``tol_m``): a corner of the geometry, fixed on the object. False at occlusion
-        boundaries (a beam in front of another) and on the silhouette, where the image corner
-        is not a point of the object."""
-        h, w = ids.shape
-        c = np.round(uv).astype(int)
-        off = np.arange(-r, r + 1)
-        ys = np.clip(c[:, 1, None, None] + off[None, :, None], 0, h - 1)
-        xs = np.clip(c[:, 0, None, None] + off[None, None, :], 0, w - 1)
-        f = ids[ys, xs].reshape(len(uv), -1)                                  # (N, (2r+1)²)
-        _, lam, ok = self.view.ray_plane_depths(pose, frame.camera, uv, f)
-        depth_spread = np.where(ok, lam, -np.inf).max(1) - np.where(ok, lam, np.inf).min(1)  # ray parameter = depth
-        return ok.all(1) & (depth_spread < tol_m)
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
@@ -194,7 +178,7 @@ class KltPnpTracker(Tracker):
         uv = np.zeros((0, 2), np.float32) if klt is None else klt[4][klt[3]]
         if len(uv):
             X, ok = self.view.lift(pose, frame.camera, uv, ids=ids)
-            ok &= self._surface_fixed(pose, frame, uv, ids)
+            ok &= self.view.surface_fixed(pose, frame.camera, uv, ids)
             uv, X = uv[ok].astype(np.float32), X[ok]
         else:
             X = np.zeros((0, 3))

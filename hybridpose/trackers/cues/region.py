@@ -1,0 +1,194 @@
+"""The region cue (sparse, as SRT3D): the part's colours against its background's, along
+correspondence lines across the projected silhouette.
+
+* Colour statistics: RGB histograms (``BINS``³) of the part (its projected faces, eroded) and of a
+  band of background around it, learned at the start and blended in on every trusted frame
+  (``LEARN_RATE``); each pixel's posterior ``p(part | colour)``.
+* Correspondence lines: the model's silhouette edges at the pose (sharp edges between a face turned to
+  the camera and one turned away) sampled as the edge cue samples its edges, each line along the
+  outward image normal. On each line the contour is where the posterior changes from part to
+  background most likely: the split maximising ``Σ_inside log p + Σ_outside log(1 − p)``.
+* Residuals: the distance from the projected silhouette to that split, along the normal (point to
+  line), with Tukey weights.
+
+No verdict (inactive) where the colours do not tell part from background (mean posterior on the part
+less than ``MIN_CONTRAST`` above the background's): a grey part on a grey desk, a shadowed face on
+black space. Only the outline of a polyhedral mesh has silhouette edges here; a smooth mesh gives
+none and the cue stays silent.
+
+Quality = share of the silhouette's lines whose split lies within ``INLIER_PX`` of the fitted
+silhouette with a clear change of colour.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ...core import Frame
+from ...edges import ModelView
+from ...edges.model_view import ID_SCALE
+from ...geometry import Pose, line_jacobian
+from .base import Cue, normal_equations, robust_scale, tukey_weights
+
+BINS = 16                 # per colour channel
+LEARN_RATE = 0.2          # share of a trusted frame's histograms blended into the model
+BAND_PX = (6, 30)         # background band: this far beyond the silhouette
+ERODE_PX = 4              # part pixels: this far inside it
+MIN_CONTRAST = 0.3        # mean posterior on the part − on the background, for the cue to speak
+SPLIT_CONTRAST = 0.3      # a line's inside − outside mean posterior for its split to count
+INLIER_PX = 2.0
+QUALITY_SEARCH_PX = 5
+MAX_LINES = 200
+EPS = 1e-3
+
+
+class RegionCue(Cue):
+    """Part-versus-background colour statistics along lines across the silhouette.
+
+    Args:
+        view: the model's :class:`~hybridpose.edges.ModelView`. sigma_px: a line's standard deviation, px.
+    """
+
+    name = "region"
+
+    def __init__(self, view: ModelView, sigma_px: float = 1.5, max_lines: int = MAX_LINES) -> None:
+        super().__init__()
+        self.view, self.sigma_px, self.max_lines = view, float(sigma_px), int(max_lines)
+        self.h_part = self.h_back = None
+        self.contrast = 0.0
+        self.X = np.zeros((0, 3))
+
+    # --- colour statistics -------------------------------------------------------------------------
+    @staticmethod
+    def _bins(rgb: np.ndarray) -> np.ndarray:
+        q = (rgb >> (8 - int(np.log2(BINS)))).astype(np.int32)
+        return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
+
+    def _learn(self, frame: Frame, ids: np.ndarray, rate: float) -> None:
+        """Blend the colours of ``frame`` at the pose whose facet-id raster is ``ids`` (any scale) into
+        the histograms, over the object's box and the band around it at the raster's resolution."""
+        scale = ids.shape[1] / frame.camera.width
+        part = ids > 0
+        if not part.any():
+            return
+        ys, xs = np.nonzero(part)
+        r = int(np.ceil(BAND_PX[1] * scale)) + 1
+        y0, y1 = max(ys.min() - r, 0), min(ys.max() + r + 1, ids.shape[0])
+        x0, x1 = max(xs.min() - r, 0), min(xs.max() + r + 1, ids.shape[1])
+        part = part[y0:y1, x0:x1]
+        u8 = part.astype(np.uint8)
+        def disc(px):
+            return np.ones((2 * max(1, round(px * scale)) + 1,) * 2, np.uint8)
+        inner = cv2.erode(u8, disc(ERODE_PX)) > 0
+        band = (cv2.dilate(u8, disc(BAND_PX[1])) > 0) & ~(cv2.dilate(u8, disc(BAND_PX[0])) > 0)
+        if inner.sum() < 20 or band.sum() < 20:
+            return
+        image = frame.image if scale == 1.0 else cv2.resize(frame.image, (ids.shape[1], ids.shape[0]),
+                                                             interpolation=cv2.INTER_AREA)
+        bins = self._bins(image[y0:y1, x0:x1])
+        hp = np.bincount(bins[inner], minlength=BINS**3).astype(np.float64)
+        hb = np.bincount(bins[band], minlength=BINS**3).astype(np.float64)
+        hp, hb = hp / hp.sum(), hb / hb.sum()
+        if self.h_part is None or rate >= 1.0:
+            self.h_part, self.h_back = hp, hb
+        else:
+            self.h_part = (1 - rate) * self.h_part + rate * hp
+            self.h_back = (1 - rate) * self.h_back + rate * hb
+        post = self._posterior_lut()
+        self.contrast = float(post[bins[inner]].mean() - post[bins[band]].mean())
+        self.active = self.contrast >= MIN_CONTRAST
+
+    def _posterior_lut(self) -> np.ndarray:
+        return ((self.h_part + EPS / BINS**3) / (self.h_part + self.h_back + 2 * EPS / BINS**3)).astype(np.float32)
+
+    def start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
+        self.h_part = None
+        self._learn(frame, ids, 1.0)
+
+    def begin(self, sight) -> None:
+        super().begin(sight)
+        # the silhouette's samples once a frame, at the start pose (re-projected as the pose moves),
+        # each line turned outward: towards the side where the start's raster shows background
+        view, cam, ids = self.view, sight.frame.camera, sight.ids
+        idx = view.silhouette_index(sight.visible, sight.start)
+        step = max(1, int(np.ceil(len(idx) / self.max_lines)))
+        s = view.samples_at(sight.start, cam, idx[::step], margin_px=2.0)
+        h, w = ids.shape
+        probe = np.round((s.uv + 3.0 * s.normals + 0.5) * ID_SCALE - 0.5).astype(int)
+        inside = (probe[:, 0] >= 0) & (probe[:, 0] < w) & (probe[:, 1] >= 0) & (probe[:, 1] < h)
+        out = np.ones(len(probe), bool)
+        out[inside] = ids[probe[inside, 1], probe[inside, 0]] == 0
+        self.lines, self.outward = s.index, np.where(out, 1.0, -1.0)
+
+    def finish(self, frame: Frame, gray: np.ndarray, pose: Pose, trusted: bool, ids) -> None:
+        if trusted:  # at the raster's resolution of the fit (ID_SCALE): colour statistics need no more
+            self._learn(frame, self.view.facet_ids(pose, frame.camera), LEARN_RATE)
+
+    # --- correspondence lines ----------------------------------------------------------------------
+    def _lines(self, frame: Frame, pose: Pose):
+        """(points (S, 3) m, uv (S, 2) px, outward normals (S, 2)) of the frame's silhouette lines at ``pose``."""
+        s = self.view.samples_at(pose, frame.camera, self.lines)
+        return s.points_m, s.uv, s.normals * self.outward[:, None]
+
+    def _splits(self, frame: Frame, uv: np.ndarray, normals: np.ndarray, search_px: int):
+        """Each line's most likely split (offset px along the outward normal) and whether it is clear."""
+        L = int(search_px)
+        k = np.arange(-L - 1, L + 2, dtype=np.float32)
+        mu = (uv[:, None, 0] + k * normals[:, None, 0]).astype(np.float32)
+        mv = (uv[:, None, 1] + k * normals[:, None, 1]).astype(np.float32)
+        h, w = frame.image.shape[:2]
+        x0, y0 = max(int(np.floor(mu.min())) - 1, 0), max(int(np.floor(mv.min())) - 1, 0)
+        x1, y1 = min(int(np.ceil(mu.max())) + 2, w), min(int(np.ceil(mv.max())) + 2, h)
+        if x1 <= x0 or y1 <= y0:
+            return np.zeros(len(uv)), np.zeros(len(uv), bool)
+        post = self._posterior_lut()[self._bins(frame.image[y0:y1, x0:x1])]
+        p = cv2.remap(post, mu - x0, mv - y0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        p = np.clip(p, 0.02, 0.98)
+        lp, lq = np.log(p), np.log1p(-p)
+        n = p.shape[1]
+        # split after index d−1: Σ_{i<d} log p_i + Σ_{i≥d} log(1 − p_i), d = 1 … n−1
+        inside = np.cumsum(lp, 1)[:, :-1]
+        outside = (lq.sum(1, keepdims=True) - np.cumsum(lq, 1))[:, :-1]
+        ll = inside + outside
+        d = ll.argmax(1)
+        # sub-pixel: a parabola through the log-likelihood's peak and its neighbours
+        rows = np.arange(len(d))
+        a, b, c = ll[rows, np.maximum(d - 1, 0)], ll[rows, d], ll[rows, np.minimum(d + 1, n - 2)]
+        den = a - 2 * b + c
+        sub = np.where((d > 0) & (d < n - 2) & (den < -1e-9), 0.5 * (a - c) / np.where(den < -1e-9, den, -1.0), 0.0)
+        offset = (d + 0.5 + sub) - (L + 1)  # boundary between samples d and d+1, in px from the line's centre
+        csum = np.cumsum(p, 1)
+        mean_in = csum[rows, d] / (d + 1)
+        mean_out = (csum[:, -1] - csum[rows, d]) / (n - d - 1)
+        clear = (mean_in - mean_out) > SPLIT_CONTRAST
+        return offset, clear
+
+    def correspond(self, frame: Frame, gray: np.ndarray, pose: Pose, search_px: int) -> None:
+        self.X = np.zeros((0, 3))
+        if not self.active or self.h_part is None:
+            return
+        X, uv, normals = self._lines(frame, pose)
+        if len(X) < 6:
+            return
+        offset, clear = self._splits(frame, uv, normals, search_px)
+        self.X, self.n, self.m = X[clear], normals[clear], uv[clear] + offset[clear, None] * normals[clear]
+        self._K = frame.camera.K
+        self.search_px = int(search_px)
+
+    def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
+        if len(self.X) < 6:
+            return np.zeros((6, 6)), np.zeros(6), 0
+        uv, J = line_jacobian(pose, self.X, self._K, self.n)
+        r = np.einsum("si,si->s", self.n, uv - self.m)
+        w = tukey_weights(r, robust_scale(r, 1.0, max(1.5, self.search_px / 3)))
+        H, g = normal_equations(J, r, w, self.sigma_px)
+        return H, g, int((w > 0).sum())
+
+    def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
+        if not self.active or self.h_part is None:
+            return float("nan")
+        X, uv, normals = self._lines(frame, pose)
+        if len(X) < 6:
+            return float("nan")
+        offset, clear = self._splits(frame, uv, normals, QUALITY_SEARCH_PX)
+        return float((clear & (np.abs(offset) < INLIER_PX)).mean())

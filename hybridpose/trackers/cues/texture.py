@@ -1,0 +1,170 @@
+"""The texture cue: points on the model's surface — corners of its print or of its geometry — followed
+from frame to frame with pyramidal KLT and held against the keyframe they were lifted in, so that
+their image positions do not drift (the role of M3T's texture modality).
+
+* A keyframe: ``cv2.goodFeaturesToTrack`` inside the object's projected faces (eroded, so that no
+  corner sits on the silhouette), each lifted onto the model by intersecting its pixel's ray with the
+  facet seen there (:meth:`~hybridpose.edges.ModelView.lift`); the 3D points stay fixed until the
+  next keyframe.
+* Each frame: forward–backward KLT from the previous frame (started at the points' projections at the
+  tracker's start pose, so a motion prediction shortens the search); then each track is pulled back
+  onto its keyframe patch (KLT from the keyframe, started where the track ended) where the two agree
+  within ``ANCHOR_PX`` — the frame-to-frame drift of the 2D tracks does not build up.
+* Residuals: reprojection errors (2 per point) with Tukey weights.
+* A new keyframe when fewer than ``min_points`` points survive or the view turned ``KEYFRAME_DEG``
+  since the last one, from a trusted pose only.
+
+Quality = share of the tracks that entered the frame that agree with the fitted pose within
+``INLIER_PX`` × min(1, inliers / ``FULL_SUPPORT``); NaN (no verdict) where the part shows no
+trackable point — a plain part.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ...core import Frame
+from ...edges import ModelView
+from ...geometry import Pose, projection_jacobian
+from ...metrics import rotation_error_deg
+from .base import Cue, normal_equations, robust_scale, tukey_weights
+
+FB_PX = 1.0          # forward–backward KLT tolerance
+ANCHOR_PX = 2.0      # a track re-found on its keyframe patch within this is moved there
+INLIER_PX = 3.0      # a point within this of its projection at the fitted pose agrees with it
+FULL_SUPPORT = 20    # agreeing points for full quality
+KEYFRAME_DEG = 20.0  # view turned this far since the keyframe: lift a new one (patches deform)
+LK = dict(winSize=(15, 15), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+ANCHOR_LK = dict(winSize=(11, 11), maxLevel=1, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
+
+
+class TextureCue(Cue):
+    """Points of the part's surface tracked with KLT and anchored to keyframes.
+
+    Args:
+        view: the model's :class:`~hybridpose.edges.ModelView`.
+        max_points: corners lifted at a keyframe. min_points: fewer surviving → new keyframe.
+        sigma_px: one coordinate's standard deviation, px.
+    """
+
+    name = "texture"
+
+    def __init__(self, view: ModelView, max_points: int = 150, min_points: int = 40, sigma_px: float = 1.0) -> None:
+        super().__init__()
+        if not 6 <= min_points <= max_points:
+            raise ValueError(f"min_points, max_points: expected 6 ≤ min ≤ max, got {min_points}, {max_points}")
+        self.view, self.max_points, self.min_points, self.sigma_px = view, int(max_points), int(min_points), float(sigma_px)
+        self.X = np.zeros((0, 3))
+        self.uv = np.zeros((0, 2), np.float32)       # positions in the previous frame
+        self.kf_uv = np.zeros((0, 2), np.float32)    # positions in the keyframe
+        self.kf_gray = self.prev = None
+        self.kf_pose: Pose | None = None
+        self.matched = np.zeros((0, 2))               # this frame's correspondences
+        self.index = np.zeros(0, np.int64)            # … of the points X[index]
+        self.entered = 0
+        self.enabled = True  # the tracker's say: False on a plain part
+
+    # --- keyframes ---------------------------------------------------------------------------------
+    def start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
+        self._keyframe(gray, pose, frame, ids)
+        self.active = len(self.X) >= 6
+
+    @property
+    def active(self) -> bool:
+        return self._active and self.enabled
+
+    @active.setter
+    def active(self, value: bool) -> None:
+        self._active = bool(value)
+
+    def _keyframe(self, gray: np.ndarray, pose: Pose, frame: Frame, ids: np.ndarray) -> None:
+        g8 = np.clip(gray, 0, 255).astype(np.uint8)
+        mask = cv2.erode((ids > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
+        uv = np.zeros((0, 2))
+        if mask.any():
+            # goodFeaturesToTrack scores every pixel it is given: the object's box only
+            ys, xs = np.nonzero(mask)
+            x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+            pts = cv2.goodFeaturesToTrack(np.ascontiguousarray(g8[y0:y1, x0:x1]), maxCorners=self.max_points,
+                                          qualityLevel=0.01, minDistance=7, blockSize=5,
+                                          mask=np.ascontiguousarray(mask[y0:y1, x0:x1]))
+            if pts is not None:
+                uv = pts.reshape(-1, 2) + (x0, y0)
+        X, ok = self.view.lift(pose, frame.camera, uv, ids=ids)
+        if len(uv):
+            ok &= self.view.surface_fixed(pose, frame.camera, uv, ids)
+        self.X, self.uv = X[ok], uv[ok].astype(np.float32)
+        self.kf_uv, self.kf_gray, self.kf_pose, self.prev = self.uv.copy(), g8, pose, g8
+
+    # --- one frame ---------------------------------------------------------------------------------
+    def correspond(self, frame: Frame, gray: np.ndarray, pose: Pose, search_px: int) -> None:
+        """KLT from the previous frame (once a frame: the correspondences do not depend on the pose)."""
+        if self.prev is None or frame is getattr(self, "_frame", None):
+            return  # once a frame
+        self._frame = frame
+        g8 = np.clip(gray, 0, 255).astype(np.uint8)
+        self.entered = len(self.X)
+        self.matched, self.index = np.zeros((0, 2)), np.zeros(0, np.int64)
+        if len(self.X) < 6:
+            self._g8 = g8
+            return
+        prev = self.uv.reshape(-1, 1, 2)
+        guess = frame.camera.project(self.X, pose).astype(np.float32).reshape(-1, 1, 2)
+        nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, g8, prev, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **LK)
+        back, st2, _ = cv2.calcOpticalFlowPyrLK(g8, self.prev, nxt, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **LK)
+        good = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((back - prev).reshape(-1, 2), axis=1) < FB_PX)
+        uv = nxt.reshape(-1, 2).copy()
+        if good.any() and self.kf_gray is not self.prev:
+            # back onto the keyframe's patch: the keyframe's look, not the last frame's, says where the point is
+            idx = np.flatnonzero(good)
+            anchored, st3, _ = cv2.calcOpticalFlowPyrLK(self.kf_gray, g8, self.kf_uv[idx].reshape(-1, 1, 2),
+                                                        uv[idx].reshape(-1, 1, 2).copy(),
+                                                        flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **ANCHOR_LK)
+            anchored = anchored.reshape(-1, 2)
+            near = (st3.ravel() == 1) & (np.linalg.norm(anchored - uv[idx], axis=1) < ANCHOR_PX)
+            uv[idx[near]] = anchored[near]
+        self.index = np.flatnonzero(good)
+        self.matched = uv[good].astype(np.float64)
+        self._g8 = g8
+
+    def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
+        if len(self.index) < 3:
+            return np.zeros((6, 6)), np.zeros(6), 0
+        proj, J = projection_jacobian(pose, self.X[self.index], self._K)
+        r = (proj - self.matched).ravel()
+        dist = np.linalg.norm((proj - self.matched), axis=1)
+        w = np.repeat(tukey_weights(dist, robust_scale(dist, 1.0)), 2)
+        H, g = normal_equations(J.reshape(-1, 6), r, w, self.sigma_px)
+        return H, g, int((w > 0).sum())
+
+    def residuals_px(self, pose: Pose) -> np.ndarray:
+        """(M,) distance of each matched point from its projection at ``pose``."""
+        if len(self.index) == 0:
+            return np.zeros(0)
+        proj, _ = projection_jacobian(pose, self.X[self.index], self._K)
+        return np.linalg.norm(proj - self.matched, axis=1)
+
+    def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
+        if self.entered < 6:
+            return float("nan")
+        inliers = int((self.residuals_px(pose) < INLIER_PX).sum())
+        return inliers / self.entered * min(1.0, inliers / FULL_SUPPORT)
+
+    def finish(self, frame: Frame, gray: np.ndarray, pose: Pose, trusted: bool, ids) -> None:
+        if self.prev is None:
+            return
+        keep = self.residuals_px(pose) < INLIER_PX if trusted else np.ones(len(self.index), bool)
+        self.X, self.uv = self.X[self.index[keep]], self.matched[keep].astype(np.float32)
+        self.kf_uv = self.kf_uv[self.index[keep]]
+        self.prev = getattr(self, "_g8", self.prev)
+        self.index, self.matched = np.zeros(0, np.int64), np.zeros((0, 2))
+        if not trusted:
+            return
+        turned = rotation_error_deg(self.kf_pose.R, pose.R) > KEYFRAME_DEG
+        if len(self.X) < self.min_points or turned:
+            self._keyframe(gray, pose, frame, ids())
+        self.active = len(self.X) >= 6
+
+    @property
+    def _K(self) -> np.ndarray:
+        return self._frame.camera.K

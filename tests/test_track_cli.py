@@ -328,6 +328,8 @@ def test_backend_options_read_values_as_the_defaults_types():
     for name in ("klt-pnp", "rapid", "rapid-ols", "rapid-gos"):
         assert backend_options(["lost_quality=0.4"], get("tracker", name), "-o") == {"lost_quality": 0.4}
     assert backend_options(["refine=false"], get("tracker", "rapid-gos"), "-o") == {"refine": False}
+    assert backend_options(["modalities=texture, region"], get("tracker", "combined"), "-o") == {
+        "modalities": ("texture", "region")}
     with pytest.raises(ValueError, match="-o: expected NAME=VALUE"):
         backend_options(["variant=rapid"], get("tracker", "rapid-gos"), "-o")
 

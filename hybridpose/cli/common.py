@@ -64,7 +64,8 @@ def names(text: str) -> tuple[str, ...]:
 def backend_options(items, factory, flag: str) -> dict:
     """``["explain=false", "lost_quality=0.4"]`` → keyword arguments of the backend ``factory`` (a
     callable or a dataclass of options), each value read as the type of that parameter's default
-    (true/false, a number, a word, ``none`` where the default is None); ValueError naming ``flag`` and
+    (true/false, a number, a word, a comma list where the default is a tuple, ``none`` where the
+    default is None); ValueError naming ``flag`` and
     the parameters it takes otherwise (the backend checks the values it is given)."""
     params = {k: p for k, p in inspect.signature(factory).parameters.items()
               if k not in ("self", "object") and p.default is not inspect.Parameter.empty}
@@ -79,6 +80,8 @@ def backend_options(items, factory, flag: str) -> dict:
             options[key] = None
         elif isinstance(default, str):
             options[key] = value
+        elif isinstance(default, tuple):
+            options[key] = names(value)  # a comma list: modalities=texture,region
         elif isinstance(default, bool):
             if value.lower() not in ("true", "false", "1", "0"):
                 raise ValueError(f"{flag}: {key}: expected true or false, got {value!r}")

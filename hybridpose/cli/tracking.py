@@ -270,7 +270,7 @@ def add_commands(sub) -> None:
                         "or BOP cam_R_m2c + cam_t_m2c (mm); or a ViSP .pos file (tx ty tz in m, θu in rad)")
     k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
     k.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
-    k.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")
+    k.add_argument("--tracker", default="edges", help="registered tracker (edges, combined, klt-pnp, rapid, rapid-gos, rapid-ols; combined for real footage of a printed part or clutter)")
     k.add_argument("--tracker-option", action="append", metavar="NAME=VALUE",
                    help="a keyword of the tracker (repeatable), e.g. explain=false or lost_quality=0.4 for "
                         "edges; an unknown name lists the ones it takes")
@@ -377,7 +377,7 @@ def add_commands(sub) -> None:
     d.add_argument("--out", default="hybridpose_demo")
     d.add_argument("--frames", type=int, default=60)
     d.add_argument("--size", default="640x480")
-    d.add_argument("--tracker", default="edges", help="registered tracker (edges, klt-pnp, rapid, rapid-gos, rapid-ols)")
+    d.add_argument("--tracker", default="edges", help="registered tracker (edges, combined, klt-pnp, rapid, rapid-gos, rapid-ols; combined for real footage of a printed part or clutter)")
     d.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
     d.add_argument("--seed", type=int, default=1)
     d.set_defaults(func=cmd_demo)

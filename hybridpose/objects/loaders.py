@@ -10,7 +10,7 @@ import numpy as np
 import trimesh
 
 from .. import registry
-from .base import ObjectModel
+from .base import ObjectModel, boundary_edges
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +73,13 @@ def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symme
         raise ValueError(f"{path}: no triangles found; expected a mesh file trimesh can read (.obj, .ply, .stl)")
     if not np.all(np.isfinite(mesh.vertices)):
         raise ValueError(f"{path}: vertices contain NaN or inf")
+    if not mesh.is_watertight:
+        # a textured mesh splits its vertices along UV seams, and each seam becomes an open outline;
+        # the geometry is one surface (silhouettes and creases need it whole)
+        merged = mesh.copy()
+        merged.merge_vertices(merge_tex=True, merge_norm=True)
+        if len(boundary_edges(merged)[0]) < len(boundary_edges(mesh)[0]):
+            mesh = merged
     mesh.apply_scale(scale)
     model = ObjectModel(name or path.stem, mesh, symmetries=symmetries)
     d = model.diameter

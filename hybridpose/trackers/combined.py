@@ -40,6 +40,7 @@ from .cues.base import Sight
 MODALITIES = ("edges", "texture", "region")
 TEXTURE_EDGE_DENSITY = 0.15  # Canny edge pixels inside the faces (≥ 4 px from any model edge): printed
 TEXTURE_PREALIGN_STEPS = 5
+LEARN_CUE_QUALITY = 0.3  # every cue with a verdict at least this for the cues to learn from a frame
 MAX_STEP_RAD, MAX_STEP_M_SHARE = 0.5, 0.5  # a Gauss–Newton step beyond these (rad; × diameter) is refused
 
 
@@ -113,7 +114,11 @@ class CombinedTracker(Tracker):
             return None, None, 0.0
         H = sum((cue.normal_equations(pose)[0] for cue in self.cues if cue.active), np.zeros((6, 6)))
         quality = self._quality(frame, gray, pose)
-        trusted = quality >= self.lost_quality
+        # what the cues learn from this frame (keyframes, colours) must be the part's: only where every
+        # cue with a verdict agrees (a mug passing in front of a printed cube, taken as its print at a
+        # keyframe, was then followed as the cube)
+        trusted = quality >= self.lost_quality and all(
+            q >= LEARN_CUE_QUALITY for q in self.cue_qualities.values() if np.isfinite(q))
         full_ids = _Once(lambda: self.view.facet_ids(pose, frame.camera, scale=1.0))
         for cue in self.cues:
             cue.finish(frame, gray, pose, trusted, full_ids)

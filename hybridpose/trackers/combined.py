@@ -143,7 +143,7 @@ class CombinedTracker(Tracker):
                     or np.linalg.norm(delta[3:]) > MAX_STEP_M_SHARE * self.object.diameter:
                 return None
             pose = pose.retract(delta)
-            if np.abs(delta).max() < 1e-7:
+            if np.abs(delta).max() < 1e-5:  # 0.0006°, 10 µm
                 break
         return pose
 

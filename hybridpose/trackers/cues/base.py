@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...core import Frame
-from ...geometry import Pose
+from ...geometry import Pose, line_jacobian
 
 TUKEY_C = 4.685
 MAD_TO_SIGMA = 1.4826
@@ -62,6 +62,20 @@ class Sight:
     start: Pose
     ids: np.ndarray
     visible: np.ndarray
+
+
+def line_equations(pose: Pose, points_m: np.ndarray, normals: np.ndarray, targets: np.ndarray, K: np.ndarray,
+                   floor_px: float, cap_px: float, sigma_px: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """(H, g, rows used) of point-to-line residuals: model ``points_m`` (S, 3) whose projections at
+    ``pose`` should lie on the lines through ``targets`` (S, 2) px perpendicular to ``normals`` (S, 2);
+    Tukey weights at the residuals' spread within [``floor_px``, ``cap_px``]. Too few (< 6): zeros."""
+    if len(points_m) < 6:
+        return np.zeros((6, 6)), np.zeros(6), 0
+    uv, J = line_jacobian(pose, points_m, K, normals)
+    r = np.einsum("si,si->s", normals, uv - targets)
+    w = tukey_weights(r, robust_scale(r, floor_px, cap_px))
+    H, g = normal_equations(J, r, w, sigma_px)
+    return H, g, int((w > 0).sum())
 
 
 class Cue(ABC):

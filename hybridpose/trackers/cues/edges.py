@@ -17,8 +17,8 @@ import numpy as np
 from ...core import Frame
 from ...edges import ModelView, search_edges
 from ...edges.fit import LIT_GREY, dark_surround
-from ...geometry import Pose, line_jacobian
-from .base import Cue, normal_equations, robust_scale, tukey_weights
+from ...geometry import Pose
+from .base import Cue, line_equations
 
 INLIER_PX = 2.0
 FULL_SUPPORT = 40
@@ -79,14 +79,8 @@ class EdgeCue(Cue):
         self._K = frame.camera.K
 
     def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
-        if len(self.X) < 6:
-            return np.zeros((6, 6)), np.zeros(6), 0
-        uv, J = line_jacobian(pose, self.X, self._K, self.n)
-        r = np.einsum("si,si->s", self.n, uv - self.m)
         # scale capped by the search range: where clutter's edges outnumber the model's the MAD grows
-        w = tukey_weights(r, robust_scale(r, 0.5, max(1.0, self.search_px / 4)))
-        H, g = normal_equations(J, r, w, self.sigma_px)
-        return H, g, int((w > 0).sum())
+        return line_equations(pose, self.X, self.n, self.m, self._K, 0.5, max(1.0, self.search_px / 4), self.sigma_px)
 
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         if len(self.visible) < 6:

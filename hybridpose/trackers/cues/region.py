@@ -27,8 +27,8 @@ import numpy as np
 from ...core import Frame
 from ...edges import ModelView
 from ...edges.model_view import ID_SCALE
-from ...geometry import Pose, line_jacobian
-from .base import Cue, normal_equations, robust_scale, tukey_weights
+from ...geometry import Pose
+from .base import Cue, line_equations
 
 BINS = 16                 # per colour channel
 LEARN_RATE = 0.2          # share of a trusted frame's histograms blended into the model
@@ -176,13 +176,7 @@ class RegionCue(Cue):
         self.search_px = int(search_px)
 
     def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
-        if len(self.X) < 6:
-            return np.zeros((6, 6)), np.zeros(6), 0
-        uv, J = line_jacobian(pose, self.X, self._K, self.n)
-        r = np.einsum("si,si->s", self.n, uv - self.m)
-        w = tukey_weights(r, robust_scale(r, 1.0, max(1.5, self.search_px / 3)))
-        H, g = normal_equations(J, r, w, self.sigma_px)
-        return H, g, int((w > 0).sum())
+        return line_equations(pose, self.X, self.n, self.m, self._K, 1.0, max(1.5, self.search_px / 3), self.sigma_px)
 
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         if not self.active or self.h_part is None:

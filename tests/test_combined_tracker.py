@@ -13,7 +13,7 @@ from hybridpose.metrics import rotation_error_deg, translation_error_m
 from hybridpose.objects import ObjectModel
 from hybridpose.registry import create
 from hybridpose.render.appearance import clutter_background
-from hybridpose.trackers.combined import printed
+from hybridpose.edges import printed_faces
 
 CELL_M = 0.006
 
@@ -67,18 +67,16 @@ def printed_box():
 def test_a_print_is_told_from_a_plain_part(printed_box):
     frames, poses, obj = printed_box
     view = ModelView(obj)
-    ids = view.facet_ids(poses[0], frames[0].camera, scale=1.0)
     plain, _, _ = _sequence(1, seed=7, print_on=False)
-    gray = frames[0].image.mean(2).astype(np.float32)
-    assert printed(gray, ids)
-    assert not printed(plain[0].image.mean(2).astype(np.float32), ids)
+    assert printed_faces(view, frames[0], poses[0])
+    assert not printed_faces(view, plain[0], poses[0])
 
 
 def test_follows_a_printed_part_in_clutter_where_explained_edges_call_it_lost(printed_box):
     frames, poses, obj = printed_box
     combined = create("tracker", "combined", object=obj)
     combined.init(frames[0], poses[0])
-    assert combined.textured
+    assert combined.printed
     errors, lost = [], 0
     for frame, truth in zip(frames[1:], poses[1:]):
         m = combined.track(frame)

@@ -16,6 +16,7 @@ from .fit import (
     fit_edges,
     fit_from_proposals,
     honest_quality,
+    printed_faces,
     quality_verdict,
     search_edges,
     to_gray,
@@ -28,5 +29,5 @@ from .silhouette import explained_lit_share, lit_verdict
 
 __all__ = ["EdgeFit", "EdgeSamples", "EdgeSites", "ModelView", "coarse_to_fine", "edge_distances_px", "explained_edge_share",
            "explained_lit_share", "fit_edges", "fit_from_proposals", "honest_quality", "lit_verdict",
-           "projected_diagonal_px", "quality_verdict", "search_edges",
+           "printed_faces", "projected_diagonal_px", "quality_verdict", "search_edges",
            "sunlit_agreement", "sunlit_mask", "to_gray"]

@@ -292,8 +292,26 @@ TEXTURE_BAND_PX = 8
 TEXTURE_CONTRAST = 4.0
 
 
+def printed_faces(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> bool:
+    """Whether the part seen at ``pose`` in ``frame`` carries a print on its faces: more than
+    ``TEXTURE_EDGE_DENSITY`` of the pixels inside its visible faces — at least ``TEXTURE_CLEAR_PX`` from
+    any border between facets (the model's edges) — are Canny edges. Meant for a pose the caller trusts
+    (a tracker's initial pose): at a wrong pose the faces may lie over a cluttered background.
+    ``gray``: (H, W) float32 intensity where the caller has it."""
+    ids = view.facet_ids(pose, frame.camera, scale=1.0).astype(np.uint16)
+    k = np.ones((2 * TEXTURE_CLEAR_PX + 1,) * 2, np.uint8)
+    interior = (ids > 0) & (cv2.dilate(ids, k) == cv2.erode(ids, k))
+    if interior.sum() < 100:
+        return False
+    ys, xs = np.nonzero(interior)
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    gray = to_gray(frame.image) if gray is None else gray
+    edges = cv2.Canny(np.clip(gray[y0:y1, x0:x1], 0, 255).astype(np.uint8), CANNY_LOW, CANNY_HIGH) > 0
+    return float(edges[interior[y0:y1, x0:x1]].mean()) > TEXTURE_EDGE_DENSITY
+
+
 def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
-                         ids: np.ndarray | None = None, occluder: bool = False) -> float:
+                         ids: np.ndarray | None = None, occluder: bool = False, printed: bool = False) -> float:
     """Share (0..1) of the image's edge pixels around the projected model that lie within
     ``EXPLAIN_TOLERANCE_PX`` of a visible model edge at ``pose``; NaN where that region shows no edge.
 
@@ -304,7 +322,9 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     (p10 0.90) on frames within 2° of the truth, 0.69 median on frames > 5° off that the fit's
     quality did not flag. On a textured part (many more edges inside its visible faces than just
     outside them: ``TEXTURE_EDGE_DENSITY``, ``TEXTURE_CONTRAST``) the edges on its faces that no model
-    edge explains are left out. ``ids``: the view's facet ids of ``pose``, where the caller has them.
+    edge explains are left out; with ``printed`` (the caller saw a print on the part at a pose it trusts,
+    :func:`printed_faces`) always — in clutter the band outside the faces is as busy as the print, and
+    the contrast test would count the print against a right pose. ``ids``: the view's facet ids of ``pose``, where the caller has them.
     ``occluder``: the region may show an occluder in front of the object on dark space (the arm);
     the edges on it (:func:`occluder_mask`) are left out too.
     """
@@ -343,7 +363,9 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
     k = 2 * TEXTURE_CLEAR_PX + 1
     interior = faces & (cv2.dilate(model, np.ones((k, k), np.uint8)) == 0)
     density = found[interior].mean() if interior.any() else 0.0
-    if density > TEXTURE_EDGE_DENSITY:
+    if printed:
+        edges &= ~faces | near
+    elif density > TEXTURE_EDGE_DENSITY:
         k = 2 * TEXTURE_BAND_PX + 1
         band = (cv2.dilate(faces.astype(np.uint8), np.ones((k, k), np.uint8)) > 0) & ~faces & ~near
         if not band.any() or density > TEXTURE_CONTRAST * found[band].mean():
@@ -429,17 +451,19 @@ def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray
 
 
 def quality_verdict(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None,
-                    sunlit: bool = False, dark_surround: bool = False) -> QualityVerdict:
+                    sunlit: bool = False, dark_surround: bool = False, printed: bool = False) -> QualityVerdict:
     """:func:`honest_quality` (same arguments), with whether something lit stood beside the object
     (its lit term's ring: an arm in front on black space, or a lit background).
 
     ``dark_surround``: the caller saw the object on dark space before (a tracker's earlier fits). Then
     a broad lit thing beside it now is an occluder in front (:func:`~hybridpose.edges.silhouette.
-    occluder_mask`), and both terms leave it out: it is no part of the object for any pose to explain."""
+    occluder_mask`), and both terms leave it out: it is no part of the object for any pose to explain.
+    ``printed``: the part carries a print (:func:`explained_edge_share`)."""
     quality = fit.quality
     ids = view.facet_ids(fit.pose, frame.camera)  # one raster of the fitted pose for every term
     lit, beside = lit_verdict(view, frame, fit.pose, gray, ids, dark_surround)
-    explained = explained_edge_share(view, frame, fit.pose, gray, ids, occluder=beside and dark_surround)
+    explained = explained_edge_share(view, frame, fit.pose, gray, ids, occluder=beside and dark_surround,
+                                     printed=printed)
     if np.isfinite(explained):
         quality = min(quality, 2.0 * explained - 1.0)
     if np.isfinite(lit):

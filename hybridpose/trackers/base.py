@@ -35,6 +35,9 @@ class Tracker(ABC):
             to stand beside it where the track had dark space around it (on black space, only an
             occluder such as the arm does that). A backend that cannot tell leaves it False.
         tells_covered: True for a backend (an instance, where its options decide) that sets ``covered``.
+        printed: whether the part carried a print at the initial pose (an edge-refining backend's
+            quality then leaves the print's edges inside the faces out of what the model must explain:
+            :func:`~hybridpose.edges.printed_faces`); False for a backend that does not look.
         last_sites: the moving-edge sites of the last ``init`` or ``track`` call's edge fit
             (:class:`~hybridpose.edges.fit.EdgeSites`: samples, matches, inliers; what
             :func:`~hybridpose.viz.draw_edge_sites` draws), or None where it made none.
@@ -60,6 +63,7 @@ class Tracker(ABC):
         self.covered = False
         self._dark_around = False  # whether this track has seen dark space around the object
         self.last_sites = None
+        self.printed = False
 
     # --- public API --------------------------------------------------------------------------------
     def init(self, frame: Frame, pose: Pose) -> None:

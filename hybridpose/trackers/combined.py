@@ -14,8 +14,8 @@ Each frame:
    qualities that have a verdict (edges count half on a printed part: the print's edges pull them).
 
 Which cues speak follows what the part and the frame offer, not a flag: texture where the part carries a print
-(its faces' inside holds more than ``TEXTURE_EDGE_DENSITY`` Canny edge pixels at the initial pose; a
-plain part's corners are corners of its shading and outline, which slide as it turns), region where its colours differ from the
+(:func:`~hybridpose.edges.printed_faces` at the initial pose; a plain part's corners are corners of
+its shading and outline, which slide as it turns), region where its colours differ from the
 background's (not on black space with faces in shadow), edges always, with less weight on a printed
 part. ``modalities``
 restricts the set.
@@ -25,20 +25,19 @@ explains: a print on the part or clutter behind it is no evidence against a righ
 """
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from ..core import Frame
-from ..edges import ModelView, to_gray
+from ..edges import ModelView, printed_faces, to_gray
 from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
 from .cues import CUES, EdgeCue, TextureCue
 from .cues.base import Sight
+from .cues.solve import solve
 
 MODALITIES = ("edges", "texture", "region")
-TEXTURE_EDGE_DENSITY = 0.15  # Canny edge pixels inside the faces (≥ 4 px from any model edge): printed
 TEXTURE_PREALIGN_STEPS = 5
 LEARN_CUE_QUALITY = 0.3  # every cue with a verdict at least this for the cues to learn from a frame
 MAX_STEP_RAD, MAX_STEP_M_SHARE = 0.5, 0.5  # a Gauss–Newton step beyond these (rad; × diameter) is refused
@@ -76,22 +75,21 @@ class CombinedTracker(Tracker):
         self.cues = [CUES[m](self.view) for m in MODALITIES if m in modalities]
         self.search_px, self.outer, self.inner = int(search_px), int(outer), int(inner)
         self.covariance_scale = float(covariance_scale)
-        self.textured = False
         self.cue_qualities: dict[str, float] = {}
 
     def _cue(self, name: str):
         return next((c for c in self.cues if c.name == name), None)
 
     def _start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
-        self.textured = printed(gray, ids)
+        self.printed = printed_faces(self.view, frame, pose, gray)
         for cue in self.cues:
             cue.start(frame, gray, pose, ids)
             if isinstance(cue, EdgeCue):
-                cue.set_textured(self.textured)
+                cue.set_textured(self.printed)
             if isinstance(cue, TextureCue):
                 # a plain part's corners are corners of its shading and outline, which slide as it turns
                 # (the truss: 0.37° median with edges alone, 1.7° with its corners as texture points)
-                cue.enabled = self.textured
+                cue.enabled = self.printed
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         gray = to_gray(frame.image)
@@ -112,7 +110,7 @@ class CombinedTracker(Tracker):
             for cue in self.cues:
                 cue.finish(frame, gray, start, False, None)
             return None, None, 0.0
-        H = sum((cue.normal_equations(pose)[0] for cue in self.cues if cue.active), np.zeros((6, 6)))
+        H = self._information
         quality = self._quality(frame, gray, pose)
         # what the cues learn from this frame (keyframes, colours) must be the part's: only where every
         # cue with a verdict agrees (a mug passing in front of a printed cube, taken as its print at a
@@ -129,37 +127,28 @@ class CombinedTracker(Tracker):
         return self._track(frame, start, search_px=max(self.search_px, int(np.ceil(search_px))))
 
     # --- the fit -----------------------------------------------------------------------------------
-    def _solve(self, pose: Pose, cues, steps: int) -> Pose | None:
-        for _ in range(steps):
-            H, g, rows = np.zeros((6, 6)), np.zeros(6), 0
-            for cue in cues:
-                h, gg, n = cue.normal_equations(pose)
-                H, g, rows = H + h, g + gg, rows + n
-            if rows < 6:
-                return pose if rows else None
-            damping = 1e-6 * np.trace(H) / 6 + 1e-12
-            delta = -np.linalg.solve(H + damping * np.eye(6), g)
-            if not np.all(np.isfinite(delta)) or np.linalg.norm(delta[:3]) > MAX_STEP_RAD \
-                    or np.linalg.norm(delta[3:]) > MAX_STEP_M_SHARE * self.object.diameter:
-                return None
-            pose = pose.retract(delta)
-            if np.abs(delta).max() < 1e-5:  # 0.0006°, 10 µm
-                break
-        return pose
+    def _solve(self, pose: Pose, cues, steps: int, K: np.ndarray) -> Pose | None:
+        rows = [r for r in (cue.rows() for cue in cues) if r is not None]
+        R, t, H, used, ok = solve(pose.R, pose.t, K, rows, steps, MAX_STEP_RAD, MAX_STEP_M_SHARE * self.object.diameter)
+        if not ok:
+            return None
+        self._information = H
+        return Pose(R, t) if used >= 6 else pose
 
     def _fit(self, frame: Frame, gray: np.ndarray, start: Pose, search_px: int) -> Pose | None:
         pose = start
+        self._information = np.zeros((6, 6))
         texture = self._cue("texture")
         if texture is not None and texture.active:
             texture.correspond(frame, gray, pose, search_px)
             if len(texture.index) >= 6:
-                pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS) or pose
+                pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS, frame.camera.K) or pose
         rng = search_px
         for _ in range(self.outer):
             active = [c for c in self.cues if c.active]
             for cue in active:
                 cue.correspond(frame, gray, pose, rng)
-            pose = self._solve(pose, active, self.inner)
+            pose = self._solve(pose, active, self.inner, frame.camera.K)
             if pose is None or np.linalg.norm(pose.t - start.t) > self.object.diameter:
                 return None
             rng = max(4, rng // 2)
@@ -167,7 +156,7 @@ class CombinedTracker(Tracker):
 
     def _quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         self.cue_qualities = {c.name: c.quality(frame, gray, pose) for c in self.cues if c.active}
-        weights = {"edges": 0.5 if self.textured else 1.0}
+        weights = {"edges": 0.5 if self.printed else 1.0}
         votes = [(weights.get(n, 1.0), q) for n, q in self.cue_qualities.items() if np.isfinite(q)]
         if not votes:
             return 0.0
@@ -184,18 +173,3 @@ class _Once:
         if self.value is None:
             self.value = self.make()
         return self.value
-
-
-def printed(gray: np.ndarray, ids: np.ndarray, clear_px: int = 4) -> bool:
-    """Whether the part's faces carry a print: more than ``TEXTURE_EDGE_DENSITY`` of the pixels inside
-    its faces — at least ``clear_px`` from any border between facets (the model's edges) — are Canny
-    edges. ``gray``: (H, W) float32; ``ids``: the full-resolution facet-id raster of the pose."""
-    k = np.ones((2 * clear_px + 1,) * 2, np.uint8)
-    ids16 = ids.astype(np.uint16)
-    interior = (ids16 > 0) & (cv2.dilate(ids16, k) == cv2.erode(ids16, k))
-    if interior.sum() < 100:
-        return False
-    ys, xs = np.nonzero(interior)
-    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
-    edges = cv2.Canny(np.clip(gray[y0:y1, x0:x1], 0, 255).astype(np.uint8), 20, 60) > 0
-    return float(edges[interior[y0:y1, x0:x1]].mean()) > TEXTURE_EDGE_DENSITY

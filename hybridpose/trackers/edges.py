@@ -21,6 +21,7 @@ from ..edges import (
     ModelView,
     coarse_to_fine,
     fit_edges,
+    printed_faces,
     projected_diagonal_px,
     quality_verdict,
     to_gray,
@@ -90,6 +91,7 @@ class EdgeTracker(Tracker):
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         self._unverified = VERIFIED_FITS
+        self.printed = printed_faces(self.view, frame, pose)
         fit = self._fit(frame, pose, outer=1)
         if fit is None:
             raise ValueError(
@@ -132,7 +134,8 @@ class EdgeTracker(Tracker):
             return None, None, 0.0, False, None
         if not self.explain:
             return fit.pose, fit.covariance, fit.quality, False, fit.sites
-        verdict = quality_verdict(self.view, frame, fit, gray, sunlit=verify, dark_surround=self._dark_around)
+        verdict = quality_verdict(self.view, frame, fit, gray, sunlit=verify, dark_surround=self._dark_around,
+                                  printed=self.printed)
         return fit.pose, fit.covariance, verdict.quality, verdict.beside, fit.sites
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):

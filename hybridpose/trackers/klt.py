@@ -30,7 +30,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..edges import ModelView, fit_from_proposals, quality_verdict
+from ..edges import ModelView, fit_from_proposals, printed_faces, quality_verdict
 from ..edges.fit import TRACKING_POLISH, check_polish
 from ..geometry import projection_jacobian
 
@@ -95,6 +95,7 @@ class KltPnpTracker(Tracker):
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
+        self.printed = printed_faces(self.view, frame, pose, gray.astype(np.float32))
         self.uv, self.X = self._detect(gray, pose, frame, np.zeros((0, 2)), self.max_features)
         self.gray = gray
         if len(self.uv) >= 6:
@@ -162,7 +163,7 @@ class KltPnpTracker(Tracker):
             return None, None, 0.0
         self.last_sites = best.sites
         quality, beside = quality_verdict(self.view, frame, best, gray.astype(np.float32),
-                                          dark_surround=self._dark_around)
+                                          dark_surround=self._dark_around, printed=self.printed)
         self._note_surround(beside)
         if quality >= self.lost_quality:
             self._refresh(gray, best.pose, frame, klt)

@@ -35,7 +35,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from ..edges import ModelView, fit_from_proposals, quality_verdict, to_gray
+from ..edges import ModelView, fit_from_proposals, printed_faces, quality_verdict, to_gray
 from ..edges.fit import TRACKING_POLISH, check_polish
 
 _ONE_STEP = (cv2.TERM_CRITERIA_COUNT, 1, 0.0)
@@ -86,6 +86,7 @@ class RapidTracker(Tracker):
     def _init(self, frame: Frame, pose: Pose) -> None:
         # a fresh cv2 object: OLS/GOS learn their colour histograms on the first compute()
         self._cv = getattr(cv2.rapid, VARIANTS[self.variant])(self._vertices, self._tris)
+        self.printed = self.view is not None and printed_faces(self.view, frame, pose)
 
     def _image(self, frame: Frame) -> np.ndarray:
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
@@ -121,7 +122,7 @@ class RapidTracker(Tracker):
         if best is None:
             return None, None, 0.0
         self.last_sites = best.sites
-        verdict = quality_verdict(self.view, frame, best, gray, dark_surround=self._dark_around)
+        verdict = quality_verdict(self.view, frame, best, gray, dark_surround=self._dark_around, printed=self.printed)
         self._note_surround(verdict.beside)
         return best.pose, best.covariance, verdict.quality
 

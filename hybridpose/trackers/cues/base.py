@@ -7,12 +7,12 @@ A cue's life in one frame::
 
     cue.begin(sight)                               # the frame, seen from the fit's start pose
     cue.correspond(frame, gray, pose, search_px)   # once per outer iteration, from the current pose
-    H, g, n = cue.normal_equations(pose)           # every inner iteration; summed over the cues
+    rows = cue.rows()                              # its residuals as point-to-line rows (LineRows)
     q = cue.quality(frame, gray, pose)             # after the fit: 0..1, NaN where it has no verdict
     cue.finish(frame, gray, pose, trusted)         # keyframes, colour statistics
 
-Every cue weights its residuals by its own standard deviation (``sigma_px``) and a Tukey M-estimator,
-so the sum is a maximum-likelihood step over all of them.
+Every cue's rows carry its own standard deviation (``sigma_px``) and robust scale bounds: the sum is a
+maximum-likelihood step over all of them, with Tukey weights per cue.
 """
 from __future__ import annotations
 
@@ -22,30 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...core import Frame
-from ...geometry import Pose, line_jacobian
-
-TUKEY_C = 4.685
-MAD_TO_SIGMA = 1.4826
-
-
-def tukey_weights(residuals: np.ndarray, scale_px: float) -> np.ndarray:
-    """(N,) Tukey biweights of scalar ``residuals`` (N,) px at ``scale_px`` (0 beyond 4.685 scales)."""
-    u = residuals / (TUKEY_C * scale_px)
-    return np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
-
-
-def robust_scale(residuals: np.ndarray, floor_px: float, cap_px: float = np.inf) -> float:
-    """The residuals' spread (MAD × 1.4826, px) kept within [``floor_px``, ``cap_px``]."""
-    if len(residuals) == 0:
-        return floor_px
-    return float(min(max(MAD_TO_SIGMA * np.median(np.abs(residuals)), floor_px), cap_px))
-
-
-def normal_equations(J: np.ndarray, r: np.ndarray, w: np.ndarray, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(JᵀWJ, JᵀWr) / σ²`` of rows ``J`` (N, 6), residuals ``r`` (N,) px and weights ``w`` (N,)."""
-    Jw = J * (w / sigma_px**2)[:, None]
-    return Jw.T @ J, Jw.T @ r
-
+from ...geometry import Pose
+from .solve import LineRows
 
 @dataclass(frozen=True, eq=False)
 class Sight:
@@ -62,20 +40,6 @@ class Sight:
     start: Pose
     ids: np.ndarray
     visible: np.ndarray
-
-
-def line_equations(pose: Pose, points_m: np.ndarray, normals: np.ndarray, targets: np.ndarray, K: np.ndarray,
-                   floor_px: float, cap_px: float, sigma_px: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """(H, g, rows used) of point-to-line residuals: model ``points_m`` (S, 3) whose projections at
-    ``pose`` should lie on the lines through ``targets`` (S, 2) px perpendicular to ``normals`` (S, 2);
-    Tukey weights at the residuals' spread within [``floor_px``, ``cap_px``]. Too few (< 6): zeros."""
-    if len(points_m) < 6:
-        return np.zeros((6, 6)), np.zeros(6), 0
-    uv, J = line_jacobian(pose, points_m, K, normals)
-    r = np.einsum("si,si->s", normals, uv - targets)
-    w = tukey_weights(r, robust_scale(r, floor_px, cap_px))
-    H, g = normal_equations(J, r, w, sigma_px)
-    return H, g, int((w > 0).sum())
 
 
 class Cue(ABC):
@@ -108,8 +72,8 @@ class Cue(ABC):
         """Find this frame's correspondences from ``pose`` (searching ``±search_px`` where it searches)."""
 
     @abstractmethod
-    def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
-        """(H (6, 6), g (6,), rows used) at ``pose`` over ``[ω, v]`` (right perturbation), σ-weighted."""
+    def rows(self) -> LineRows | None:
+        """This frame's correspondences as point-to-line rows (None: nothing to say)."""
 
     @abstractmethod
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:

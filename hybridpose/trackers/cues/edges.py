@@ -18,7 +18,8 @@ from ...core import Frame
 from ...edges import ModelView, search_edges
 from ...edges.fit import LIT_GREY, dark_surround
 from ...geometry import Pose
-from .base import Cue, line_equations
+from .base import Cue
+from .solve import LineRows
 
 INLIER_PX = 2.0
 FULL_SUPPORT = 40
@@ -76,11 +77,10 @@ class EdgeCue(Cue):
         s, offset, valid, _ = self._search(frame, gray, pose, search_px)
         self.X, self.n = s.points_m[valid], s.normals[valid]
         self.m = s.uv[valid] + offset[valid, None] * s.normals[valid]
-        self._K = frame.camera.K
 
-    def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
+    def rows(self) -> LineRows | None:
         # scale capped by the search range: where clutter's edges outnumber the model's the MAD grows
-        return line_equations(pose, self.X, self.n, self.m, self._K, 0.5, max(1.0, self.search_px / 4), self.sigma_px)
+        return LineRows(self.X, self.n, self.m, self.sigma_px, 0.5, max(1.0, self.search_px / 4)) if len(self.X) >= 6 else None
 
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         if len(self.visible) < 6:

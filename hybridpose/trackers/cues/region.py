@@ -28,10 +28,12 @@ from ...core import Frame
 from ...edges import ModelView
 from ...edges.model_view import ID_SCALE
 from ...geometry import Pose
-from .base import Cue, line_equations
+from .base import Cue
+from .solve import LineRows
 
 BINS = 16                 # per colour channel
 LEARN_RATE = 0.2          # share of a trusted frame's histograms blended into the model
+LEARN_EVERY = 2           # …on every LEARN_EVERY-th frame (colours change slowly; a frame's learning costs ~0.5 ms)
 BAND_PX = (6, 30)         # background band: this far beyond the silhouette
 ERODE_PX = 4              # part pixels: this far inside it
 MIN_CONTRAST = 0.3        # mean posterior on the part − on the background, for the cue to speak
@@ -39,6 +41,7 @@ SPLIT_CONTRAST = 0.3      # a line's inside − outside mean posterior for its s
 INLIER_PX = 2.0
 QUALITY_SEARCH_PX = 5
 MAX_LINES = 200
+CACHE_MARGIN_PX = 48      # the frame's posterior is worked out this far around the start's silhouette
 EPS = 1e-3
 
 
@@ -55,6 +58,8 @@ class RegionCue(Cue):
         super().__init__()
         self.view, self.sigma_px, self.max_lines = view, float(sigma_px), int(max_lines)
         self.h_part = self.h_back = None
+        self._cached = None  # (frame, posterior, box) of the frame being fitted
+        self._frames = 0
         self.contrast = 0.0
         self.X = np.zeros((0, 3))
 
@@ -69,12 +74,12 @@ class RegionCue(Cue):
         the histograms, over the object's box and the band around it at the raster's resolution."""
         scale = ids.shape[1] / frame.camera.width
         part = ids > 0
-        if not part.any():
+        bx, by, bw, bh = cv2.boundingRect(part.astype(np.uint8))
+        if bw == 0:
             return
-        ys, xs = np.nonzero(part)
         r = int(np.ceil(BAND_PX[1] * scale)) + 1
-        y0, y1 = max(ys.min() - r, 0), min(ys.max() + r + 1, ids.shape[0])
-        x0, x1 = max(xs.min() - r, 0), min(xs.max() + r + 1, ids.shape[1])
+        y0, y1 = max(by - r, 0), min(by + bh + r, ids.shape[0])
+        x0, x1 = max(bx - r, 0), min(bx + bw + r, ids.shape[1])
         part = part[y0:y1, x0:x1]
         u8 = part.astype(np.uint8)
         def disc(px):
@@ -83,9 +88,13 @@ class RegionCue(Cue):
         band = (cv2.dilate(u8, disc(BAND_PX[1])) > 0) & ~(cv2.dilate(u8, disc(BAND_PX[0])) > 0)
         if inner.sum() < 20 or band.sum() < 20:
             return
-        image = frame.image if scale == 1.0 else cv2.resize(frame.image, (ids.shape[1], ids.shape[0]),
-                                                             interpolation=cv2.INTER_AREA)
-        bins = self._bins(image[y0:y1, x0:x1])
+        if scale == 1.0:
+            image = frame.image[y0:y1, x0:x1]
+        else:  # the full-resolution box, shrunk to the raster's
+            X0, Y0 = int(x0 / scale), int(y0 / scale)
+            X1, Y1 = min(int(np.ceil(x1 / scale)), frame.camera.width), min(int(np.ceil(y1 / scale)), frame.camera.height)
+            image = cv2.resize(frame.image[Y0:Y1, X0:X1], (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+        bins = self._bins(image)
         hp = np.bincount(bins[inner], minlength=BINS**3).astype(np.float64)
         hb = np.bincount(bins[band], minlength=BINS**3).astype(np.float64)
         hp, hb = hp / hp.sum(), hb / hb.sum()
@@ -119,9 +128,13 @@ class RegionCue(Cue):
         out = np.ones(len(probe), bool)
         out[inside] = ids[probe[inside, 1], probe[inside, 0]] == 0
         self.lines, self.outward = s.index, np.where(out, 1.0, -1.0)
+        if self.active:
+            self._cache_posterior(sight.frame, s.uv)
 
     def finish(self, frame: Frame, gray: np.ndarray, pose: Pose, trusted: bool, ids) -> None:
-        if trusted:  # at the raster's resolution of the fit (ID_SCALE): colour statistics need no more
+        self._frames += 1
+        if trusted and self._frames % LEARN_EVERY == 0:
+            # at the raster's resolution of the fit (ID_SCALE): colour statistics need no more
             self._learn(frame, self.view.facet_ids(pose, frame.camera), LEARN_RATE)
 
     # --- correspondence lines ----------------------------------------------------------------------
@@ -130,18 +143,41 @@ class RegionCue(Cue):
         s = self.view.samples_at(pose, frame.camera, self.lines)
         return s.points_m, s.uv, s.normals * self.outward[:, None]
 
+    def _posterior(self, frame: Frame, box):
+        """(posterior p(part | colour) (h, w) float32 over ``box`` (x0, y0, x1, y1 px) clipped to the image,
+        its top-left corner): cut from this frame's cached posterior where that covers ``box``."""
+        h, w = frame.image.shape[:2]
+        x0, y0, x1, y1 = max(box[0], 0), max(box[1], 0), min(box[2], w), min(box[3], h)
+        if x1 <= x0 or y1 <= y0:
+            return None, (0, 0)
+        cached = self._cached
+        if cached is not None and cached[0] is frame:
+            cx0, cy0, cx1, cy1 = cached[2]
+            if cx0 <= x0 and cy0 <= y0 and x1 <= cx1 and y1 <= cy1:
+                return cached[1][y0 - cy0:y1 - cy0, x0 - cx0:x1 - cx0], (x0, y0)
+        return self._posterior_lut()[self._bins(frame.image[y0:y1, x0:x1])], (x0, y0)
+
+    def _cache_posterior(self, frame: Frame, uv: np.ndarray) -> None:
+        """One posterior image a frame, over the silhouette at the start grown by ``CACHE_MARGIN_PX``."""
+        self._cached = None
+        if len(uv) == 0 or self.h_part is None:
+            return
+        lo, hi = np.floor(uv.min(0)).astype(int) - CACHE_MARGIN_PX, np.ceil(uv.max(0)).astype(int) + CACHE_MARGIN_PX
+        post, (x0, y0) = self._posterior(frame, (lo[0], lo[1], hi[0], hi[1]))
+        if post is not None:
+            self._cached = (frame, post, (x0, y0, x0 + post.shape[1], y0 + post.shape[0]))
+
     def _splits(self, frame: Frame, uv: np.ndarray, normals: np.ndarray, search_px: int):
         """Each line's most likely split (offset px along the outward normal) and whether it is clear."""
         L = int(search_px)
         k = np.arange(-L - 1, L + 2, dtype=np.float32)
         mu = (uv[:, None, 0] + k * normals[:, None, 0]).astype(np.float32)
         mv = (uv[:, None, 1] + k * normals[:, None, 1]).astype(np.float32)
-        h, w = frame.image.shape[:2]
-        x0, y0 = max(int(np.floor(mu.min())) - 1, 0), max(int(np.floor(mv.min())) - 1, 0)
-        x1, y1 = min(int(np.ceil(mu.max())) + 2, w), min(int(np.ceil(mv.max())) + 2, h)
-        if x1 <= x0 or y1 <= y0:
+        box = (int(np.floor(mu.min())) - 1, int(np.floor(mv.min())) - 1, int(np.ceil(mu.max())) + 2,
+               int(np.ceil(mv.max())) + 2)
+        post, (x0, y0) = self._posterior(frame, box)
+        if post is None:
             return np.zeros(len(uv)), np.zeros(len(uv), bool)
-        post = self._posterior_lut()[self._bins(frame.image[y0:y1, x0:x1])]
         p = cv2.remap(post, mu - x0, mv - y0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         p = np.clip(p, 0.02, 0.98)
         lp, lq = np.log(p), np.log1p(-p)
@@ -172,11 +208,10 @@ class RegionCue(Cue):
             return
         offset, clear = self._splits(frame, uv, normals, search_px)
         self.X, self.n, self.m = X[clear], normals[clear], uv[clear] + offset[clear, None] * normals[clear]
-        self._K = frame.camera.K
         self.search_px = int(search_px)
 
-    def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
-        return line_equations(pose, self.X, self.n, self.m, self._K, 1.0, max(1.5, self.search_px / 3), self.sigma_px)
+    def rows(self) -> LineRows | None:
+        return LineRows(self.X, self.n, self.m, self.sigma_px, 1.0, max(1.5, self.search_px / 3)) if len(self.X) >= 6 else None
 
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         if not self.active or self.h_part is None:

@@ -25,16 +25,17 @@ import numpy as np
 
 from ...core import Frame
 from ...edges import ModelView
-from ...geometry import Pose, projection_jacobian
+from ...geometry import Pose
 from ...metrics import rotation_error_deg
-from .base import Cue, normal_equations, robust_scale, tukey_weights
+from .base import Cue
+from .solve import LineRows
 
 FB_PX = 1.0          # forward–backward KLT tolerance
 ANCHOR_PX = 2.0      # a track re-found on its keyframe patch within this is moved there
 INLIER_PX = 3.0      # a point within this of its projection at the fitted pose agrees with it
 FULL_SUPPORT = 20    # agreeing points for full quality
 KEYFRAME_DEG = 20.0  # view turned this far since the keyframe: lift a new one (patches deform)
-LK = dict(winSize=(15, 15), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+LK = dict(winSize=(11, 11), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 ANCHOR_LK = dict(winSize=(11, 11), maxLevel=1, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 
 
@@ -127,22 +128,20 @@ class TextureCue(Cue):
         self.matched = uv[good].astype(np.float64)
         self._g8 = g8
 
-    def normal_equations(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, int]:
+    def rows(self) -> LineRows | None:
+        """Two rows per tracked point (image x and y): a reprojection error as two point-to-line residuals."""
         if len(self.index) < 3:
-            return np.zeros((6, 6)), np.zeros(6), 0
-        proj, J = projection_jacobian(pose, self.X[self.index], self._K)
-        r = (proj - self.matched).ravel()
-        dist = np.linalg.norm((proj - self.matched), axis=1)
-        w = np.repeat(tukey_weights(dist, robust_scale(dist, 1.0)), 2)
-        H, g = normal_equations(J.reshape(-1, 6), r, w, self.sigma_px)
-        return H, g, int((w > 0).sum())
+            return None
+        k = len(self.index)
+        normals = np.repeat(np.eye(2)[None], k, 0).reshape(-1, 2)
+        return LineRows(np.repeat(self.X[self.index], 2, 0), normals, np.repeat(self.matched, 2, 0),
+                        self.sigma_px, 1.0, np.inf)
 
     def residuals_px(self, pose: Pose) -> np.ndarray:
         """(M,) distance of each matched point from its projection at ``pose``."""
         if len(self.index) == 0:
             return np.zeros(0)
-        proj, _ = projection_jacobian(pose, self.X[self.index], self._K)
-        return np.linalg.norm(proj - self.matched, axis=1)
+        return np.linalg.norm(self._frame.camera.project(self.X[self.index], pose) - self.matched, axis=1)
 
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         if self.entered < 6:
@@ -164,7 +163,3 @@ class TextureCue(Cue):
         if len(self.X) < self.min_points or turned:
             self._keyframe(gray, pose, frame, ids())
         self.active = len(self.X) >= 6
-
-    @property
-    def _K(self) -> np.ndarray:
-        return self._frame.camera.K

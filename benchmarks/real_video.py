@@ -19,10 +19,12 @@ model castle in a cluttered room, modelled only in part by ``chateau.cao``, sepa
 fraction of the castle's edges; the check that asks it to would call every frame lost) and
 ``lost_quality=0.45``, beside the raw ``cv2.rapid`` trackers.
 
-With ``--visp-repo`` (a checkout of github.com/lagadic/visp), ViSP's MegaPose tutorial video too: a printed
-cube turned by hand on a cluttered desk, every tracker forward and back to the first frame from a
-hand-labelled first pose (``benchmarks/data/megapose_cube.0.pos``), scored by how far from it the round
-trip ends (forward–backward consistency) besides the edge distance.
+With ``--visp-repo`` (a checkout of github.com/lagadic/visp), two videos of its tutorials too
+(``REPO_VIDEOS``): the MegaPose cube video (a printed cube turned by hand on a cluttered desk) and the
+detection tutorial's cube video; every tracker forward and back to the first frame from a
+hand-labelled first pose (``benchmarks/data/*.0.pos``), scored by how far from it the round trip ends
+(forward–backward consistency) besides the edge distance. Its lego-square and dragon videos are left
+out: the first needs a pose clicked on four bricks, the second's model is a Panda3D ``.bam`` file.
 
 Every tracker starts from ``cube.0.pos`` on the first frame and is never re-initialised; our
 backends (``edges``, ``klt-pnp``, ``rapid``, ``rapid-ols``, ``rapid-gos``: cv2.rapid's silhouette step
@@ -40,6 +42,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -201,9 +204,9 @@ def main(argv=None) -> None:
     if (castle_dir / "chateau.cao").is_file():
         payload["castle"], castle_lines = castle(castle_dir, out)
         lines += ["", *castle_lines]
-    if args.visp_repo:
-        payload["megapose_cube"], cube_lines = megapose_cube(Path(args.visp_repo), out)
-        lines += ["", *cube_lines]
+    for video in REPO_VIDEOS if args.visp_repo else ():
+        payload[video.key], video_lines = repo_video(Path(args.visp_repo), video, out)
+        lines += ["", *video_lines]
     publish("real_video", "real-video", payload, lines)
 
 
@@ -315,38 +318,66 @@ def castle(folder: Path, out: Path) -> tuple[dict, list[str]]:
 
 
 
-MEGAPOSE_DIR = Path("tutorial/tracking/dnn/data")
-MEGAPOSE_POSE = Path(__file__).resolve().parent / "data" / "megapose_cube.0.pos"
-MEGAPOSE_FRAMES = 590  # the mug covers most of the cube from frame 600 on: forward–backward before it
-MEGAPOSE_STRIP = (0, 150, 300, 450, 589)
+@dataclass(frozen=True)
+class RepoVideo:
+    """A video of ViSP's repository tracked forward and back from a hand-labelled first pose."""
+
+    key: str            # the payload's key and the picture's name
+    title: str          # what the results page calls it
+    about: str          # what it shows
+    video: str          # the video, in the repository
+    model: str          # its CAD model, in the repository
+    camera: str         # its camera: a ViSP tracker XML, or the MegaPose tutorial's JSON
+    frames: int         # how many of its frames make the round trip
+    strip: tuple        # the frames shown on the way out
+    label: str          # how the first pose was labelled
 
 
-def megapose_frames(repo: Path, count: int = MEGAPOSE_FRAMES):
-    """(frames, camera, object, first pose) of ViSP's MegaPose tutorial video (``cube_video.mp4``: a
-    printed 8.45-cm cube moved by hand on a cluttered desk, 640 × 480 RGB at 30 fps): its first ``count``
-    frames, the camera of ``megapose_cube.json``, the textured ``cube.obj`` and the hand-labelled first pose
-    (``benchmarks/data/megapose_cube.0.pos``: the front face's corners clicked, then one edge fit)."""
-    import json
+DATA = Path(__file__).resolve().parent / "data"
+REPO_VIDEOS = (
+    RepoVideo("megapose_cube", "ViSP's MegaPose cube video",
+              "a printed 8.45-cm cube turned by hand on a cluttered desk (keyboard, mug, bottle, screen), "
+              "640 × 480 RGB; after frame 600 a mug hides most of the cube",
+              "tutorial/tracking/dnn/data/cube_video.mp4", "tutorial/tracking/dnn/data/models/cube/cube.obj",
+              "tutorial/tracking/dnn/data/megapose_cube.json", 590, (0, 150, 300, 450, 589),
+              "the front face's corners clicked, then one edge fit"),
+    RepoVideo("detection_cube", "ViSP's detection-tutorial cube video",
+              "ViSP's printed 8.4-cm cube on a table beside a tube, a hand reaching in, 640 × 480 grey",
+              "tutorial/detection/object/cube.mp4", "tutorial/detection/object/cube.cao",
+              "tutorial/detection/object/cube.xml", 261, (0, 65, 130, 195, 260),
+              "six corners clicked, then one edge fit"),
+)
 
-    from hybridpose.geometry import Camera
+
+def repo_camera(path: Path):
+    """A ViSP tracker configuration (XML), or the MegaPose tutorial's JSON (its ``camera``: px, py, u0, v0)."""
+    from hybridpose.geometry import Camera, load_camera
+
+    if path.suffix.lower() == ".json":
+        c = json.loads(path.read_text())["camera"]
+        return Camera.from_K(np.array([[c["px"], 0, c["u0"]], [0, c["py"], c["v0"]], [0, 0, 1]]), 640, 480)
+    return load_camera(path, image_size=(640, 480))
+
+
+def repo_frames(repo: Path, video: RepoVideo):
+    """(frames, camera, object, first pose) of ``video``: its first ``video.frames`` frames, its camera and
+    CAD model from ``repo`` (a checkout of github.com/lagadic/visp), the pose in ``benchmarks/data``."""
     from hybridpose.objects import load_object
     from hybridpose.tracking import load_pose, read_frames
 
-    folder = repo / MEGAPOSE_DIR
-    video = folder / "cube_video.mp4"
-    if not video.is_file():
-        raise SystemExit(f"--visp-repo: {video} not found; pass a checkout of github.com/lagadic/visp")
-    c = json.loads((folder / "megapose_cube.json").read_text())["camera"]  # ViSP's px, py, u0, v0
-    camera = Camera.from_K(np.array([[c["px"], 0, c["u0"]], [0, c["py"], c["v0"]], [0, 0, 1]]), 640, 480)
+    path = repo / video.video
+    if not path.is_file():
+        raise SystemExit(f"--visp-repo: {path} not found; pass a checkout of github.com/lagadic/visp")
+    camera = repo_camera(repo / video.camera)
     frames = []
-    for frame in read_frames(video, camera, fps=30):
-        if frame.index >= count:
+    for frame in read_frames(path, camera, fps=30):
+        if frame.index >= video.frames:
             break
         frames.append(frame)
-    return frames, camera, load_object(folder / "models" / "cube" / "cube.obj"), load_pose(MEGAPOSE_POSE)
+    return frames, camera, load_object(repo / video.model), load_pose(DATA / f"{video.key}.0.pos")
 
 
-def forward_backward(frames, obj, tracker, pose0, out: Path, label: str) -> dict:
+def forward_backward(frames, obj, tracker, pose0, out: Path, label: str, strip_out=()) -> dict:
     """``tracker`` from ``pose0`` over ``frames`` and back to the first (never re-initialised): the
     :func:`run` row of the whole round trip, with how far the pose it ends at lies from ``pose0``
     (degrees, mm) — a drift-free tracker comes back where it started."""
@@ -355,7 +386,7 @@ def forward_backward(frames, obj, tracker, pose0, out: Path, label: str) -> dict
     from hybridpose.metrics import rotation_error_deg
 
     trip = [replace(f, index=k, timestamp=k / 30) for k, f in enumerate(frames + frames[-2::-1])]
-    strip = tuple(sorted({*MEGAPOSE_STRIP, len(trip) - 1}))
+    strip = tuple(sorted({*strip_out, len(trip) - 1}))
     row = run(label, trip, obj, tracker_step(tracker, pose0), out, strip)
     end = row["poses"][-1]  # None where the run ends lost: it did not come back
     row["fb_deg"] = None if end is None else rotation_error_deg(end, pose0)
@@ -369,35 +400,35 @@ def fb_cell(row: dict) -> str:
     return "lost at the end" if row["fb_deg"] is None else f"{row['fb_deg']:.1f} / {row['fb_mm']:.1f}"
 
 
-def megapose_cube(repo: Path, out: Path) -> tuple[dict, list[str]]:
-    """Every tracker forward and backward over ViSP's MegaPose cube video; (payload, results-page lines)."""
+def repo_video(repo: Path, video: RepoVideo, out: Path) -> tuple[dict, list[str]]:
+    """Every tracker forward and backward over ``video``; (payload, results-page lines)."""
     from hybridpose.registry import create
 
-    frames, camera, obj, pose0 = megapose_frames(repo)
-    rows = [forward_backward(frames, obj, create("tracker", name, object=obj), pose0, out / "megapose", name)
+    frames, camera, obj, pose0 = repo_frames(repo, video)
+    folder = out / video.key
+    rows = [forward_backward(frames, obj, create("tracker", name, object=obj), pose0, folder, name, video.strip)
             for name in TRACKERS]
     rows.append(forward_backward(frames, obj, create("tracker", "klt-pnp", object=obj, edge_refine=False), pose0,
-                                 out / "megapose", "klt-pnp (edge_refine=False)"))
+                                 folder, "klt-pnp (edge_refine=False)", video.strip))
     for r in rows:
-        for key in ("poses", "edge_px_per_frame", "lost_per_frame"):  # 1 179 frames each: the page needs the summary
+        for key in ("poses", "edge_px_per_frame", "lost_per_frame"):  # the page needs the summary
             r.pop(key)
-        print(f"megapose cube {r['run']}: {r['tracked']} of {r['frames']}, back at frame 0: {fb_cell(r)}", flush=True)
-    pair = picture(rows, "real_video_megapose_cube.jpg", [rows[0], max(rows[1:], key=lambda r: r["lost_frames"])])
-    lines = ["ViSP's MegaPose cube video (ViSP's repository, `tutorial/tracking/dnn/data/cube_video.mp4`): a printed "
-             "8.45-cm cube turned by hand on a cluttered desk (keyboard, mug, bottle, screen), 640 × 480 RGB, "
-             f"its first {len(frames)} frames (after them a mug hides most of the cube), forward and back to the "
-             "first frame: a tracker that does not drift ends where it started. Every tracker starts from a "
-             "hand-labelled first pose (`benchmarks/data/megapose_cube.0.pos`) and is never re-initialised. "
-             "This footage was used to develop the `combined` tracker (its keyframe and learning rules).", "",
+        print(f"{video.key} {r['run']}: {r['tracked']} of {r['frames']}, back at frame 0: {fb_cell(r)}", flush=True)
+    worst = min(rows[1:], key=lambda r: (r["fb_deg"] is not None, r["tracked"]))
+    pair = picture(rows, f"real_video_{video.key}.jpg", [rows[0], worst])
+    lines = [f"{video.title} (ViSP's repository, `{video.video}`): {video.about}; its first {len(frames)} frames, "
+             "forward and back to the first frame: a tracker that does not drift ends where it started. Every "
+             f"tracker starts from a hand-labelled first pose (`benchmarks/data/{video.key}.0.pos`: {video.label}) "
+             "and is never re-initialised.", "",
              "| run | frames tracked (of the round trip) | edge px: median / p90 / worst frame | back at frame 0: deg / mm | ms/frame |",
              "|---|---|---|---|---|"]
     for r in rows:
         px = "—" if r["edge_px_median"] is None else f"{r['edge_px_median']:.2f} / {r['edge_px_p90']:.2f} / {r['edge_px_worst']:.2f}"
         lines.append(f"| {r['run']} | {r['tracked']} of {r['frames']} | {px} | {fb_cell(r)} | {r['ms_per_frame']:.1f} |")
-    lines += ["", f"Frames {', '.join(map(str, MEGAPOSE_STRIP))} of the way out and the last of the way back: "
+    lines += ["", f"Frames {', '.join(map(str, video.strip))} of the way out and the last of the way back: "
               f"{' (top) and '.join(r['run'] for r in pair)} (bottom), green where the run trusted its pose.", "",
-              "![the model at each run's pose on ViSP's MegaPose cube video](results/real_video_megapose_cube.jpg)"]
-    return {"sequence": str(repo / MEGAPOSE_DIR / "cube_video.mp4"), "camera": camera.to_dict(), "rows": rows}, lines
+              f"![the model at each run's pose on {video.title}](results/real_video_{video.key}.jpg)"]
+    return {"sequence": str(repo / video.video), "camera": camera.to_dict(), "rows": rows}, lines
 
 
 if __name__ == "__main__":

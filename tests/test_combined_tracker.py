@@ -2,6 +2,7 @@
 colour per 6-mm cell of its surface, so the print moves with the part), drawn over procedural clutter
 from its facet-id raster, the camera moving 5–20 px a frame. What the renders of plain parts on
 black space cannot show: the print's and the clutter's edges are no evidence against a right pose."""
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -120,3 +121,46 @@ def test_modalities_are_checked():
         create("tracker", "combined", object=obj, modalities=("depth",))
     with pytest.raises(ValueError, match="modalities"):
         create("tracker", "combined", object=obj, modalities=())
+
+
+def test_the_patch_step_finds_how_far_the_part_moved():
+    from hybridpose.trackers.combined import patch_shift
+
+    rng = np.random.default_rng(0)
+    image = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 2.0)
+    moved = np.roll(image, (-4, 7), axis=(0, 1))
+    assert np.allclose(patch_shift(image, moved, (60, 40, 100, 80), 12), [7, -4])
+    mask = np.zeros_like(image, bool)
+    mask[45:75, 65:95] = True
+    assert np.allclose(patch_shift(image, moved, (60, 40, 100, 80), 12, mask), [7, -4])
+    assert patch_shift(image, rng.uniform(0, 255, image.shape).astype(np.float32), (60, 40, 100, 80), 12) is None
+
+
+def test_hand_held_sequences_move_like_a_hand_and_a_tracker_follows_their_truth():
+    from hybridpose.render.handheld import HandheldSpec, handheld_sequence
+
+    obj, camera = _box(), Camera.default()
+    frames = handheld_sequence(HandheldSpec(frames=30, seed=4, speed_px=(5.0, 15.0)), obj, camera)
+    motion = np.array([f.motion_px for f in frames[1:]])
+    assert 3.0 < np.median(motion) < 20.0 and motion.max() < 30.0
+    assert all(f.image.shape == (480, 640, 3) and f.image.dtype == np.uint8 for f in frames)
+    tracker = create("tracker", "combined", object=obj)
+    errors = []
+    for f in frames:
+        frame = Frame(f.image, camera, f.timestamp, f.index)
+        if f.index == 0:
+            tracker.init(frame, f.pose)
+        tracker.track(frame)
+        errors.append(rotation_error_deg(tracker.pose, f.pose))
+    assert np.median(errors) < 3.0, f"median {np.median(errors):.2f}° from the renderer's own truth"
+
+
+def test_hand_held_specs_are_checked():
+    from hybridpose.render.handheld import HandheldSpec
+
+    with pytest.raises(ValueError, match="background"):
+        HandheldSpec(background="space")
+    with pytest.raises(ValueError, match="speed_px"):
+        HandheldSpec(speed_px=(20.0, 5.0))
+    with pytest.raises(ValueError, match="frames"):
+        HandheldSpec(frames=1)

@@ -13,18 +13,19 @@ Each frame:
 3. covariance = ``covariance_scale`` × (Σ H)⁻¹ over ``[ω, v]``; quality = the mean of the cues'
    qualities that have a verdict (edges count half on a printed part: the print's edges pull them).
 
-Which cues speak follows what the part and the frame offer, not a flag: texture where the part carries a print
-(:func:`~hybridpose.edges.printed_faces` at the initial pose; a plain part's corners are corners of
-its shading and outline, which slide as it turns), region where its colours differ from the
+Which cues speak follows what the part and the frame offer, not a flag: texture where the part shows a print
+(corners inside its faces at the initial pose; a plain part's corners are corners of its shading and
+outline, which slide as it turns), region where its colours differ from the
 background's (not on black space with faces in shadow), edges always, with less weight on a printed
-part. ``modalities``
+part (:func:`~hybridpose.edges.printed_faces`: the print's edges pull them). ``modalities``
 restricts the set.
 
-Quality below ``lost_quality`` (default 0.35) → ``lost``. No cue asks how much of the image the model
+Quality below ``lost_quality`` (default 0.4) → ``lost``. No cue asks how much of the image the model
 explains: a print on the part or clutter behind it is no evidence against a right pose.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ..core import Frame
@@ -33,13 +34,15 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
-from .cues import CUES, EdgeCue, TextureCue
+from .cues import CUES, EdgeCue
 from .cues.base import Sight
 from .cues.solve import solve
 
 MODALITIES = ("edges", "texture", "region")
 TEXTURE_PREALIGN_STEPS = 5
-LEARN_CUE_QUALITY = 0.3  # every cue with a verdict at least this for the cues to learn from a frame
+LEARN_CUE_QUALITY = 0.3
+KEYFRAME_CUE_QUALITY = 0.5  # …and the other cues at least this for a new texture keyframe
+PATCH_REACH_PX, PATCH_MIN_SCORE = 48, 0.5  # the first step of a part without a print: how far, how alike  # every cue with a verdict at least this for the cues to learn from a frame
 MAX_STEP_RAD, MAX_STEP_M_SHARE = 0.5, 0.5  # a Gauss–Newton step beyond these (rad; × diameter) is refused
 
 
@@ -57,7 +60,7 @@ class CombinedTracker(Tracker):
     """
 
     name = "combined"
-    default_lost_quality = 0.35
+    default_lost_quality = 0.4
 
     def __init__(self, object: ObjectModel, modalities=MODALITIES, search_px: int = 12, outer: int = 3,
                  inner: int = 3, covariance_scale: float = 4.0, lost_quality: float | None = None) -> None:
@@ -76,6 +79,7 @@ class CombinedTracker(Tracker):
         self.search_px, self.outer, self.inner = int(search_px), int(outer), int(inner)
         self.covariance_scale = float(covariance_scale)
         self.cue_qualities: dict[str, float] = {}
+        self._small = None  # the last frame at half resolution (float32 grey), for the patch step
 
     def _cue(self, name: str):
         return next((c for c in self.cues if c.name == name), None)
@@ -86,10 +90,6 @@ class CombinedTracker(Tracker):
             cue.start(frame, gray, pose, ids)
             if isinstance(cue, EdgeCue):
                 cue.set_textured(self.printed)
-            if isinstance(cue, TextureCue):
-                # a plain part's corners are corners of its shading and outline, which slide as it turns
-                # (the truss: 0.37° median with edges alone, 1.7° with its corners as texture points)
-                cue.enabled = self.printed
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         gray = to_gray(frame.image)
@@ -98,6 +98,7 @@ class CombinedTracker(Tracker):
             raise ValueError(f"pose: {self.object.name!r} covers fewer than 50 pixels of the frame at the initial "
                              "pose — is the object in view and the pose right?")
         self._start(frame, gray, pose, ids)
+        self._small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray = to_gray(frame.image)
@@ -117,6 +118,11 @@ class CombinedTracker(Tracker):
         # keyframe, was then followed as the cube)
         trusted = quality >= self.lost_quality and all(
             q >= LEARN_CUE_QUALITY for q in self.cue_qualities.values() if np.isfinite(q))
+        texture = self._cue("texture")
+        if texture is not None:
+            # a keyframe fixes its pose's error into its points: only where the other cues vouch for it
+            texture.may_keyframe = all(q >= KEYFRAME_CUE_QUALITY for n, q in self.cue_qualities.items()
+                                       if n != "texture" and np.isfinite(q))
         full_ids = _Once(lambda: self.view.facet_ids(pose, frame.camera, scale=1.0))
         for cue in self.cues:
             cue.finish(frame, gray, pose, trusted, full_ids)
@@ -141,8 +147,10 @@ class CombinedTracker(Tracker):
         texture = self._cue("texture")
         if texture is not None and texture.active:
             texture.correspond(frame, gray, pose, search_px)
-            if len(texture.index) >= 6:
-                pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS, frame.camera.K) or pose
+        if texture is not None and texture.active and len(texture.index) >= 6:
+            pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS, frame.camera.K) or pose
+        else:
+            pose = self._follow_patch(frame, gray, pose)
         rng = search_px
         for _ in range(self.outer):
             active = [c for c in self.cues if c.active]
@@ -154,6 +162,30 @@ class CombinedTracker(Tracker):
             rng = max(4, rng // 2)
         return pose
 
+    def _follow_patch(self, frame: Frame, gray: np.ndarray, start: Pose) -> Pose:
+        """``start`` turned about the camera centre so that the part's projection lands where the image
+        patch around it in the previous frame lies now (normalised cross-correlation at half resolution,
+        ``PATCH_REACH_PX``): a pose-free first step for a part without a print to follow, whose image
+        may move further in a frame than the edge and region searches reach."""
+        small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        previous, self._small = self._small, small
+        if previous is None or self.pose is None:
+            return start
+        box = frame.camera.image_box(self.object.bbox_corners, self.pose)
+        if box is None:
+            return start
+        seen = self.view.facet_ids(self.pose, frame.camera, scale=0.5) > 0  # the part alone, not its background
+        shift = patch_shift(previous, small, np.asarray(box) * 0.5, PATCH_REACH_PX // 2, seen)
+        if shift is None:
+            return start
+        K = frame.camera.K
+        moved = frame.camera.project(self.object.bbox_corners, self.pose).mean(0) + 2.0 * shift
+        delta = moved - frame.camera.project(self.object.bbox_corners, start).mean(0)
+        if np.hypot(*delta) < 1.0:
+            return start
+        turn = Pose.from_rotvec_t([-delta[1] / K[1, 1], delta[0] / K[0, 0], 0.0], np.zeros(3))
+        return turn @ start
+
     def _quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         self.cue_qualities = {c.name: c.quality(frame, gray, pose) for c in self.cues if c.active}
         weights = {"edges": 0.5 if self.printed else 1.0}
@@ -161,6 +193,35 @@ class CombinedTracker(Tracker):
         if not votes:
             return 0.0
         return float(sum(w * q for w, q in votes) / sum(w for w, _ in votes))
+
+
+def patch_shift(previous: np.ndarray, current: np.ndarray, box, reach_px: int,
+                mask: np.ndarray | None = None) -> np.ndarray | None:
+    """(2,) px: where the patch ``box`` (x0, y0, x1, y1) of the (H, W) float32 image ``previous`` lies
+    in ``current``, searched ±``reach_px``, comparing only the pixels ``mask`` (H, W) bool marks (the
+    part, not the background, which moves otherwise); None where the best normalised correlation is
+    below ``PATCH_MIN_SCORE`` or the patch is too small."""
+    h, w = previous.shape
+    x0, y0 = max(int(box[0]), 0), max(int(box[1]), 0)
+    x1, y1 = min(int(np.ceil(box[2])), w), min(int(np.ceil(box[3])), h)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None
+    X0, Y0 = max(x0 - reach_px, 0), max(y0 - reach_px, 0)
+    X1, Y1 = min(x1 + reach_px, w), min(y1 + reach_px, h)
+    template = np.ascontiguousarray(previous[y0:y1, x0:x1])
+    if mask is None:
+        score = cv2.matchTemplate(np.ascontiguousarray(current[Y0:Y1, X0:X1]), template, cv2.TM_CCOEFF_NORMED)
+    else:
+        weights = np.ascontiguousarray(mask[y0:y1, x0:x1], np.float32)
+        if weights.sum() < 32:
+            return None
+        score = cv2.matchTemplate(np.ascontiguousarray(current[Y0:Y1, X0:X1]), template, cv2.TM_CCOEFF_NORMED,
+                                  mask=weights)
+    score = np.nan_to_num(score, nan=-1.0, posinf=-1.0, neginf=-1.0)
+    _, best, _, (bx, by) = cv2.minMaxLoc(score)
+    if best < PATCH_MIN_SCORE:
+        return None
+    return np.array([X0 + bx - x0, Y0 + by - y0], np.float64)
 
 
 class _Once:

@@ -11,6 +11,10 @@ their image positions do not drift (the role of M3T's texture modality).
   onto its keyframe patch (KLT from the keyframe, started where the track ended) where the two agree
   within ``ANCHOR_PX`` — the frame-to-frame drift of the 2D tracks does not build up.
 * Residuals: reprojection errors (2 per point) with Tukey weights.
+* It speaks only on a printed part: at least ``MIN_PRINT_POINTS`` corners at the start lie inside a
+  face, ``PRINT_CLEAR_PX`` from its border (a plain part's corners are corners of its outline and
+  shading, which slide as it turns: on the truss's tumble the edge cue alone held 0.37° median, with
+  its corners as texture points 1.74°).
 * A new keyframe when fewer than ``min_points`` points survive or the view turned ``KEYFRAME_DEG``
   since the last one, from a trusted pose only.
 
@@ -35,6 +39,8 @@ ANCHOR_PX = 2.0      # a track re-found on its keyframe patch within this is mov
 INLIER_PX = 3.0      # a point within this of its projection at the fitted pose agrees with it
 FULL_SUPPORT = 20    # agreeing points for full quality
 KEYFRAME_DEG = 20.0  # view turned this far since the keyframe: lift a new one (patches deform)
+# a print: at least MIN_PRINT_POINTS corners at the start lie inside one face, PRINT_CLEAR_PX from its border
+MIN_PRINT_POINTS, PRINT_CLEAR_PX = 12, 6
 LK = dict(winSize=(11, 11), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 ANCHOR_LK = dict(winSize=(11, 11), maxLevel=1, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 
@@ -63,12 +69,29 @@ class TextureCue(Cue):
         self.matched = np.zeros((0, 2))               # this frame's correspondences
         self.index = np.zeros(0, np.int64)            # … of the points X[index]
         self.entered = 0
-        self.enabled = True  # the tracker's say: False on a plain part
+        # whether the part shows a print to follow: points inside its faces, away from every model edge
+        # (a plain part's corners are corners of its outline and shading, which slide as it turns)
+        self.enabled = True
+        # the tracker's say whether this frame's pose may lift a new keyframe: its points then carry the
+        # pose's error for as long as they live (set before each finish)
+        self.may_keyframe = True
 
     # --- keyframes ---------------------------------------------------------------------------------
     def start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
         self._keyframe(gray, pose, frame, ids)
+        self.enabled = int(self._inside_faces(self.kf_uv, ids).sum()) >= MIN_PRINT_POINTS
         self.active = len(self.X) >= 6
+
+    @staticmethod
+    def _inside_faces(uv: np.ndarray, ids: np.ndarray, r: int = PRINT_CLEAR_PX) -> np.ndarray:
+        """(N,) True where the facet-id raster ``ids`` shows one facet all round each pixel ``uv`` within ±r px."""
+        h, w = ids.shape
+        c = np.round(uv).astype(int)
+        off = np.arange(-r, r + 1, r)
+        ys = np.clip(c[:, 1, None, None] + off[None, :, None], 0, h - 1)
+        xs = np.clip(c[:, 0, None, None] + off[None, None, :], 0, w - 1)
+        f = ids[ys, xs].reshape(len(uv), -1)
+        return (f > 0).all(1) & (f == f[:, :1]).all(1)
 
     @property
     def active(self) -> bool:
@@ -157,7 +180,7 @@ class TextureCue(Cue):
         self.kf_uv = self.kf_uv[self.index[keep]]
         self.prev = getattr(self, "_g8", self.prev)
         self.index, self.matched = np.zeros(0, np.int64), np.zeros((0, 2))
-        if not trusted:
+        if not (trusted and self.may_keyframe):
             return
         turned = rotation_error_deg(self.kf_pose.R, pose.R) > KEYFRAME_DEG
         if len(self.X) < self.min_points or turned:

@@ -5,13 +5,15 @@ equations weighted by its own uncertainty; one robust Gauss–Newton sums them.
 
 Each frame:
 
-1. the texture cue follows its points with KLT (a search of its own, pose-free, reaching tens of
-   pixels through the image pyramid) and a few Gauss–Newton steps on them alone bring the pose into
-   the basin of the cues that search from the pose;
+1. the part's image patch in the previous frame is found again (±48 px, masked to the part): the
+   start pose turns to follow it; then the texture cue follows its points with KLT from there (a
+   search of its own, through the image pyramid) and a few Gauss–Newton steps on them alone bring the
+   pose into the basin of the cues that search from the pose;
 2. ``outer`` times: the edge and region cues search from the current pose (``search_px``, halving each
    time, never below 4), then ``inner`` Gauss–Newton steps over every active cue's equations;
 3. covariance = ``covariance_scale`` × (Σ H)⁻¹ over ``[ω, v]``; quality = the mean of the cues'
-   qualities that have a verdict (edges count half on a printed part: the print's edges pull them).
+   qualities that have a verdict (edges count half on a printed part: the print's edges pull them; a
+   part that shows a print but none of its points here scores 0 for texture).
 
 Which cues speak follows what the part and the frame offer, not a flag: texture where the part shows a print
 (corners inside its faces at the initial pose; a plain part's corners are corners of its shading and
@@ -144,13 +146,12 @@ class CombinedTracker(Tracker):
     def _fit(self, frame: Frame, gray: np.ndarray, start: Pose, search_px: int) -> Pose | None:
         pose = start
         self._information = np.zeros((6, 6))
+        pose = self._follow_patch(frame, gray, pose)
         texture = self._cue("texture")
         if texture is not None and texture.active:
             texture.correspond(frame, gray, pose, search_px)
-        if texture is not None and texture.active and len(texture.index) >= 6:
-            pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS, frame.camera.K) or pose
-        else:
-            pose = self._follow_patch(frame, gray, pose)
+            if len(texture.index) >= 6:
+                pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS, frame.camera.K) or pose
         rng = search_px
         for _ in range(self.outer):
             active = [c for c in self.cues if c.active]
@@ -165,8 +166,8 @@ class CombinedTracker(Tracker):
     def _follow_patch(self, frame: Frame, gray: np.ndarray, start: Pose) -> Pose:
         """``start`` turned about the camera centre so that the part's projection lands where the image
         patch around it in the previous frame lies now (normalised cross-correlation at half resolution,
-        ``PATCH_REACH_PX``): a pose-free first step for a part without a print to follow, whose image
-        may move further in a frame than the edge and region searches reach."""
+        ``PATCH_REACH_PX``): a pose-free first step; the part's image may move further in a frame than
+        the edge and region searches reach, and KLT, started closer, keeps more of its points."""
         small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
         previous, self._small = self._small, small
         if previous is None or self.pose is None:
@@ -188,6 +189,10 @@ class CombinedTracker(Tracker):
 
     def _quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         self.cue_qualities = {c.name: c.quality(frame, gray, pose) for c in self.cues if c.active}
+        texture = self._cue("texture")
+        if texture is not None and texture.enabled and not np.isfinite(self.cue_qualities.get("texture", np.nan)):
+            # a part that shows a print but none of it here: covered, or the pose is elsewhere
+            self.cue_qualities["texture"] = 0.0
         weights = {"edges": 0.5 if self.printed else 1.0}
         votes = [(weights.get(n, 1.0), q) for n, q in self.cue_qualities.items() if np.isfinite(q)]
         if not votes:

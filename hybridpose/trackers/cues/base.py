@@ -81,4 +81,5 @@ class Cue(ABC):
 
     def finish(self, frame: Frame, gray: np.ndarray, pose: Pose, trusted: bool, ids) -> None:
         """After the fit: ``trusted`` where the tracker reports the pose (keyframes, statistics);
-        ``ids()``: the fitted pose's full-resolution facet-id raster (rendered on first call)."""
+        ``ids()``: the fitted pose's full-resolution facet-id raster (rendered on first call); None where
+        the fit failed (nothing to learn from)."""

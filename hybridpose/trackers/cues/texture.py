@@ -12,7 +12,7 @@ their image positions do not drift (the role of M3T's texture modality).
   within ``ANCHOR_PX`` — the frame-to-frame drift of the 2D tracks does not build up.
 * Residuals: reprojection errors (2 per point) with Tukey weights.
 * It speaks only on a printed part: at least ``MIN_PRINT_POINTS`` corners at the start lie inside a
-  face, ``PRINT_CLEAR_PX`` from its border (a plain part's corners are corners of its outline and
+  face, ``PRINT_CLEAR_PX`` from its border, stronger than noise (``MIN_PRINT_EIGEN``) (a plain part's corners are corners of its outline and
   shading, which slide as it turns: on the truss's tumble the edge cue alone held 0.37° median, with
   its corners as texture points 1.74°).
 * A new keyframe when fewer than ``min_points`` points survive or the view turned ``KEYFRAME_DEG``
@@ -41,7 +41,10 @@ FULL_SUPPORT = 20    # agreeing points for full quality
 KEYFRAME_DEG = 20.0  # view turned this far since the keyframe: lift a new one (patches deform)
 # a print: at least MIN_PRINT_POINTS corners at the start lie inside one face, PRINT_CLEAR_PX from its border
 MIN_PRINT_POINTS, PRINT_CLEAR_PX = 12, 6
-LK = dict(winSize=(11, 11), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+# …with a corner strength (cv2.cornerMinEigenVal, 5 × 5) above noise: hand-held tuning scenes, plain faces
+# under noise and JPEG ≤ 0.0001, photo prints 0.0007–0.015 (median of a part's corners)
+MIN_PRINT_EIGEN = 0.0005
+LK = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 ANCHOR_LK = dict(winSize=(11, 11), maxLevel=1, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 
 
@@ -79,8 +82,21 @@ class TextureCue(Cue):
     # --- keyframes ---------------------------------------------------------------------------------
     def start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
         self._keyframe(gray, pose, frame, ids)
-        self.enabled = int(self._inside_faces(self.kf_uv, ids).sum()) >= MIN_PRINT_POINTS
+        self.enabled = int(self._print_points(gray, ids).sum()) >= MIN_PRINT_POINTS
         self.active = len(self.X) >= 6
+
+    def _print_points(self, gray: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """(N,) which keyframe points are corners of a print: inside one face and with a corner
+        strength (smallest structure-tensor eigenvalue) of at least ``MIN_PRINT_EIGEN`` — sensor noise on
+        a plain face makes weak corners a relative threshold lets through."""
+        inside = self._inside_faces(self.kf_uv, ids)
+        if not inside.any():
+            return inside
+        uv = np.round(self.kf_uv).astype(int)
+        x0, y0 = max(uv[:, 0].min() - 4, 0), max(uv[:, 1].min() - 4, 0)
+        x1, y1 = min(uv[:, 0].max() + 5, gray.shape[1]), min(uv[:, 1].max() + 5, gray.shape[0])
+        strength = cv2.cornerMinEigenVal(np.clip(gray[y0:y1, x0:x1], 0, 255).astype(np.uint8), 5, 3)
+        return inside & (strength[uv[:, 1] - y0, uv[:, 0] - x0] >= MIN_PRINT_EIGEN)
 
     @staticmethod
     def _inside_faces(uv: np.ndarray, ids: np.ndarray, r: int = PRINT_CLEAR_PX) -> np.ndarray:
@@ -180,9 +196,11 @@ class TextureCue(Cue):
         self.kf_uv = self.kf_uv[self.index[keep]]
         self.prev = getattr(self, "_g8", self.prev)
         self.index, self.matched = np.zeros(0, np.int64), np.zeros((0, 2))
-        if not (trusted and self.may_keyframe):
-            return
-        turned = rotation_error_deg(self.kf_pose.R, pose.R) > KEYFRAME_DEG
-        if len(self.X) < self.min_points or turned:
-            self._keyframe(gray, pose, frame, ids())
+        # a starved cue (most of its points lost to blur or a fast turn) drags the tracker's quality down:
+        # the other cues' word is enough to lift new points then
+        starved = len(self.X) < self.min_points
+        if ids is not None and self.may_keyframe and (trusted or starved):
+            turned = rotation_error_deg(self.kf_pose.R, pose.R) > KEYFRAME_DEG
+            if starved or turned:
+                self._keyframe(gray, pose, frame, ids())
         self.active = len(self.X) >= 6

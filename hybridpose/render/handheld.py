@@ -223,20 +223,19 @@ def handheld_sequence(spec: HandheldSpec, obj: ObjectModel, camera: Camera,
     light_world = np.array([0.3, -0.4, 0.87])
     K, Kinv = camera.K, np.linalg.inv(camera.K)
     R0 = poses[0].R
-    centre = np.array([W, H]) - 0.5
     shift = np.array([[1, 0, -W / 2], [0, 1, -H / 2], [0, 0, 1.0]])  # the big picture centred on frame 0
     hand_frames = (int(0.4 * spec.frames), int(0.7 * spec.frames))
     hand_rgb = SKIN_RGB[int(rng.integers(len(SKIN_RGB)))]
     hand_side = rng.choice([-1.0, 1.0])
     gain_knots = rng.uniform(0.8, 1.2, max(2, spec.frames // 20 + 2))
     gains = np.interp(np.arange(spec.frames), np.linspace(0, spec.frames - 1, len(gain_knots)), gain_knots)
+    part = _Part(obj, print_rgb, colour, light_world)
     out, prev_uv = [], None
     for k, pose in enumerate(poses):
         H_bg = shift @ K @ R0 @ pose.R.T @ Kinv  # frame pixel → the big picture's pixel (rotation only)
         image = cv2.warpPerspective(back, H_bg, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                     borderMode=cv2.BORDER_REFLECT)
         light_obj = pose.R.T @ (R0 @ light_world)  # the room light stays with the world
-        part = _Part(obj, print_rgb, colour, light_obj / np.linalg.norm(light_obj)) if k == 0 else part
         part.light = light_obj / np.linalg.norm(light_obj)
         mask = part.draw(image, camera, pose)
         uv = camera.project(np.zeros((1, 3)), pose)[0]

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..core import Frame
 from ..edges import ModelView, printed_faces, to_gray
+from ..edges.model_view import ID_SCALE
 from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
@@ -42,9 +43,9 @@ from .cues.solve import solve
 
 MODALITIES = ("edges", "texture", "region")
 TEXTURE_PREALIGN_STEPS = 5
-LEARN_CUE_QUALITY = 0.3
+LEARN_CUE_QUALITY = 0.3  # every cue with a verdict at least this for the cues to learn from a frame
 KEYFRAME_CUE_QUALITY = 0.5  # …and the other cues at least this for a new texture keyframe
-PATCH_REACH_PX, PATCH_MIN_SCORE = 48, 0.5  # the first step of a part without a print: how far, how alike  # every cue with a verdict at least this for the cues to learn from a frame
+PATCH_REACH_PX, PATCH_MIN_SCORE = 48, 0.5  # each frame's first, pose-free step: how far, how alike
 MAX_STEP_RAD, MAX_STEP_M_SHARE = 0.5, 0.5  # a Gauss–Newton step beyond these (rad; × diameter) is refused
 
 
@@ -108,6 +109,7 @@ class CombinedTracker(Tracker):
         sight = Sight(frame, gray, start, ids, self.view.visible_index(start, frame.camera, margin_px=2, ids=ids))
         for cue in self.cues:
             cue.begin(sight)
+        self._sight = sight
         pose = self._fit(frame, gray, start, search_px or self.search_px)
         if pose is None:
             for cue in self.cues:
@@ -175,7 +177,9 @@ class CombinedTracker(Tracker):
         box = frame.camera.image_box(self.object.bbox_corners, self.pose)
         if box is None:
             return start
-        seen = self.view.facet_ids(self.pose, frame.camera, scale=0.5) > 0  # the part alone, not its background
+        # the part alone, not its background: the previous pose's raster (the start's, when it starts there)
+        same = start is self.pose and ID_SCALE == 0.5
+        seen = (self._sight.ids if same else self.view.facet_ids(self.pose, frame.camera, 0.5)) > 0
         shift = patch_shift(previous, small, np.asarray(box) * 0.5, PATCH_REACH_PX // 2, seen)
         if shift is None:
             return start

@@ -12,11 +12,12 @@ their image positions do not drift (the role of M3T's texture modality).
   within ``ANCHOR_PX`` — the frame-to-frame drift of the 2D tracks does not build up.
 * Residuals: reprojection errors (2 per point) with Tukey weights.
 * It speaks only on a printed part: at least ``MIN_PRINT_POINTS`` corners at the start lie inside a
-  face, ``PRINT_CLEAR_PX`` from its border, stronger than noise (``MIN_PRINT_EIGEN``) (a plain part's corners are corners of its outline and
-  shading, which slide as it turns: on the truss's tumble the edge cue alone held 0.37° median, with
-  its corners as texture points 1.74°).
+  face, ``PRINT_CLEAR_PX`` from its border, stronger than noise (``MIN_PRINT_EIGEN``). A plain part's
+  corners are corners of its outline and shading, which slide as it turns (on the truss's tumble the
+  edge cue alone held 0.37° median, with its corners as texture points 1.74°).
 * A new keyframe when fewer than ``min_points`` points survive or the view turned ``KEYFRAME_DEG``
-  since the last one, from a trusted pose only.
+  since the last one, where the tracker allows it (``may_keyframe``: the other cues vouch for the pose)
+  and the pose is trusted — or the cue is starved, its points lost to blur or a fast turn.
 
 Quality = share of the tracks that entered the frame that agree with the fitted pose within
 ``INLIER_PX`` × min(1, inliers / ``FULL_SUPPORT``); NaN (no verdict) where the part shows no

@@ -115,7 +115,7 @@ def test_bad_input_gets_clear_errors_and_never_nan(name, truss, tumble):
         trk.track(frame0)
 
 
-@pytest.mark.parametrize("name", ["edges", "klt-pnp", "rapid", "rapid-ols", "rapid-gos"])
+@pytest.mark.parametrize("name", ["edges", "klt-pnp", "rapid", "rapid-ols", "rapid-gos", "combined"])
 def test_edge_refining_trackers_show_their_sites(name, truss, tumble):
     """Each edge fit leaves its moving-edge sites: most matches are inliers on a clean render (the
     sites with no match lie on edges the sun leaves dark), each inlier lies within the fit's 2-px

@@ -117,6 +117,8 @@ class CombinedTracker(Tracker):
             return None, None, 0.0
         H = self._information
         quality = self._quality(frame, gray, pose)
+        edge_cue = self._cue("edges")
+        self.last_sites = edge_cue.sites if edge_cue is not None and edge_cue.active else None
         # what the cues learn from this frame (keyframes, colours) must be the part's: only where every
         # cue with a verdict agrees (a mug passing in front of a printed cube, taken as its print at a
         # keyframe, was then followed as the cube)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core import Frame
-from ...edges import ModelView, search_edges
+from ...edges import EdgeSites, ModelView, search_edges
 from ...edges.fit import LIT_GREY, dark_surround
 from ...geometry import Pose
 from .base import Cue
@@ -46,6 +46,7 @@ class EdgeCue(Cue):
         self.plain_sigma_px, self.textured_sigma_px = float(sigma_px), float(textured_sigma_px)
         self.sigma_px = self.plain_sigma_px
         self.visible = np.zeros(0, np.int64)
+        self.sites: EdgeSites | None = None  # the last quality search's moving-edge sites
 
     def set_textured(self, textured: bool) -> None:
         """Whether the part's faces carry a print (the tracker decides from the texture it sees)."""
@@ -86,9 +87,14 @@ class EdgeCue(Cue):
         return LineRows(self.X, self.n, self.m, self.sigma_px, 0.5, max(1.0, self.search_px / 4)) if len(self.X) >= 6 else None
 
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
+        """As the module doc says; also keeps the search's moving-edge sites (:attr:`sites`) for pictures."""
+        self.sites = None
         if len(self.visible) < 6:
             return float("nan")
         s, offset, valid, brightness = self._search(frame, gray, pose, QUALITY_SEARCH_PX)
-        inliers = int((valid & (np.abs(offset) < INLIER_PX)).sum())
+        near = np.abs(offset) < INLIER_PX
+        self.sites = EdgeSites(s.points_m, pose, frame.camera.K, s.uv + offset[:, None] * s.normals, valid,
+                               near[valid], brightness)
+        inliers = int((valid & near).sum())
         contradicted = int((~valid & (brightness > LIT_GREY)).sum())
         return inliers / max(int(valid.sum()) + contradicted, 1) * min(1.0, inliers / FULL_SUPPORT)

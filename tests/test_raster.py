@@ -139,3 +139,25 @@ def test_zbuffer_matches_a_test_of_every_pixel_in_each_box(truss):
         img = _zbuffer(tri, normals, values, pose, cam)
         assert img.any()
         np.testing.assert_array_equal(img, _zbuffer_oracle(tri, normals, values, pose, cam))
+
+
+def test_a_densely_tessellated_part_is_rasterised_from_its_facets_alone():
+    """A textured export tessellates its flat faces densely; the facet-id raster draws each convex
+    facet as a fan of its corners instead: the same ids at every pixel, from a handful of triangles."""
+    import trimesh
+
+    from hybridpose.edges import ModelView
+    from hybridpose.geometry import Camera, Pose
+    from hybridpose.geometry.raster import zbuffer_front_faces
+    from hybridpose.objects import ObjectModel
+
+    mesh = trimesh.creation.box((0.08, 0.06, 0.05)).subdivide().subdivide().subdivide()
+    view = ModelView(ObjectModel("dense-box", mesh))
+    camera = Camera.default()
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        pose = Pose.from_rotvec_t(rng.normal(size=3), [rng.uniform(-0.03, 0.03), 0.01, 0.3])
+        full = zbuffer_front_faces(view.triangles, view.face_normals, view.facet_of, pose.R, pose.t, camera.K,
+                                   0.5, 240, 320)
+        assert np.array_equal(view.facet_ids(pose, camera), full)
+    assert len(view.triangles) == 768 and len(view.raster_mesh[0]) == 12

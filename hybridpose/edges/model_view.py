@@ -62,6 +62,10 @@ class ModelView:
         object: the model (metres).
         step_m: spacing of samples along those edges, metres.
 
+    Attributes:
+        raster_mesh: (triangles (T, 3, 3) m, normals (T, 3), facet ids (T,)) that the facet-id raster
+            draws: the mesh's triangles, each convex planar facet as a fan of its corners.
+
     Raises:
         ValueError: the mesh has no sharp edge and no open outline (nothing an edge tracker could follow).
     """
@@ -108,13 +112,17 @@ class ModelView:
         self.plane_normal[self.facet_of] = self.face_normals
         if self.facet_of.max() >= 2**16:
             raise ValueError(f"object: mesh has too many faces ({len(mesh.faces)}) for the facet-id raster")
+        # what the raster draws: each convex planar facet as a fan of few triangles (a textured export
+        # tessellates its faces densely: ViSP's MegaPose cube has 12 288 triangles for 6 faces)
+        self.raster_mesh = _raster_mesh(mesh, verts, self.face_normals, self.facet_of)
 
     # --- rendering of facet ids ------------------------------------------------------------------
     def facet_ids(self, pose: Pose, camera: Camera, scale: float = ID_SCALE) -> np.ndarray:
         """(h, w) uint16 facet id + 1 of the surface seen at each pixel (0 = background), at
         ``scale`` × the camera's resolution."""
         w, h = max(1, int(round(camera.width * scale))), max(1, int(round(camera.height * scale)))
-        return zbuffer_front_faces(self.triangles, self.face_normals, self.facet_of, pose.R, pose.t, camera.K,
+        triangles, normals, facet_of = self.raster_mesh
+        return zbuffer_front_faces(triangles, normals, facet_of, pose.R, pose.t, camera.K,
                                    float(scale), h, w)
 
     def lift(self, pose: Pose, camera: Camera, uv: np.ndarray, ids: np.ndarray | None = None,
@@ -235,3 +243,69 @@ class ModelView:
             index, uv, normals = index[keep], uv[keep], normals[keep]
         return EdgeSamples(index=index, points_m=self.points[index], uv=uv, normals=normals)
 
+
+def _raster_mesh(mesh, verts: np.ndarray, face_normals: np.ndarray, facet_of: np.ndarray):
+    """(triangles (T, 3, 3), normals (T, 3), facet ids (T,)) drawing the same surface as the mesh's own
+    triangles with fewer of them: every planar facet whose outline is one convex loop becomes a fan
+    over its corners (collinear outline points dropped); other triangles stay as they are."""
+    faces = np.asarray(mesh.faces)
+    keep = np.ones(len(faces), bool)
+    tris, normals, ids = [], [], []
+    for k, members in enumerate(mesh.facets):
+        loop = _outline_loop(np.asarray(mesh.facets_boundary[k]))
+        if loop is None:
+            continue
+        normal = face_normals[members[0]]
+        corners = _convex_corners(verts[loop], normal)
+        if corners is None:
+            continue
+        keep[members] = False
+        for i in range(1, len(corners) - 1):
+            tris.append([corners[0], corners[i], corners[i + 1]])
+            normals.append(normal)
+            ids.append(facet_of[members[0]])
+    if not tris:
+        return verts[faces], face_normals, facet_of
+    return (np.concatenate([verts[faces[keep]], np.asarray(tris)]),
+            np.concatenate([face_normals[keep], np.asarray(normals)]),
+            np.concatenate([facet_of[keep], np.asarray(ids, dtype=facet_of.dtype)]))
+
+
+def _outline_loop(edges: np.ndarray) -> np.ndarray | None:
+    """The vertex indices of ``edges`` (E, 2) in order around their one closed loop; None where the
+    edges make more than one loop (a facet with a hole) or no loop."""
+    if len(edges) < 3:
+        return None
+    nxt: dict[int, list[int]] = {}
+    for a, b in edges:
+        nxt.setdefault(int(a), []).append(int(b))
+        nxt.setdefault(int(b), []).append(int(a))
+    if any(len(v) != 2 for v in nxt.values()):
+        return None
+    start = int(edges[0, 0])
+    loop, prev, cur = [start], None, start
+    while True:
+        a, b = nxt[cur]
+        step = b if a == prev else a
+        if step == start:
+            break
+        loop.append(step)
+        prev, cur = cur, step
+        if len(loop) > len(edges):
+            return None
+    return np.asarray(loop) if len(loop) == len(edges) else None
+
+
+def _convex_corners(points: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
+    """``points`` (N, 3), an outline in order, reduced to its corners and turned counter-clockwise about
+    ``normal``; None where the outline is not convex."""
+    turn = np.einsum("ij,j->i", np.cross(points - np.roll(points, 1, 0), np.roll(points, -1, 0) - points), normal)
+    scale = np.linalg.norm(points - np.roll(points, 1, 0), axis=1) * np.linalg.norm(np.roll(points, -1, 0) - points, axis=1)
+    corner = np.abs(turn) > 1e-9 * np.maximum(scale, 1e-30)
+    if corner.sum() < 3:
+        return None
+    signs = np.sign(turn[corner])
+    if not (np.all(signs > 0) or np.all(signs < 0)):
+        return None
+    corners = points[corner]
+    return corners if signs[0] > 0 else corners[::-1]

@@ -292,13 +292,15 @@ TEXTURE_BAND_PX = 8
 TEXTURE_CONTRAST = 4.0
 
 
-def printed_faces(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> bool:
+def printed_faces(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,
+                  ids: np.ndarray | None = None) -> bool:
     """Whether the part seen at ``pose`` in ``frame`` carries a print on its faces: more than
     ``TEXTURE_EDGE_DENSITY`` of the pixels inside its visible faces — at least ``TEXTURE_CLEAR_PX`` from
     any border between facets (the model's edges) — are Canny edges. Meant for a pose the caller trusts
     (a tracker's initial pose): at a wrong pose the faces may lie over a cluttered background.
-    ``gray``: (H, W) float32 intensity where the caller has it."""
-    ids = view.facet_ids(pose, frame.camera, scale=1.0).astype(np.uint16)
+    ``gray``: (H, W) float32 intensity, ``ids``: the full-resolution facet-id raster of ``pose``, where
+    the caller has them."""
+    ids = (view.facet_ids(pose, frame.camera, scale=1.0) if ids is None else ids).astype(np.uint16)
     k = np.ones((2 * TEXTURE_CLEAR_PX + 1,) * 2, np.uint8)
     interior = (ids > 0) & (cv2.dilate(ids, k) == cv2.erode(ids, k))
     if interior.sum() < 100:

@@ -83,12 +83,13 @@ class CombinedTracker(Tracker):
         self.covariance_scale = float(covariance_scale)
         self.cue_qualities: dict[str, float] = {}
         self._small = None  # the last frame at half resolution (float32 grey), for the patch step
+        self._sight: Sight | None = None  # the frame being fitted, as the cues see it
 
     def _cue(self, name: str):
         return next((c for c in self.cues if c.name == name), None)
 
     def _start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
-        self.printed = printed_faces(self.view, frame, pose, gray)
+        self.printed = printed_faces(self.view, frame, pose, gray, ids)
         for cue in self.cues:
             cue.start(frame, gray, pose, ids)
             if isinstance(cue, EdgeCue):

@@ -30,6 +30,7 @@ from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
+from .surface_points import forward_backward_flow, surface_corners
 from ..edges import ModelView, fit_from_proposals, printed_faces, quality_verdict
 from ..edges.fit import TRACKING_POLISH, check_polish
 from ..geometry import projection_jacobian
@@ -75,23 +76,7 @@ class KltPnpTracker(Tracker):
     def _detect(self, gray: np.ndarray, pose: Pose, frame: Frame, existing: np.ndarray, count: int, ids=None):
         if ids is None:
             ids = self.view.facet_ids(pose, frame.camera, scale=1.0)
-        mask = cv2.erode((ids > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
-        for x, y in existing.astype(int):
-            cv2.circle(mask, (int(x), int(y)), 7, 0, -1)
-        if count <= 0 or not mask.any():
-            return np.zeros((0, 2), np.float32), np.zeros((0, 3))
-        # detect inside the object's box only: goodFeaturesToTrack scores every pixel it is given
-        ys, xs = np.nonzero(mask)
-        x0, y0 = max(xs.min() - 4, 0), max(ys.min() - 4, 0)
-        x1, y1 = min(xs.max() + 5, gray.shape[1]), min(ys.max() + 5, gray.shape[0])
-        pts = cv2.goodFeaturesToTrack(np.ascontiguousarray(gray[y0:y1, x0:x1]), maxCorners=count, qualityLevel=0.01,
-                                      minDistance=7, mask=np.ascontiguousarray(mask[y0:y1, x0:x1]), blockSize=5)
-        if pts is None:
-            return np.zeros((0, 2), np.float32), np.zeros((0, 3))
-        uv = pts.reshape(-1, 2) + (x0, y0)
-        X, ok = self.view.lift(pose, frame.camera, uv, ids=ids)
-        ok &= self.view.surface_fixed(pose, frame.camera, uv, ids)
-        return uv[ok].astype(np.float32), X[ok]
+        return surface_corners(self.view, gray, pose, frame.camera, ids, count, existing)
 
     def _init(self, frame: Frame, pose: Pose) -> None:
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
@@ -116,10 +101,7 @@ class KltPnpTracker(Tracker):
             return None
         guess = (start @ self.X) @ K.T
         init = (guess[:, :2] / guess[:, 2:3]).reshape(-1, 1, 2).astype(np.float32)
-        nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.gray, gray, prev, init, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-        back, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self.gray, nxt, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-        good = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((back - prev).reshape(-1, 2), axis=1) < self.fb_px)
-        uv = nxt.reshape(-1, 2)
+        uv, good = forward_backward_flow(self.gray, gray, prev, init, self._lk, self.fb_px)
         if good.sum() < 6:
             return None
         rvec0, tvec0 = cv2.Rodrigues(start.R)[0], start.t.reshape(3, 1).copy()

@@ -33,6 +33,7 @@ from ...edges import ModelView
 from ...geometry import Pose
 from ...metrics import rotation_error_deg
 from .base import Cue
+from ..surface_points import forward_backward_flow, surface_corners
 from .solve import LineRows
 
 FB_PX = 1.0          # forward–backward KLT tolerance
@@ -120,21 +121,7 @@ class TextureCue(Cue):
 
     def _keyframe(self, gray: np.ndarray, pose: Pose, frame: Frame, ids: np.ndarray) -> None:
         g8 = np.clip(gray, 0, 255).astype(np.uint8)
-        mask = cv2.erode((ids > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
-        uv = np.zeros((0, 2))
-        if mask.any():
-            # goodFeaturesToTrack scores every pixel it is given: the object's box only
-            ys, xs = np.nonzero(mask)
-            x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
-            pts = cv2.goodFeaturesToTrack(np.ascontiguousarray(g8[y0:y1, x0:x1]), maxCorners=self.max_points,
-                                          qualityLevel=0.01, minDistance=7, blockSize=5,
-                                          mask=np.ascontiguousarray(mask[y0:y1, x0:x1]))
-            if pts is not None:
-                uv = pts.reshape(-1, 2) + (x0, y0)
-        X, ok = self.view.lift(pose, frame.camera, uv, ids=ids)
-        if len(uv):
-            ok &= self.view.surface_fixed(pose, frame.camera, uv, ids)
-        self.X, self.uv = X[ok], uv[ok].astype(np.float32)
+        self.uv, self.X = surface_corners(self.view, g8, pose, frame.camera, ids, self.max_points, box_margin_px=0)
         self.kf_uv, self.kf_gray, self.kf_pose, self.prev = self.uv.copy(), g8, pose, g8
 
     # --- one frame ---------------------------------------------------------------------------------
@@ -149,12 +136,7 @@ class TextureCue(Cue):
         if len(self.X) < 6:
             self._g8 = g8
             return
-        prev = self.uv.reshape(-1, 1, 2)
-        guess = frame.camera.project(self.X, pose).astype(np.float32).reshape(-1, 1, 2)
-        nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, g8, prev, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **LK)
-        back, st2, _ = cv2.calcOpticalFlowPyrLK(g8, self.prev, nxt, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **LK)
-        good = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((back - prev).reshape(-1, 2), axis=1) < FB_PX)
-        uv = nxt.reshape(-1, 2).copy()
+        uv, good = forward_backward_flow(self.prev, g8, self.uv, frame.camera.project(self.X, pose), LK, FB_PX)
         if good.any() and self.kf_gray is not self.prev:
             # back onto the keyframe's patch: the keyframe's look, not the last frame's, says where the point is
             idx = np.flatnonzero(good)

@@ -142,7 +142,8 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="runs/real_video", help="overlay strips")
     ap.add_argument("--regressor", default=None, help="a checkpoint fitted for cube.cao: adds the hybrid, no initial pose")
     ap.add_argument("--visp-repo", default=None,
-                    help="a checkout of ViSP's repository (github.com/lagadic/visp): adds its MegaPose cube video")
+                    help="a checkout of ViSP's repository (github.com/lagadic/visp): adds its MegaPose and "
+                         "detection-tutorial cube videos")
     ap.add_argument("--fusions", default="isam2,ukf,none", help="the hybrid's fusion backends, one row each")
     args = ap.parse_args(argv)
     import torch
@@ -258,12 +259,17 @@ def cnn_alone_lines(alone: dict, reference: str) -> list[str]:
             f"frame; on {counts('box')} given the box of the cube's projection."]
 
 
-def table(rows: list[dict]) -> list[str]:
-    """The results table's lines, one row per run."""
-    lines = ["| run | frames tracked | edge px: median / p90 / worst frame | ms/frame |", "|---|---|---|---|"]
+def table(rows: list[dict], round_trip: bool = False) -> list[str]:
+    """The results table's lines, one row per run; ``round_trip``: runs out and back
+    (:func:`forward_backward`), with where each ended (:func:`fb_cell`)."""
+    tracked = "frames tracked (of the round trip)" if round_trip else "frames tracked"
+    back = " back at frame 0: deg / mm |" if round_trip else ""
+    lines = [f"| run | {tracked} | edge px: median / p90 / worst frame |{back} ms/frame |",
+             "|---|---|---|" + ("---|" if round_trip else "") + "---|"]
     for r in rows:
         px = "—" if r["edge_px_median"] is None else f"{r['edge_px_median']:.2f} / {r['edge_px_p90']:.2f} / {r['edge_px_worst']:.2f}"
-        lines.append(f"| {r['run']} | {r['tracked']} of {r['frames']} | {px} | {r['ms_per_frame']:.1f} |")
+        end = f" {fb_cell(r)} |" if round_trip else ""
+        lines.append(f"| {r['run']} | {r['tracked']} of {r['frames']} | {px} |{end} {r['ms_per_frame']:.1f} |")
     return lines
 
 
@@ -315,7 +321,6 @@ def castle(folder: Path, out: Path) -> tuple[dict, list[str]]:
              f"{' (top) and '.join(r['run'] for r in pair)}{' (bottom)' if len(pair) > 1 else ''}.", "",
              "![the model at each run's pose on ViSP's castle sequence](results/real_video_castle.jpg)"]
     return {"sequence": str(folder / "castel"), "camera": camera.to_dict(), "rows": rows}, lines
-
 
 
 @dataclass(frozen=True)
@@ -419,12 +424,7 @@ def repo_video(repo: Path, video: RepoVideo, out: Path) -> tuple[dict, list[str]
     lines = [f"{video.title} (ViSP's repository, `{video.video}`): {video.about}; its first {len(frames)} frames, "
              "forward and back to the first frame: a tracker that does not drift ends where it started. Every "
              f"tracker starts from a hand-labelled first pose (`benchmarks/data/{video.key}.0.pos`: {video.label}) "
-             "and is never re-initialised.", "",
-             "| run | frames tracked (of the round trip) | edge px: median / p90 / worst frame | back at frame 0: deg / mm | ms/frame |",
-             "|---|---|---|---|---|"]
-    for r in rows:
-        px = "—" if r["edge_px_median"] is None else f"{r['edge_px_median']:.2f} / {r['edge_px_p90']:.2f} / {r['edge_px_worst']:.2f}"
-        lines.append(f"| {r['run']} | {r['tracked']} of {r['frames']} | {px} | {fb_cell(r)} | {r['ms_per_frame']:.1f} |")
+             "and is never re-initialised.", "", *table(rows, round_trip=True)]
     lines += ["", f"Frames {', '.join(map(str, video.strip))} of the way out and the last of the way back: "
               f"{' (top) and '.join(r['run'] for r in pair)} (bottom), green where the run trusted its pose.", "",
               f"![the model at each run's pose on {video.title}](results/real_video_{video.key}.jpg)"]

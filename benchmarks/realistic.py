@@ -68,12 +68,11 @@ def photos(folder: Path):
     return PhotoBackgrounds(folder) if any(folder.iterdir()) else None
 
 
-def score(frames, obj, tracker) -> dict:
+def score(frames, camera, tracker) -> dict:
     """One tracker over one sequence from its true first pose: per-frame verdicts and the cost."""
     from hybridpose.core import Frame
     from hybridpose.metrics import rotation_error_deg
 
-    camera = tracker_camera()
     held = silent = lost = false_alarm = at_right = 0
     ms = []
     for f in frames:
@@ -98,24 +97,19 @@ def score(frames, obj, tracker) -> dict:
             "at_right_pose": at_right, "ms": float(np.mean(ms[1:]))}
 
 
-def tracker_camera():
-    from hybridpose.geometry import Camera
-
-    return Camera.default()
-
-
 def run(split: str, trackers: list[str], photo_dir: Path) -> dict:
+    from hybridpose.geometry import Camera
     from hybridpose.registry import create
     from hybridpose.render.handheld import HandheldSpec, handheld_sequence
 
-    objects, pictures, camera = parts(), photos(photo_dir), tracker_camera()
+    objects, pictures, camera = parts(), photos(photo_dir), Camera.default()
     rows = {}
     for kind, (part, options) in KINDS.items():
         for seed in SEEDS[split]:
             frames = handheld_sequence(HandheldSpec(frames=FRAMES, seed=seed, **options), objects[part], camera, pictures)
             motion = [f.motion_px for f in frames[1:]]
             for name in trackers:
-                r = score(frames, objects[part], create("tracker", name, object=objects[part]))
+                r = score(frames, camera, create("tracker", name, object=objects[part]))
                 r.update(kind=kind, seed=seed, tracker=name, motion_median_px=float(np.median(motion)),
                          motion_max_px=float(np.max(motion)))
                 rows.setdefault(kind, []).append(r)
@@ -124,7 +118,7 @@ def run(split: str, trackers: list[str], photo_dir: Path) -> dict:
     return rows
 
 
-def summary_lines(rows: dict, trackers: list[str], split: str) -> list[str]:
+def summary_lines(rows: dict, trackers: list[str]) -> list[str]:
     lines = ["| part and scene | tracker | frames held within 5° and 2 cm, per sequence: median / p90 / worst | "
              "lost | false alarms (of frames at a right pose, in view) | silent (trusted > 10° off) | ms/frame |",
              "|---|---|---|---|---|---|---|"]
@@ -154,7 +148,7 @@ def main(argv=None) -> None:
 
     trackers = args.trackers.split(",") if args.trackers else list(available("tracker"))
     rows = run(args.split, trackers, Path(args.out) / "photos")
-    lines = summary_lines(rows, trackers, args.split)
+    lines = summary_lines(rows, trackers)
     if args.split != "report":
         print("\n".join(lines))
         return

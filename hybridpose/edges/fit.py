@@ -142,6 +142,16 @@ def dark_surround(gray: np.ndarray, uv: np.ndarray) -> bool:
     return lit / strip < SURROUND_LIT_SHARE
 
 
+def sun_shown(view: ModelView, frame: Frame, gray: np.ndarray, pose: Pose, visible: np.ndarray) -> np.ndarray:
+    """The samples of ``visible`` (S,) the sun can show as image edges at ``pose``
+    (:meth:`ModelView.sun_shows`, with the background around them judged dark or lit from ``gray``);
+    all of them where ``frame`` gives no sun direction."""
+    if frame.sun_direction_cam is None or not len(visible):
+        return visible
+    dark = dark_surround(gray, view.samples_at(pose, frame.camera, visible).uv)
+    return visible[view.sun_shows(visible, pose, frame.sun_direction_cam, dark)]
+
+
 def _half_stretch(view: ModelView, pose: Pose, cam, normals: np.ndarray) -> np.ndarray:
     """(S, 2) px: half of each projected sample's stretch along its edge (perpendicular to its image
     ``normals`` (S, 2)), 0.6 × the samples' spacing so that neighbouring stretches overlap a little
@@ -187,11 +197,7 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     max_step_m = view.object.diameter if max_step_m is None else max_step_m
     # visibility once per fit (at the start pose: the pose moves by a fraction of a degree); the
     # samples are re-projected as the pose moves and those that leave the image dropped
-    visible = view.visible_index(start, cam, margin_px=2)
-    if frame.sun_direction_cam is not None and len(visible):
-        dark = dark_surround(gray, view.samples_at(start, cam, visible).uv)
-        visible = visible[view.sun_shows(visible, start, frame.sun_direction_cam, dark)]
-    visible = thin(visible, max_samples)
+    visible = thin(sun_shown(view, frame, gray, start, view.visible_index(start, cam, margin_px=2)), max_samples)
     points, directions = view.points[visible], view.directions[visible]
     R, t = start.R, start.t
     rng_px = search_px

@@ -19,7 +19,7 @@ import numpy as np
 
 from ...core import Frame
 from ...edges import EdgeSites, ModelView, search_edges
-from ...edges.fit import LIT_GREY, dark_surround
+from ...edges.fit import LIT_GREY, sun_shown
 from ...geometry import Pose
 from .base import Cue
 from .solve import LineRows
@@ -60,11 +60,8 @@ class EdgeCue(Cue):
         self.visible = self._visible(sight.frame, sight.gray, sight.start, sight.visible)
 
     def _visible(self, frame: Frame, gray: np.ndarray, pose: Pose, visible: np.ndarray) -> np.ndarray:
-        cam = frame.camera
-        if frame.sun_direction_cam is not None and len(visible):
-            # under a known sun, the edges it cannot show are left out (ModelView.sun_shows)
-            dark = dark_surround(gray, self.view.samples_at(pose, cam, visible).uv)
-            visible = visible[self.view.sun_shows(visible, pose, frame.sun_direction_cam, dark)]
+        # under a known sun, the edges it cannot show are left out (ModelView.sun_shows)
+        visible = sun_shown(self.view, frame, gray, pose, visible)
         step = max(1, int(np.ceil(len(visible) / self.max_samples)))
         return visible[::step]
 

@@ -17,7 +17,7 @@ ROLES = ("object", "trajectory", "tracker", "regressor", "fusion")
 # Modules whose import registers the built-in backends of each role (imported on first use so that
 # `import hybridpose` stays light).
 _BUILTIN_MODULES: dict[str, tuple[str, ...]] = {
-    "object": ("hybridpose.objects.truss",),
+    "object": ("hybridpose.objects.truss", "hybridpose.objects.parts"),
     "trajectory": ("hybridpose.render.trajectories",),
     "tracker": ("hybridpose.trackers.edges", "hybridpose.trackers.klt", "hybridpose.trackers.rapid",
                 "hybridpose.trackers.combined"),

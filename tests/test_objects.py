@@ -35,7 +35,7 @@ def test_truss_is_asymmetric(truss):
 
 def test_registry_lists_truss():
     assert "truss" in registry.available("object")
-    with pytest.raises(ValueError, match="unknown object 'nope'; available: truss"):
+    with pytest.raises(ValueError, match="unknown object 'nope'; available: box, cube, truss"):
         registry.create("object", "nope")
 
 

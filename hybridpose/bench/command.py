@@ -17,7 +17,7 @@ from ..io import atomic_write_json, atomic_write_text
 from ..machine import git_commit, package_versions
 from .report import report_markdown, write_plots
 from .runner import MODES, RunSpec, ray_connection, run_all
-from .suite import REPORT_SEEDS, TUNING_SEEDS, render_suite, suite
+from .suite import render_suite, split_seeds, suite
 
 SUN_CHOICES = ("known", "unknown")
 RESULTS_BLOCK = "bench"  # <!-- bench:begin --> … <!-- bench:end --> in the results page
@@ -38,9 +38,9 @@ class BenchRequest:
     object: str = "truss"
     scale: float = 1.0
     modes: tuple[str, ...] = MODES
-    trackers: tuple[str, ...] = ("edges",)
+    trackers: tuple[str, ...] = ()  # none: the suite's default (trackers_of)
     fusions: tuple[str, ...] = (DEFAULT_FUSION,)
-    regressor: str = "default"
+    regressor: str = "default"  # or one per part: "cube=fit_cube/best.pt,box=fit_box/best.pt"
     check_periods: tuple[int, ...] = ()
     configs: tuple[str, ...] = ()  # "name=value,name=value": one more hybrid run per entry
     tracker_options: tuple[str, ...] = ()  # "name=value": keyword arguments of every tracker run
@@ -56,20 +56,24 @@ class BenchRequest:
 
 def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list]:
     """The run specs, and the user's scenes (``--data``) or the suite entries; ValueError naming the
-    option for anything unknown, before any rendering or CNN loading."""
+    option for anything unknown, before any rendering or CNN loading.
+
+    The realistic suite shows two parts (``cube``, ``box``): its specs come once per part, each with
+    the regressor :func:`regressor_for` gives that part (none: tracker runs only)."""
     from ..registry import available
 
     for mode in req.modes:
         if mode not in MODES:
             raise ValueError(f"--modes: unknown mode {mode!r}; expected some of {', '.join(MODES)}")
-    for role, names, option in (("tracker", req.trackers, "--trackers"), ("fusion", req.fusions, "--fusions")):
+    for role, names, option in (("tracker", trackers_of(req), "--trackers"), ("fusion", req.fusions, "--fusions")):
         known = available(role)
         for n in names:
             if n not in known:
                 raise ValueError(f"{option}: unknown {role} {n!r}; available: {', '.join(known)}")
-    if req.regressor not in available("regressor") and not Path(req.regressor).is_file():
-        raise ValueError(f"--regressor: {req.regressor!r} is neither a registered regressor "
-                         f"({', '.join(available('regressor'))}) nor a checkpoint file")
+    for regressor in set(regressor_map(req.regressor).values()):
+        if regressor not in available("regressor") and not Path(regressor).is_file():
+            raise ValueError(f"--regressor: {regressor!r} is neither a registered regressor "
+                             f"({', '.join(available('regressor'))}) nor a checkpoint file")
     if req.workers < 1:
         raise ValueError(f"--workers: expected ≥ 1, got {req.workers}")
     if any(p < 0 for p in req.check_periods):
@@ -79,37 +83,76 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
             raise ValueError(f"--sun: expected known and/or unknown, got {value!r}")
     if not req.sun:
         raise ValueError("--sun: expected known and/or unknown")
-    base = default_policy(req.regressor)
-    variants = [parse_config(text, base) for text in req.configs]
-    options = {t: tracker_options(t, req.tracker_options) for t in req.trackers}
-    specs = []
-    if "tracker" in req.modes:
-        specs += [RunSpec("tracker", tracker=t, object=req.object, scale=req.scale, tracker_options=options[t])
-                  for t in req.trackers]
-    if "cnn" in req.modes:
-        specs.append(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
-    if "hybrid" in req.modes:
-        configs = [base] + [replace(base, check_period=p) for p in req.check_periods if p != base.check_period] + variants
-        specs += [RunSpec("hybrid", tracker=t, regressor=req.regressor, fusion=f, object=req.object, scale=req.scale,
-                          config=c, tracker_options=options[t]) for t in req.trackers for f in req.fusions for c in configs]
-    # the CNN alone does not use the sun: one run of it, whatever --sun says
-    suns = list(dict.fromkeys(req.sun))
-    specs = [s if s.mode == "cnn" else replace(s, sun=value == "known") for value in suns for s in specs
-             if s.mode != "cnn" or value == suns[0]]
     if req.data is not None:
         if req.seeds is not None:
             raise ValueError("--seeds: only with --suite (your --data sequences are what they are)")
         scenes = user_scenes(req.data)
         scenes = {name: scenes[name] for name in chosen(list(scenes), req.sequences)}
         _check_video(req.video, list(scenes))
-        return specs, scenes, []
+        return _specs(req, req.object, req.scale, regressor_for(req, req.object)), scenes, []
     if req.suite is None:
         raise ValueError("--suite or --data: say which sequences to run")
     entries = suite(req.suite, req.split, req.seeds)
     keep = set(chosen([e.name for e in entries], req.sequences))
     entries = [e for e in entries if e.name in keep][: req.limit]
     _check_video(req.video, [e.name for e in entries])
-    return specs, None, entries
+    if req.suite != "realistic":
+        return _specs(req, req.object, req.scale, regressor_for(req, req.object)), None, entries
+    parts = list(dict.fromkeys(e.object for e in entries))
+    return [s for part in parts for s in _specs(req, part, 1.0, regressor_for(req, part))], None, entries
+
+
+def trackers_of(req: BenchRequest) -> tuple[str, ...]:
+    """The request's trackers, or the suite's default: ``combined`` off black space (the realistic
+    suite), ``edges`` in space."""
+    return req.trackers or (("combined",) if req.suite == "realistic" else ("edges",))
+
+
+def regressor_map(text: str) -> dict[str | None, str]:
+    """``--regressor``: one name or checkpoint for every part (``{None: it}``), or one per part,
+    ``cube=fit_cube/best.pt,box=fit_box/best.pt`` (``{"cube": …, "box": …}``)."""
+    if "=" not in text:
+        return {None: text}
+    out = {}
+    for item in (t.strip() for t in text.split(",") if t.strip()):
+        part, _, regressor = item.partition("=")
+        if not part.strip() or not regressor.strip():
+            raise ValueError(f"--regressor: expected NAME_OR_CHECKPOINT or PART=CHECKPOINT,PART=CHECKPOINT, got {text!r}")
+        out[part.strip()] = regressor.strip()
+    return out
+
+
+def regressor_for(req: BenchRequest, part: str) -> str | None:
+    """The regressor the CNN and hybrid runs on ``part`` use, or None where none fits it: on the
+    realistic suite's parts the shipped network (fitted to the truss) has no say; a fitted one is
+    given per part (:func:`regressor_map`)."""
+    mapping = regressor_map(req.regressor)
+    if None in mapping:
+        regressor = mapping[None]
+        return None if req.suite == "realistic" and regressor == "default" else regressor
+    return mapping.get(part)
+
+
+def _specs(req: BenchRequest, part: str, scale: float, regressor: str | None) -> list[RunSpec]:
+    """The runs on one part's sequences (no CNN or hybrid run without a ``regressor``)."""
+    options = {t: tracker_options(t, req.tracker_options) for t in trackers_of(req)}
+    specs = []
+    if "tracker" in req.modes:
+        specs += [RunSpec("tracker", tracker=t, object=part, scale=scale, tracker_options=options[t])
+                  for t in trackers_of(req)]
+    if regressor is not None and "cnn" in req.modes:
+        specs.append(RunSpec("cnn", regressor=regressor, object=part, scale=scale))
+    if regressor is not None and "hybrid" in req.modes:
+        base = default_policy(regressor)
+        variants = [parse_config(text, base) for text in req.configs]
+        configs = [base] + [replace(base, check_period=p) for p in req.check_periods if p != base.check_period] + variants
+        specs += [RunSpec("hybrid", tracker=t, regressor=regressor, fusion=f, object=part, scale=scale, config=c,
+                          tracker_options=options[t])
+                  for t in trackers_of(req) for f in req.fusions for c in configs]
+    # the CNN alone does not use the sun: one run of it, whatever --sun says
+    suns = list(dict.fromkeys(req.sun))
+    return [s if s.mode == "cnn" else replace(s, sun=value == "known") for value in suns for s in specs
+            if s.mode != "cnn" or value == suns[0]]
 
 
 def chosen(names: list[str], patterns: tuple[str, ...]) -> list[str]:
@@ -214,13 +257,12 @@ def user_scenes(root) -> dict[str, Path]:
     return out
 
 
-def _check_regressor(req: BenchRequest) -> None:
-    """Load the regressor once here: one trained for another object is refused now, not in a worker."""
-    if "cnn" not in req.modes and "hybrid" not in req.modes:
-        return
+def _check_regressor(specs: list[RunSpec]) -> None:
+    """Load each regressor once here: one trained for another object is refused now, not in a worker."""
     from .runner import _backends
 
-    _backends(RunSpec("cnn", regressor=req.regressor, object=req.object, scale=req.scale))
+    for spec in {RunSpec("cnn", regressor=s.regressor, object=s.object, scale=s.scale) for s in specs if s.mode != "tracker"}:
+        _backends(spec)
 
 
 def _check_trackers(specs: list[RunSpec]) -> None:
@@ -240,7 +282,7 @@ def bench(req: BenchRequest, log: Callable[[str], None] = print, progress: Calla
     ``--video``). Returns the result dict (``config``, ``versions``, ``commit``, ``seconds``, ``rows``)."""
     specs, scenes, entries = plan(req)
     _check_trackers(specs)
-    _check_regressor(req)
+    _check_regressor(specs)
     with ray_connection(req.ray):  # a cluster that does not answer is an error before the rendering
         return _run(req, specs, scenes, entries, log, progress)
 
@@ -253,16 +295,31 @@ def _run(req: BenchRequest, specs: list[RunSpec], scenes: dict[str, Path] | None
         log(f"bench: {len(entries)} sequences of suite {req.suite!r} ({req.split}) — rendering what is not cached "
             f"in {req.cache}")
         scenes = render_suite(entries, req.cache)
-    log(f"bench: {len(specs)} runs × {len(scenes)} sequences, {req.workers} worker(s)"
-        + (f" on Ray ({req.ray})" if req.ray else ""))
+    parts = {e.name: e.object for e in entries} if req.suite == "realistic" else {}
+    groups = {part: {n: d for n, d in scenes.items() if parts.get(n, req.object) == part}
+              for part in dict.fromkeys(parts.get(n, req.object) for n in scenes)}
+    for part, mine in groups.items():
+        runs = [s for s in specs if s.object == part]
+        log(f"bench: {len(runs)} runs × {len(mine)} sequences" + (f" of the {part}" if parts else "")
+            + f", {req.workers} worker(s)" + (f" on Ray ({req.ray})" if req.ray else ""))
+        if parts and not any(s.mode != "tracker" for s in runs) and set(req.modes) - {"tracker"}:
+            log(f"bench: no CNN or hybrid run on the {part}: the shipped network knows the truss only; fit one "
+                f"(hybridpose fit {part} --out FIT) and pass --regressor {part}=FIT/best.pt")
     t0 = time.time()
     stats: dict = {}
-    rows = run_all(scenes, specs, out=out, workers=req.workers, ray_address=req.ray, progress=progress, stats=stats)
-    seeds = None if req.data else list(req.seeds or (TUNING_SEEDS if req.split == "tuning" else REPORT_SEEDS))
+    rows = []
+    for part, mine in groups.items():
+        part_stats: dict = {}
+        rows += run_all(mine, [s for s in specs if s.object == part], out=out, workers=req.workers,
+                        ray_address=req.ray, progress=progress, stats=part_stats)
+        stats["reused"] = stats.get("reused", 0) + part_stats.get("reused", 0)
+    seeds = None if req.data else list(req.seeds or split_seeds(req.suite, req.split))
+    hybrid = next((s for s in specs if s.mode == "hybrid"), None)
     result = {"config": {"suite": req.suite if req.data is None else None, "data": req.data, "split": req.split,
                          "seeds": seeds, "sequences": sorted(scenes), "workers": req.workers, "ray": req.ray,
-                         "runs": [s.label for s in specs], "object": req.object, "scale": req.scale,
-                         "hybrid_config": asdict(default_policy(req.regressor))},
+                         "runs": list(dict.fromkeys(s.label for s in specs)),
+                         "object": ",".join(groups) if parts else req.object, "scale": req.scale,
+                         "hybrid_config": asdict(hybrid.config if hybrid else HybridConfig())},
               "versions": package_versions(), "commit": git_commit(), "seconds": time.time() - t0,
               "rows_reused": stats.get("reused", 0), "rows": rows}
     atomic_write_json(out / "results.json", result)

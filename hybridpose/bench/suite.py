@@ -11,7 +11,11 @@ Suites:
   occlusion (seed mod 3);
 - ``standard``: ``occlusion`` plus a distance sweep, an eclipse (the sun fades to 10 % and back), a
   fast tumble (60°/s) and tumbles that start within 15° of edge-on — 7 kinds × 20 seeds;
-- ``smoke``: one short sequence of three kinds (seconds; what CI runs).
+- ``smoke``: one short sequence of three kinds (seconds; what CI runs);
+- ``realistic``: off black space (:mod:`hybridpose.render.handheld`): a printed 8.5-cm ``cube`` on a
+  photo, the same in procedural clutter with a hand passing in front, and a plain ``box`` on a photo,
+  each filmed by a hand-held camera (5–30 px a frame, stops and turns, blur, exposure, noise, JPEG);
+  90 frames a sequence, seeds of their own (report 1–10, tuning 101–105).
 """
 from __future__ import annotations
 
@@ -35,7 +39,16 @@ SMOKE_SEEDS = (950,)
 EDGE_ON_POOLS = {"report": range(2000, 3000), "tuning": range(5000, 6000), "smoke": range(7000, 7100)}
 EDGE_ON_BELOW_DEG = 15.0
 FAST_RATE_DEG_S = 60.0
-SUITES = ("standard", "occlusion", "smoke")
+# the realistic suite: kind → (built-in part, HandheldSpec options); its seeds are its own
+REALISTIC_KINDS = {
+    "printed-cube-photo": ("cube", {"printed": True, "background": "photo"}),
+    "printed-cube-clutter-hand": ("cube", {"printed": True, "background": "clutter", "hand": True}),
+    "plain-box-photo": ("box", {"printed": False, "background": "photo"}),
+}
+REALISTIC_SEEDS = {"report": tuple(range(1, 11)), "tuning": tuple(range(101, 106))}
+REALISTIC_TUNING_RANGE = range(100, 200)
+REALISTIC_FRAMES = 90
+SUITES = ("standard", "occlusion", "smoke", "realistic")
 SPLITS = ("report", "tuning")
 
 
@@ -46,6 +59,7 @@ class SuiteEntry:
     name: str
     spec: SequenceSpec
     split: str  # "tuning" | "report" | "smoke"
+    object: str = "truss"  # the built-in part it shows
 
 
 def _seeds(split: str, seeds=None) -> tuple[int, ...]:
@@ -71,22 +85,23 @@ def parse_seeds(text: str) -> tuple[int, ...]:
     return tuple(out)
 
 
-def check_seeds(seeds, split: str) -> tuple[int, ...]:
-    """``seeds`` for ``split`` in place of its default twenty: tuning seeds lie in
-    :data:`TUNING_SEED_RANGE` and report seeds outside it, so that no figure is reported on a seed
-    that tuned anything. ValueError naming ``--seeds`` otherwise."""
+def check_seeds(seeds, split: str, tuning_range: range = TUNING_SEED_RANGE) -> tuple[int, ...]:
+    """``seeds`` for ``split`` in place of its default ones: tuning seeds lie in ``tuning_range``
+    (:data:`TUNING_SEED_RANGE`; the realistic suite's :data:`REALISTIC_TUNING_RANGE`) and report seeds
+    outside it, so that no figure is reported on a seed that tuned anything. ValueError naming
+    ``--seeds`` otherwise."""
     if split not in ("tuning", "report"):
         raise ValueError(f"--seeds: only the tuning and report splits take seeds, not {split!r}")
     seeds = tuple(int(s) for s in seeds)
     if not seeds or min(seeds) < 0:
         raise ValueError(f"--seeds: expected one or more seeds ≥ 0, got {seeds}")
-    tuning = [s for s in seeds if s in TUNING_SEED_RANGE]
+    tuning = [s for s in seeds if s in tuning_range]
     if split == "tuning" and len(tuning) < len(seeds):
-        raise ValueError(f"--seeds: the tuning split's seeds lie in {TUNING_SEED_RANGE.start}–"
-                         f"{TUNING_SEED_RANGE.stop - 1}; {sorted(set(seeds) - set(tuning))[:5]} do not")
+        raise ValueError(f"--seeds: the tuning split's seeds lie in {tuning_range.start}–"
+                         f"{tuning_range.stop - 1}; {sorted(set(seeds) - set(tuning))[:5]} do not")
     if split == "report" and tuning:
-        raise ValueError(f"--seeds: {tuning[:5]} are tuning seeds ({TUNING_SEED_RANGE.start}–"
-                         f"{TUNING_SEED_RANGE.stop - 1}); report figures come from seeds nothing was tuned on")
+        raise ValueError(f"--seeds: {tuning[:5]} are tuning seeds ({tuning_range.start}–"
+                         f"{tuning_range.stop - 1}); report figures come from seeds nothing was tuned on")
     return seeds
 
 
@@ -159,6 +174,25 @@ def smoke_suite(frames: int = 12) -> list[SuiteEntry]:
     ]
 
 
+def realistic_suite(split: str = "report", seeds=None) -> list[SuiteEntry]:
+    """The hand-held kinds of :data:`REALISTIC_KINDS`, one sequence per seed (``seeds``: instead of
+    the split's :data:`REALISTIC_SEEDS`, checked against :data:`REALISTIC_TUNING_RANGE`)."""
+    from ..render.handheld import HandheldSpec
+
+    if split not in REALISTIC_SEEDS:
+        raise ValueError(f"split: expected one of {sorted(REALISTIC_SEEDS)}, got {split!r}")
+    seeds = REALISTIC_SEEDS[split] if seeds is None else check_seeds(seeds, split, REALISTIC_TUNING_RANGE)
+    return [SuiteEntry(f"{kind}_s{seed}", HandheldSpec(frames=REALISTIC_FRAMES, seed=seed, **options), split, part)
+            for kind, (part, options) in REALISTIC_KINDS.items() for seed in seeds]
+
+
+def split_seeds(name: str, split: str) -> tuple[int, ...]:
+    """The default seeds of suite ``name``'s ``split``."""
+    if name == "realistic":
+        return REALISTIC_SEEDS[split]
+    return SMOKE_SEEDS if name == "smoke" else _seeds(split)
+
+
 def suite(name: str, split: str = "report", seeds=None) -> list[SuiteEntry]:
     """The named suite (:data:`SUITES`) on ``split`` (:data:`SPLITS`; ignored by ``smoke``), on
     ``seeds`` instead of the split's default ones where given (:func:`check_seeds`)."""
@@ -170,24 +204,35 @@ def suite(name: str, split: str = "report", seeds=None) -> list[SuiteEntry]:
         if seeds is not None:
             raise ValueError("--seeds: the smoke suite has its own seeds; use --suite standard or occlusion")
         return smoke_suite()
+    if name == "realistic":
+        return realistic_suite(split, seeds)
     return standard_suite(split, seeds=seeds) if name == "standard" else occlusion_suite(split, seeds=seeds)
 
 
-def render_suite(entries: list[SuiteEntry], root, camera: Camera | None = None, object_name: str = "truss",
+def render_suite(entries: list[SuiteEntry], root, camera: Camera | None = None,
                  progress: Callable[[str], None] | None = None) -> dict[str, Path]:
-    """Render (or reuse, resuming where interrupted) every entry under ``root/<name>``.
+    """Render (or reuse, resuming where interrupted) every entry under ``root/<name>`` (hand-held
+    entries under ``root/handheld-photos/<name>``, or ``handheld-procedural`` without scikit-image's
+    photos).
 
     Returns ``{name: scene_dir}`` (the BOP scene folder holding ``rgb/``, ``scene_gt.json``, ...).
     """
     from ..datasets import render_sequence_dataset
+    from ..datasets.handheld import render_handheld_dataset, sample_photos
     from ..objects import load_object
 
-    obj = load_object(object_name)
     camera = camera or Camera.default()
     root = Path(root)
-    scenes = {}
+    objects, photos, scenes = {}, None, {}
     for e in entries:
-        scenes[e.name] = render_sequence_dataset(root / e.name, obj, camera, e.spec)
+        if e.object not in objects:
+            objects[e.object] = load_object(e.object)
+        if isinstance(e.spec, SequenceSpec):
+            scenes[e.name] = render_sequence_dataset(root / e.name, objects[e.object], camera, e.spec)
+        else:
+            photos = photos or sample_photos(root / "photos")
+            where = root / ("handheld-photos" if photos else "handheld-procedural") / e.name
+            scenes[e.name] = render_handheld_dataset(where, objects[e.object], camera, e.spec, photos)
         if progress:
             progress(e.name)
     return scenes

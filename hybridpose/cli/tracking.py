@@ -296,21 +296,29 @@ def add_commands(sub) -> None:
 
     b = sub.add_parser("bench", help="tracker-only vs CNN-only vs hybrid on a seeded sequence suite or your BOP "
                                      "sequences: results.json, report.md, plots (resumable)")
-    b.add_argument("--suite", default="standard", help="standard (7 kinds × 20 seeds), occlusion, smoke")
+    b.add_argument("--suite", default="standard",
+                   help="standard (space: 7 kinds × 20 seeds), occlusion, smoke, or realistic (a printed cube and a "
+                        "plain box filmed by a hand-held camera on photos and clutter: 3 kinds × 10 seeds)")
     b.add_argument("--split", default="report", choices=["report", "tuning"],
                    help="report: seeds no tuning used (the published figures); tuning: the seeds defaults were chosen on")
     b.add_argument("--seeds", default=None,
                    help="the split's seeds instead of its default twenty, e.g. 920-979 or 520-539,560 (tuning "
-                        "seeds lie in 900–999, report seeds outside it); more seeds, a tighter spread")
+                        "seeds lie in 900–999, or 100–199 for the realistic suite; report seeds outside it); more "
+                        "seeds, a tighter spread")
     b.add_argument("--data", default=None, help="your BOP sequences (folder) instead of a suite; needs --object")
     b.add_argument("--object", default="truss", help="built-in name or mesh file")
     b.add_argument("--scale", type=float, default=1.0, help="mesh units → metres (0.001 for mm)")
     b.add_argument("--modes", default="tracker,cnn,hybrid",
                    help="comma list among tracker (from the true first pose), cnn (every frame, no prior) and "
                         "hybrid (no ground truth); default all three, on the same frames")
-    b.add_argument("--trackers", default="edges", help="comma list: tracker-only and hybrid runs per tracker")
+    b.add_argument("--trackers", default="",
+                   help="comma list: tracker-only and hybrid runs per tracker (default: edges; combined on the "
+                        "realistic suite)")
     b.add_argument("--fusions", default=DEFAULT_FUSION, help="comma list: a hybrid run per tracker × fusion")
-    b.add_argument("--regressor", default="default", help="registered name or checkpoint file")
+    b.add_argument("--regressor", default="default",
+                   help="registered name or checkpoint file; for the realistic suite one per part, "
+                        "cube=FIT/best.pt,box=FIT2/best.pt (hybridpose fit cube --out FIT): without them its "
+                        "CNN and hybrid runs are left out")
     b.add_argument("--check-periods", default="", help="comma list of CNN check periods to ablate (frames)")
     b.add_argument("--config", action="append", default=[],
                    help="one more hybrid run with these HybridConfig fields, e.g. probation_frames=2,check_period=5 "

@@ -6,6 +6,8 @@ different configuration in the same ``out`` is refused.
 """
 from __future__ import annotations
 
+import json
+
 import logging
 import multiprocessing
 import time
@@ -36,10 +38,16 @@ def _open_job(out: Path, kind: str, obj: ObjectModel, camera: Camera, lighting: 
               sensor: SensorModel, **params) -> None:
     """Record the job's configuration in ``out/hybridpose.json``, or refuse when ``out`` already
     holds a job with another configuration (a resume must be the same job)."""
-    config = {"kind": kind, "object": obj.name, "camera": camera.to_dict(), **params,
-              "lighting": {**asdict(lighting), "sun_direction_cam": list(lighting.sun_direction_cam)},
-              "sensor": asdict(sensor)}
+    claim_folder(out, {"kind": kind, "object": obj.name, "camera": camera.to_dict(), **params,
+                       "lighting": {**asdict(lighting), "sun_direction_cam": list(lighting.sun_direction_cam)},
+                       "sensor": asdict(sensor)})
+
+
+def claim_folder(out: Path, config: dict) -> None:
+    """Record a job's ``config`` in ``out/hybridpose.json``, or refuse (ValueError naming ``out``) when
+    ``out`` already holds a job with another configuration."""
     out.mkdir(parents=True, exist_ok=True)
+    config = json.loads(json.dumps(config))  # as read back: tuples are lists
     path = out / CONFIG_FILE
     if path.exists():
         old = read_json(path)

@@ -70,7 +70,8 @@ class HandheldSpec:
 class HandheldFrame:
     """One rendered frame: ``image`` (H, W, 3) uint8 RGB, the true ``pose`` (T_cam_obj), the share of
     the part's projected pixels left ``visible`` by the hand (0..1), the part's image ``motion_px``
-    since the previous frame, ``timestamp`` (s) and ``index``."""
+    since the previous frame, ``timestamp`` (s), ``index``, and the part's (H, W) bool ``mask``
+    (its whole silhouette) and ``mask_visib`` (what the hand leaves of it)."""
 
     image: np.ndarray
     pose: Pose
@@ -78,6 +79,8 @@ class HandheldFrame:
     motion_px: float
     timestamp: float
     index: int
+    mask: np.ndarray
+    mask_visib: np.ndarray
 
 
 def _look_at(eye: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
@@ -240,13 +243,14 @@ def handheld_sequence(spec: HandheldSpec, obj: ObjectModel, camera: Camera,
         mask = part.draw(image, camera, pose)
         uv = camera.project(np.zeros((1, 3)), pose)[0]
         motion = 0.0 if prev_uv is None else float(np.linalg.norm(uv - prev_uv))
-        visible = 1.0
+        visible, mask_visib = 1.0, mask
         if spec.hand and hand_frames[0] <= k < hand_frames[1] and mask.any():
             progress = (k - hand_frames[0]) / max(hand_frames[1] - hand_frames[0] - 1, 1)
             across = (1.6 * progress - 0.8) * spec.size_px * 1.5
             where = uv + np.array([hand_side * across, 0.2 * spec.size_px])
             covered = _hand(image, where, 1.3 * spec.size_px, np.radians(20 * hand_side), hand_rgb)
-            visible = float((mask & ~covered).sum() / max(mask.sum(), 1))
+            mask_visib = mask & ~covered
+            visible = float(mask_visib.sum() / max(mask.sum(), 1))
         if spec.blur and prev_uv is not None and motion > 1.0:
             length = 0.5 * motion  # half-frame exposure
             direction = (uv - prev_uv) / motion
@@ -261,6 +265,6 @@ def handheld_sequence(spec: HandheldSpec, obj: ObjectModel, camera: Camera,
             image = np.clip(image.astype(np.float32) * gains[k] + rng.normal(0, 3.0, image.shape), 0, 255).astype(np.uint8)
             ok, jpeg = cv2.imencode(".jpg", image[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(75, 96))])
             image = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)[..., ::-1]
-        out.append(HandheldFrame(np.ascontiguousarray(image), pose, visible, motion, k / spec.fps, k))
+        out.append(HandheldFrame(np.ascontiguousarray(image), pose, visible, motion, k / spec.fps, k, mask, mask_visib))
         prev_uv = uv
     return out

@@ -1,0 +1,67 @@
+"""Hand-held scenes (:mod:`hybridpose.render.handheld`) written as BOP sequences, for ``hybridpose
+bench --suite realistic`` and for users' own evaluations: the same layout as the space sequences
+(``rgb/``, masks, ``scene_gt.json``, ``scene_gt_info.json`` with ``visib_fract``, ``scene_meta.json``
+with each frame's timestamp and image motion), no depth (zeros)."""
+from __future__ import annotations
+
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry import Camera
+from ..io import atomic_write_json
+from ..objects import ObjectModel
+from .bop import BopScene, BopSceneWriter, write_camera_json, write_models
+from .generate import claim_folder
+
+# scikit-image's sample photos of scenes (rooms, people, street, textures), cut into backgrounds and prints
+SAMPLE_PHOTOS = ("astronaut.png", "coffee.png", "chelsea.png", "motorcycle_left.png", "motorcycle_right.png",
+                 "rocket.jpg", "brick.png", "gravel.png", "grass.png", "hubble_deep_field.jpg", "coins.png", "camera.png")
+
+
+def sample_photos(folder) -> Path | None:
+    """scikit-image's scene photos (:data:`SAMPLE_PHOTOS`) copied to ``folder``, or None when
+    scikit-image is not installed (``pip install hybridpose[bench]``)."""
+    try:
+        import skimage
+    except ImportError:
+        return None
+    source, folder = Path(skimage.__file__).parent / "data", Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in SAMPLE_PHOTOS:
+        if (source / name).is_file() and not (folder / name).is_file():
+            shutil.copy(source / name, folder / name)
+    return folder if any(folder.iterdir()) else None
+
+
+def render_handheld_dataset(out, obj: ObjectModel, camera: Camera, spec, photos=None) -> Path:
+    """Render the hand-held sequence ``spec`` (:class:`~hybridpose.render.handheld.HandheldSpec`) of
+    ``obj`` into ``out`` (split ``test``, scene 0); returns the scene folder.
+
+    ``photos``: a folder of photos the background and the print are cut from (None: procedural
+    clutter). A folder that already holds this sequence is returned as it is; one that holds another
+    is refused (ValueError naming ``out``). The sequence is drawn whole (seconds), so an interrupted
+    render starts it again."""
+    from ..render.appearance import PhotoBackgrounds
+    from ..render.handheld import handheld_sequence
+
+    out = Path(out)
+    pictures = PhotoBackgrounds(photos) if photos is not None else None
+    claim_folder(out, {"kind": "handheld", "object": obj.name, "camera": camera.to_dict(), "spec": asdict(spec),
+                       "photos": None if pictures is None else [p.name for p in pictures.files]})
+    scene_dir = out / "test" / "000000"
+    if (scene_dir / "scene_meta.json").is_file() and len(BopScene(scene_dir).image_ids) == spec.frames:
+        return scene_dir
+    write_models(out, obj)
+    write_camera_json(out, camera)
+    writer = BopSceneWriter(scene_dir, camera, load=False)
+    frames = handheld_sequence(spec, obj, camera, pictures)
+    for f in frames:
+        writer.write(f.index, f.image, np.zeros(f.image.shape[:2]), f.mask, f.mask_visib, f.pose, obj.vertices)
+    writer.flush()
+    # last: its presence marks the sequence whole
+    atomic_write_json(scene_dir / "scene_meta.json", {"fps": spec.fps, "frames": {
+        str(f.index): {"timestamp_s": f.timestamp, "motion_px": round(f.motion_px, 3)} for f in frames}})
+    return scene_dir

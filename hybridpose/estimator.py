@@ -65,6 +65,7 @@ from .geometry import Camera, Pose, rotvec_to_matrix
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg, rotation_error_rad
 from .objects import ObjectModel
+from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
 MAX_TWIST_GAP_S = 0.2
@@ -106,13 +107,17 @@ class HybridEstimator:
             defaults with the fields the regressor recommends (``regressor.hybrid_config``: a part's
             fitted network carries ``reacquire_deg=20``); a mapping of fields: those recommended
             values with these changed (``{"reacquire_deg": None}`` turns the recommendation off).
+        threads: CPU threads for the per-frame work (:func:`hybridpose.threads.set_threads`, set for the
+            process): None (default) takes ``HYBRIDPOSE_THREADS`` or 1, which holds up where other work
+            keeps the cores busy.
 
     ``step(frame)`` returns an :class:`~hybridpose.core.Estimate` per frame: pose (``T_cam_obj``,
     metres; None until the CNN first finds the object), 6×6 covariance, body twist, status, the
     measurement sources fused and the milliseconds per component.
     """
 
-    def __init__(self, tracker, regressor, fusion, config: HybridConfig | Mapping | None = None) -> None:
+    def __init__(self, tracker, regressor, fusion, config: HybridConfig | Mapping | None = None,
+                 threads: int | None = None) -> None:
         for name, obj, methods in (("tracker", tracker, ("init", "track", "reset")),
                                    ("regressor", regressor, ("predict",)),
                                    ("fusion", fusion, ("reset", "predict", "update"))):
@@ -121,6 +126,7 @@ class HybridEstimator:
                 raise TypeError(f"{name}: expected an object with {', '.join(methods)}; "
                                 f"{type(obj).__name__} lacks {', '.join(missing)}")
         self.tracker, self.regressor, self.fusion = tracker, regressor, fusion
+        self.threads = set_threads(threads)
         if config is None or isinstance(config, Mapping):
             config = recommended_config(getattr(regressor, "hybrid_config", None), config, type(regressor).__name__)
         if not isinstance(config, HybridConfig):
@@ -143,7 +149,7 @@ class HybridEstimator:
     def from_names(cls, object: str | ObjectModel = "truss", tracker: str = "edges", regressor: str = "default",
                    fusion: str = DEFAULT_FUSION, config: HybridConfig | Mapping | None = None, scale: float = 1.0,
                    tracker_kw: dict | None = None, regressor_kw: dict | None = None,
-                   fusion_kw: dict | None = None) -> HybridEstimator:
+                   fusion_kw: dict | None = None, threads: int | None = None) -> HybridEstimator:
         """Build every part from :mod:`hybridpose.registry` names.
 
         Args:
@@ -153,6 +159,7 @@ class HybridEstimator:
             config: as for the constructor (None: the regressor's recommended policy).
             scale: mesh units → metres for a mesh file (0.001 for mm).
             tracker_kw, regressor_kw, fusion_kw: keyword arguments of each backend.
+            threads: as for the constructor.
         """
         from .objects import load_object
         from .registry import available, create
@@ -168,7 +175,7 @@ class HybridEstimator:
         else:
             reg = create("regressor", regressor, object=obj, **(regressor_kw or {}))
         fus = create("fusion", fusion, **(fusion_kw or {}))
-        return cls(trk, reg, fus, config=config)
+        return cls(trk, reg, fus, config=config, threads=threads)
 
     # --- public API --------------------------------------------------------------------------------
     def reset(self) -> None:

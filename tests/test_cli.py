@@ -57,6 +57,8 @@ def test_demo(tmp_path, capsys):
     assert np.asarray(read_image(tmp_path / "demo" / "verify.png")).mean() > 1
     # at 160×120 the CNN never starts the hybrid: no tracked frame, no picture of the tracker's sites
     assert not (tmp_path / "demo" / "sites.png").exists()
+    out = capsys.readouterr().out
+    assert "1st frame" in out and "demo: the hybrid never started" in out
 
 
 def test_a_camera_with_lens_distortion_renders_through_its_pinhole(tmp_path, capsys):
@@ -131,3 +133,14 @@ def test_train_options_are_parsed_by_the_train_command(capsys):
     with pytest.raises(SystemExit):
         main(["verify", "x", "--out", "y", "--bogus"])
     assert "unrecognized arguments: --bogus" in capsys.readouterr().err
+
+
+def test_the_demo_says_which_path_brought_the_track_back():
+    from hybridpose.cli.tracking import recoveries_text
+
+    assert recoveries_text(["init", "tracking", "lost", "lost", "reinit", "tracking"]) == \
+        "lost from frame 2, back at frame 4: the CNN re-initialised it"
+    assert recoveries_text(["init", "tracking", "lost", "tracking"]).endswith("the tracker resumed from the prediction")
+    assert recoveries_text(["init", "tracking"]) == "never lost the truss"
+    assert recoveries_text(["init", "init"]).startswith("the hybrid never started")
+    assert recoveries_text(["tracking", "lost"]).startswith("lost the truss and did not come back")

@@ -315,7 +315,8 @@ def _run(req: BenchRequest, specs: list[RunSpec], scenes: dict[str, Path] | None
         stats["reused"] = stats.get("reused", 0) + part_stats.get("reused", 0)
     seeds = None if req.data else list(req.seeds or split_seeds(req.suite, req.split))
     hybrid = next((s for s in specs if s.mode == "hybrid"), None)
-    result = {"config": {"suite": req.suite if req.data is None else None, "data": req.data, "split": req.split,
+    split = "smoke" if req.data is None and req.suite == "smoke" else req.split
+    result = {"config": {"suite": req.suite if req.data is None else None, "data": req.data, "split": split,
                          "seeds": seeds, "sequences": sorted(scenes), "workers": req.workers, "ray": req.ray,
                          "runs": list(dict.fromkeys(s.label for s in specs)),
                          "object": ",".join(groups) if parts else req.object, "scale": req.scale,

@@ -205,7 +205,9 @@ def report_markdown(result: dict, plots: list[str] = ()) -> str:
     what = (f"Sequences from `{cfg['data']}` ({len(cfg['sequences'])}), object `{cfg.get('object')}`" if cfg.get("data")
             else f"Suite `{cfg['suite']}`, split `{cfg['split']}` ({len(cfg['sequences'])} sequences"
             + (f", seeds {seed_ranges(seeds)}" if seeds else "")
-            + (f"; edge-on tumbles: seeds {edge_on[0]}–{edge_on[-1]}" if edge_on else "") + ")")
+            + (f"; edge-on tumbles: seeds {edge_on[0]}–{edge_on[-1]}" if edge_on else "")
+            + ("; a tuning seed: it checks the machinery, its figures are no result" if cfg["split"] == "smoke" else "")
+            + ")")
     lines = [
         what + f", commit `{result['commit']}`, "
         f"{cfg['workers']} worker(s), {result['seconds']:.0f} s{_reused(result)}. Tracker-only starts from the true first pose and is "

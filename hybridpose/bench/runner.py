@@ -13,7 +13,6 @@ import functools
 import hashlib
 import json
 import multiprocessing
-import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 from ..estimator import HybridConfig
 from ..hybrid_config import DEFAULT_FUSION, changes_text
 from ..io import atomic_write_json, read_json
+from ..threads import set_threads
 from .modes import (COMPONENTS, load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg,
                     without_sun)
 
@@ -136,7 +136,7 @@ def _backends(spec: RunSpec):
     if spec.mode == "cnn":
         return obj, _parts[reg_key]
     return obj, HybridEstimator(create("tracker", spec.tracker, object=obj, **tracker_kw), _parts[reg_key],
-                                create("fusion", spec.fusion), config=spec.config)
+                                create("fusion", spec.fusion), config=spec.config, threads=spec.threads)
 
 
 def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: bool = True) -> list[dict]:
@@ -144,11 +144,7 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
 
     With ``per_frame`` a row also holds per-frame lists (``rot_err_deg`` (NaN: no trusted pose),
     ``visible``, ``distance_m``, ``status``) for the plots."""
-    threads = max(s.threads for s in specs)
-    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
-    import cv2
-
-    cv2.setNumThreads(threads)
+    set_threads(max(s.threads for s in specs))
     with_sun = load_sequence(scene_dir)
     rows = []
     for spec in specs:

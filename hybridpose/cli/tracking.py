@@ -418,10 +418,12 @@ def add_commands(sub) -> None:
 
     d = sub.add_parser("demo", help="render an arm-occlusion sequence, run tracker-only, CNN-only and the hybrid "
                                     "(no ground truth) on it, print their errors, write the overlay video and plots")
-    d.add_argument("--out", default="hybridpose_demo")
-    d.add_argument("--frames", type=int, default=60)
-    d.add_argument("--size", default="640x480")
+    d.add_argument("--out", default="hybridpose_demo", help="folder for the sequence, the pictures and the overlay "
+                                                            "video (default hybridpose_demo)")
+    d.add_argument("--frames", type=int, default=60, help="frames to render at 30 fps (default 60: 2 s)")
+    d.add_argument("--size", default="640x480", help="image size WxH (default 640x480; at 160x120 the CNN "
+                                                     "finds no truss: the hybrid never starts)")
     d.add_argument("--tracker", default="edges", help="registered tracker (edges, combined, klt-pnp, rapid, rapid-gos, rapid-ols; combined for real footage of a printed part or clutter)")
     d.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
-    d.add_argument("--seed", type=int, default=1)
+    d.add_argument("--seed", type=int, default=1, help="the tumble's and the arm's draw (default 1)")
     d.set_defaults(func=cmd_demo)

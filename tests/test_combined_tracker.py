@@ -164,3 +164,17 @@ def test_hand_held_specs_are_checked():
         HandheldSpec(speed_px=(20.0, 5.0))
     with pytest.raises(ValueError, match="frames"):
         HandheldSpec(frames=1)
+
+
+@pytest.mark.parametrize("start_t", [[2.0, 0.0, 0.5], [0.3, 0.1, 0.06], [0.0, 0.0, 0.02]])
+def test_a_start_far_off_or_partly_behind_the_camera_is_lost_not_a_crash(start_t):
+    """What the hybrid hands a tracker after a CNN answer: anything, e.g. the part half behind the lens."""
+    from hybridpose.objects import load_object
+    from hybridpose.render.handheld import HandheldSpec, handheld_sequence
+
+    camera, cube = Camera(320, 240, 300.0, 300.0, 159.5, 119.5), load_object("cube")
+    frames = handheld_sequence(HandheldSpec(frames=2, seed=1, size_px=80.0), cube, camera)
+    tracker = create("tracker", "combined", object=cube)
+    tracker.init(Frame(frames[0].image, camera, 0.0, 0), frames[0].pose)
+    m = tracker.track(Frame(frames[1].image, camera, 1 / 30, 1), Pose(frames[1].pose.R, np.array(start_t)))
+    assert m.lost and m.pose is None

@@ -107,6 +107,8 @@ def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_con
 
 def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: int, min_contrast: float = 4.0,
             limits: np.ndarray | None = None):
+    if len(uv) == 0:  # nothing of the model in view: OpenCV refuses an empty map
+        return np.zeros(0, np.float32), np.zeros(0, bool), np.zeros(0, np.float32)
     map_u, map_v = _kernels.search_maps(uv, normals, int(search_px))
     profiles = cv2.remap(gray, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     if limits is None:

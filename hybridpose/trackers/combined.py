@@ -151,6 +151,8 @@ class CombinedTracker(Tracker):
     def _fit(self, frame: Frame, gray: np.ndarray, start: Pose, search_px: int) -> Pose | None:
         pose = start
         self._information = np.zeros((6, 6))
+        if not self._in_front(pose):
+            return None
         pose = self._follow_patch(frame, gray, pose)
         texture = self._cue("texture")
         if texture is not None and texture.active:
@@ -163,10 +165,14 @@ class CombinedTracker(Tracker):
             for cue in active:
                 cue.correspond(frame, gray, pose, rng)
             pose = self._solve(pose, active, self.inner, frame.camera.K)
-            if pose is None or np.linalg.norm(pose.t - start.t) > self.object.diameter:
+            if pose is None or np.linalg.norm(pose.t - start.t) > self.object.diameter or not self._in_front(pose):
                 return None
             rng = max(4, rng // 2)
         return pose
+
+    def _in_front(self, pose: Pose) -> bool:
+        """Whether the whole part lies in front of the camera at ``pose`` (a fit that slid behind it is lost)."""
+        return bool(((pose.R @ self.object.bbox_corners.T)[2] + pose.t[2]).min() > 1e-3)
 
     def _follow_patch(self, frame: Frame, gray: np.ndarray, start: Pose) -> Pose:
         """``start`` turned about the camera centre so that the part's projection lands where the image
@@ -189,8 +195,8 @@ class CombinedTracker(Tracker):
         K = frame.camera.K
         moved = frame.camera.project(self.object.bbox_corners, self.pose).mean(0) + 2.0 * shift
         delta = moved - frame.camera.project(self.object.bbox_corners, start).mean(0)
-        if np.hypot(*delta) < 1.0:
-            return start
+        if np.hypot(*delta) < 1.0 or np.hypot(*delta) > 2 * PATCH_REACH_PX:
+            return start  # no motion, or a start from elsewhere (a CNN pose): the patch says nothing of it
         turn = Pose.from_rotvec_t([-delta[1] / K[1, 1], delta[0] / K[0, 0], 0.0], np.zeros(3))
         return turn @ start
 

@@ -13,6 +13,21 @@ ESTIMATE_STATUSES = ("init", "tracking", "lost", "reinit")
 LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)
 
 
+def covariance_from_information(information: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """(6, 6) symmetric covariance over ``[ω, v]`` of a fit whose normal equations are ``information``
+    (6, 6), each row's variance ``scale`` (e.g. σ² px²): ``(information / scale + LOST_COVARIANCE⁻¹)⁻¹``,
+    about ``scale · information⁻¹`` where the fit saw the pose.
+
+    Why not ``scale · pinv(information)``: a direction the fit saw nothing of (a flat part seen face-on
+    by the region cue alone, say) has no information, and the pseudo-inverse gives it *zero* variance —
+    a certainty that a smoother's noise model cannot even invert. Adding a measurement that knows
+    nothing (:data:`LOST_COVARIANCE`) bounds such a direction at ±180°, ±1 m and changes a
+    well-observed one by nothing that matters (its information is many orders larger)."""
+    H = 0.5 * (information + information.T) / scale + np.linalg.inv(LOST_COVARIANCE)
+    cov = np.linalg.inv(H)
+    return 0.5 * (cov + cov.T)
+
+
 def as_covariance6(cov, name: str = "covariance") -> np.ndarray:
     """(6, 6) symmetric positive semi-definite covariance of a tangent ``[ω (rad), v (m)]``."""
     cov = as_array(cov, name, (6, 6))

@@ -135,6 +135,7 @@ def untimed(row: dict) -> dict:
     return out
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 def test_ray_gives_the_local_results(smoke, tmp_path):
     pytest.importorskip("ray")
     out = tmp_path / "ray"

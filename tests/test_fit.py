@@ -209,6 +209,7 @@ def test_what_cannot_work_is_refused_before_long_work(box_mesh):
         check_inputs(tiny, cam, 60)
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tmp_path, capsys):
     cam = Camera.default().scaled((320, 240))
     box = load_object(str(box_mesh), scale=0.001)
@@ -271,6 +272,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
         fit(box_mesh, out, camera=cam, scale=0.001, seed=3, plan=plan, progress=lambda *_: None, occluded_share=0.25)
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 def test_a_symmetric_parts_covariance_is_calibrated_on_its_errors_to_the_nearest_equivalent_pose(
         box_mesh, tmp_path, monkeypatch):
     """A regressor that answers each view with one of the box's equivalent poses (no image tells them

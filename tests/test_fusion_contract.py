@@ -177,3 +177,20 @@ def test_isam2_memory_stays_bounded_over_a_long_run():
             sizes[k] = (f.smoother.getFactors().nrFactors(), len(f.smoother.timestamps()))
     assert sizes[1500][0] <= sizes[300][0] + 5 and sizes[1500][1] <= sizes[300][1] + 2, sizes
     assert _rot_deg(f.estimate.pose, START) < 1.0
+
+
+def test_a_fit_that_saw_nothing_of_a_direction_is_unsure_of_it_not_certain():
+    """A tracker's covariance from its normal equations: no information along a direction means a
+    variance as large as a lost measurement's there, never zero (which a smoother cannot invert)."""
+    from hybridpose.core import LOST_COVARIANCE, covariance_from_information
+    from hybridpose.registry import available, create
+
+    rank5 = np.diag([1e6, 1e6, 1e6, 1e6, 1e6, 0.0])  # nothing along the depth axis v_z
+    cov = covariance_from_information(rank5, scale=4.0)
+    assert np.linalg.eigvalsh(cov).min() > 0
+    assert cov[5, 5] == pytest.approx(LOST_COVARIANCE[5, 5], rel=1e-3)
+    assert cov[0, 0] == pytest.approx(4.0 / 1e6, rel=1e-3)
+    for name in available("fusion"):
+        fusion = create("fusion", name)
+        fusion.reset(Pose(np.eye(3), np.array([0.0, 0.0, 1.0])), cov, 0.0)
+        assert np.all(np.isfinite(fusion.predict(0.1).covariance))

@@ -50,6 +50,7 @@ def test_model_registry():
         build_model("resnet")
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 @torch.no_grad()
 def test_vgg_shapes_and_unit_quaternions():
     x = torch.rand(2, 3, 64, 64)
@@ -74,6 +75,7 @@ def test_vgg_shapes_and_unit_quaternions():
         VGGPose("vgg16")(torch.rand(3, 64, 64))
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 @torch.no_grad()
 def test_every_vgg_stream_sees_the_image_at_initialisation():
     # With torch's layer defaults the plain VGG streams' outputs differed across images by ~1e-9 m: no
@@ -142,6 +144,7 @@ def test_imagenet_first_fc_goes_to_main_stream_columns_of_branched(tmp_path):
     torch.testing.assert_close(p.translation.classifier[0].weight, src.classifier[0].weight)
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 @pytest.mark.parametrize("name", ["vgg16", "branched-vgg19", "parallel-vgg19"])
 def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
     """`hybridpose eval`'s Grad-CAM sheet and bare-call timing work for each direct model (the branched one runs slices
@@ -174,6 +177,7 @@ def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
     assert seen == [[(1, 3, 64, 64)] * streams] * 3   # a warm-up call, then the timed ones
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 @pytest.mark.parametrize("name", ["parallel-vgg19", "default"])  # parallel: both VGG streams and the branch
 def test_channels_last_layout_gives_the_same_outputs_and_gradients(name, truss):
     """Training on a GPU puts the weights in NHWC (train.channels_last); flattening, the branch and the

@@ -218,6 +218,7 @@ def test_vgg16_one_step_on_cpu(data, tmp_path):
     assert m.lost or (np.isfinite(m.pose.t).all() and np.isfinite(m.covariance).all())
 
 
+@pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 def test_ddp_two_cpu_processes_with_gloo(data, tmp_path):
     """`torchrun --nproc_per_node 2 -m hybridpose.regressors.train`: both ranks train, rank 0 writes."""
     import subprocess

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from ..core import Frame
+from ..core import Frame, covariance_from_information
 from ..geometry import Pose, line_jacobian
 from . import _kernels
 from .image import to_gray
@@ -267,9 +267,9 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     dof = max(int(inl.sum()) - 6, 1)
     sigma2 = float((r[inl] ** 2).sum() / dof)
     # neighbouring samples on one edge are not independent: covariance_scale (≥ 1) accounts for it
-    cov = covariance_scale * max(sigma2, 0.05) * np.linalg.pinv(Jn[inl].T @ Jn[inl])
+    cov = covariance_from_information(Jn[inl].T @ Jn[inl], covariance_scale * max(sigma2, 0.05))
     support = min(1.0, float(inl.sum()) / MIN_SUPPORT)
-    return EdgeFit(pose=pose, covariance=0.5 * (cov + cov.T), quality=support * ratio,
+    return EdgeFit(pose=pose, covariance=cov, quality=support * ratio,
                    rms_px=float(np.sqrt(np.mean(r[inl] ** 2))), samples=int(inl.sum()),
                    sites=EdgeSites(points, pose, K, target, valid, inl, brightness))
 

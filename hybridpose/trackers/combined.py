@@ -30,7 +30,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..core import Frame
+from ..core import Frame, covariance_from_information
 from ..edges import ModelView, printed_faces, to_gray
 from ..edges.model_view import ID_SCALE
 from ..geometry import Pose
@@ -84,6 +84,8 @@ class CombinedTracker(Tracker):
         self.cue_qualities: dict[str, float] = {}
         self._small = None  # the last frame at half resolution (float32 grey), for the patch step
         self._sight: Sight | None = None  # the frame being fitted, as the cues see it
+        self._init_frame: Frame | None = None  # the frame of the last init
+        self._deaf: set[str] = set()  # cues left out of this frame's fit and quality
 
     def _cue(self, name: str):
         return next((c for c in self.cues if c.name == name), None)
@@ -103,6 +105,7 @@ class CombinedTracker(Tracker):
                              "pose — is the object in view and the pose right?")
         self._start(frame, gray, pose, ids)
         self._small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        self._init_frame = frame
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray = to_gray(frame.image)
@@ -111,6 +114,10 @@ class CombinedTracker(Tracker):
         for cue in self.cues:
             cue.begin(sight)
         self._sight = sight
+        # a fit of the very frame the tracker started on (the hybrid checking a CNN pose) must not hear
+        # the texture cue: its points were lifted at that pose, so they agree with any pose, wrong too
+        # (a start 40° off scored 1.0 on texture, 0.1-0.3 on region and edges)
+        self._deaf = {"texture"} if frame is self._init_frame else set()
         pose = self._fit(frame, gray, start, search_px or self.search_px)
         if pose is None:
             for cue in self.cues:
@@ -133,8 +140,7 @@ class CombinedTracker(Tracker):
         full_ids = _Once(lambda: self.view.facet_ids(pose, frame.camera, scale=1.0))
         for cue in self.cues:
             cue.finish(frame, gray, pose, trusted, full_ids)
-        cov = self.covariance_scale * np.linalg.pinv(H + 1e-9 * np.eye(6))
-        return pose, 0.5 * (cov + cov.T), quality
+        return pose, covariance_from_information(H, self.covariance_scale), quality
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):
         return self._track(frame, start, search_px=max(self.search_px, int(np.ceil(search_px))))
@@ -155,13 +161,13 @@ class CombinedTracker(Tracker):
             return None
         pose = self._follow_patch(frame, gray, pose)
         texture = self._cue("texture")
-        if texture is not None and texture.active:
+        if texture is not None and texture.active and "texture" not in self._deaf:
             texture.correspond(frame, gray, pose, search_px)
             if len(texture.index) >= 6:
                 pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS, frame.camera.K) or pose
         rng = search_px
         for _ in range(self.outer):
-            active = [c for c in self.cues if c.active]
+            active = [c for c in self.cues if c.active and c.name not in self._deaf]
             for cue in active:
                 cue.correspond(frame, gray, pose, rng)
             pose = self._solve(pose, active, self.inner, frame.camera.K)
@@ -201,9 +207,11 @@ class CombinedTracker(Tracker):
         return turn @ start
 
     def _quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
-        self.cue_qualities = {c.name: c.quality(frame, gray, pose) for c in self.cues if c.active}
+        self.cue_qualities = {c.name: c.quality(frame, gray, pose) for c in self.cues
+                              if c.active and c.name not in self._deaf}
         texture = self._cue("texture")
-        if texture is not None and texture.enabled and not np.isfinite(self.cue_qualities.get("texture", np.nan)):
+        if (texture is not None and texture.enabled and "texture" not in self._deaf
+                and not np.isfinite(self.cue_qualities.get("texture", np.nan))):
             # a part that shows a print but none of it here: covered, or the pose is elsewhere
             self.cue_qualities["texture"] = 0.0
         weights = {"edges": 0.5 if self.printed else 1.0}

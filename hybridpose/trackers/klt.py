@@ -25,7 +25,7 @@ import logging
 import cv2
 import numpy as np
 
-from ..core import Frame
+from ..core import Frame, covariance_from_information
 from ..geometry import Pose
 from ..objects import ObjectModel
 from ..registry import register
@@ -120,10 +120,10 @@ class KltPnpTracker(Tracker):
         keep[idx] = True
         sigma2 = max(float(res @ res) / max(res.size - 6, 1), 0.01)
         Jf = J.reshape(-1, 6)
-        cov = sigma2 * np.linalg.pinv(Jf.T @ Jf)
+        cov = covariance_from_information(Jf.T @ Jf, sigma2)
         rms = float(np.sqrt(np.mean(res**2) * 2))
         quality = len(idx) / len(prev) * min(1.0, len(idx) / MIN_INLIERS_FULL) * float(np.exp(-rms / RMS_SCALE_PX))
-        return pose, 0.5 * (cov + cov.T), quality, keep, uv
+        return pose, cov, quality, keep, uv
 
     def _track(self, frame: Frame, start: Pose):
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)

@@ -7,7 +7,9 @@ from .core import Estimate, Frame, Measurement
 from .estimator import HybridConfig, HybridEstimator
 from .geometry import Camera, Pose
 from .objects import ObjectModel
+from .threads import set_threads
+from .warmup import warm_up
 
 __version__ = "0.1.0"
 __all__ = ["Camera", "Estimate", "Frame", "HybridConfig", "HybridEstimator", "Measurement", "ObjectModel", "Pose",
-           "__version__"]
+           "__version__", "set_threads", "warm_up"]

@@ -39,6 +39,7 @@ def cmd_track(args) -> int:
         from ..tracking import with_sun
 
         frames = with_sun(frames, args.sun_dir)
+    _warm(args.tracker, args.fusion if args.init_pose is None else None)
     if args.init_pose is None:
         from ..estimator import HybridEstimator
         from ..tracking import run_hybrid_on_frames
@@ -67,6 +68,16 @@ def cmd_track(args) -> int:
     print(f"track: {res.frames} frames with {args.tracker} ({_cost(res)}, {res.lost} flagged lost) → "
           f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}, {res.out / 'run.json'}")
     return _finished(res)
+
+
+def _warm(tracker: str, fusion: str | None) -> None:
+    """Compile (or load) the kernels before the first frame (:func:`hybridpose.warm_up`), saying so
+    where it took long: the first run after an install."""
+    from ..warmup import COMPILE_NOTICE_S, warm_up
+
+    seconds = warm_up(trackers=(tracker,), fusions=(fusion,) if fusion else ())
+    if seconds > COMPILE_NOTICE_S:
+        print(f"compiled the tracking kernels in {seconds:.0f} s (once after an install: they are cached)")
 
 
 def _cost(res) -> str:
@@ -203,6 +214,7 @@ def cmd_demo(args) -> int:
           f"(mask vs CAD IoU mean {stats['iou_mean']:.4f})")
 
     seq = load_sequence(scene_dir)
+    _warm(args.tracker, args.fusion)
     regressor = create("regressor", "default", object=obj)
     estimator = HybridEstimator(create("tracker", args.tracker, object=obj), regressor,
                                 create("fusion", args.fusion))

@@ -104,6 +104,8 @@ class TextureCue(Cue):
     def _inside_faces(uv: np.ndarray, ids: np.ndarray, r: int = PRINT_CLEAR_PX) -> np.ndarray:
         """(N,) True where the facet-id raster ``ids`` shows one facet all round each pixel ``uv`` within ±r px."""
         h, w = ids.shape
+        if len(uv) == 0:  # a plain part may show no corner at all
+            return np.zeros(0, bool)
         c = np.round(uv).astype(int)
         off = np.arange(-r, r + 1, r)
         ys = np.clip(c[:, 1, None, None] + off[None, :, None], 0, h - 1)

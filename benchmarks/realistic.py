@@ -116,7 +116,7 @@ def main(argv=None) -> None:
     cv2.setNumThreads(1)
     from hybridpose.registry import available
 
-    trackers = args.trackers.split(",") if args.trackers else list(available("tracker"))
+    trackers = args.trackers.split(",") if args.trackers else list(available("tracker", baselines=True))
     rows = run(args.split, trackers, Path(args.cache))
     lines = summary_lines(rows, trackers)
     if args.split != "report":

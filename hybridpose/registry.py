@@ -26,6 +26,7 @@ _BUILTIN_MODULES: dict[str, tuple[str, ...]] = {
 }
 
 _factories: dict[str, dict[str, Callable[..., Any]]] = {role: {} for role in ROLES}
+_baselines: dict[str, set[str]] = {role: set() for role in ROLES}
 _loaded: set[str] = set()
 
 
@@ -34,9 +35,13 @@ def _check_role(role: str) -> None:
         raise ValueError(f"role: expected one of {ROLES}, got {role!r}")
 
 
-def register(role: str, name: str) -> Callable:
-    """Decorator: ``@register("tracker", "rapid")`` on a class or factory function."""
+def register(role: str, name: str, baseline: bool = False) -> Callable:
+    """Decorator: ``@register("tracker", "edges")`` on a class or factory function. A ``baseline``
+    stays buildable by name (:func:`create`; the benchmarks compare against it) but is not offered
+    (:func:`available` leaves it out unless asked): it adds nothing over the backends that are."""
     _check_role(role)
+    if baseline:
+        _baselines[role].add(name)
 
     def deco(factory):
         existing = _factories[role].get(name)
@@ -61,11 +66,11 @@ def _load(role: str) -> None:
             log.exception("could not load %s plugin %r from %s", role, ep.name, ep.value)
 
 
-def available(role: str) -> list[str]:
-    """Sorted names registered for ``role``."""
+def available(role: str, baselines: bool = False) -> list[str]:
+    """Sorted names registered for ``role``; with ``baselines``, the baselines too (:func:`register`)."""
     _check_role(role)
     _load(role)
-    return sorted(_factories[role])
+    return sorted(n for n in _factories[role] if baselines or n not in _baselines[role])
 
 
 def get(role: str, name: str) -> Callable[..., Any]:
@@ -75,7 +80,9 @@ def get(role: str, name: str) -> Callable[..., Any]:
     try:
         return _factories[role][name]
     except KeyError:
-        raise ValueError(f"unknown {role} {name!r}; available: {', '.join(available(role)) or 'none'}") from None
+        extra = sorted(_baselines[role] & set(_factories[role]))
+        raise ValueError(f"unknown {role} {name!r}; available: {', '.join(available(role)) or 'none'}"
+                         + (f" (baselines: {', '.join(extra)})" if extra else "")) from None
 
 
 def create(role: str, name: str, **kwargs) -> Any:

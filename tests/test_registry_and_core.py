@@ -18,6 +18,7 @@ def test_entry_point_plugins_are_loaded(monkeypatch):
         def load(self):
             return lambda: "plugin!"
 
+    registry.available("fusion")  # the built-ins first: their modules register once, at import
     monkeypatch.setattr(registry, "entry_points", lambda group: [EP()] if group == "hybridpose.fusion" else [])
     monkeypatch.setattr(registry, "_loaded", set(registry._loaded) - {"fusion"})
     monkeypatch.setitem(registry._factories, "fusion", {})
@@ -50,3 +51,13 @@ def test_frame_and_measurement_validate():
         Measurement(None, -np.eye(6), 0.5, "x", 0.0)
     with pytest.raises(ValueError, match="status"):
         Estimate(None, np.eye(6), 0.0, status="happy")
+
+
+def test_baselines_are_built_by_name_but_not_offered():
+    from hybridpose.objects import load_object
+
+    offered, every = registry.available("tracker"), registry.available("tracker", baselines=True)
+    assert offered == ["combined", "edges"] and set(every) - set(offered) == {"klt-pnp", "rapid", "rapid-gos", "rapid-ols"}
+    assert registry.create("tracker", "rapid", object=load_object("cube")).name
+    with pytest.raises(ValueError, match=r"available: combined, edges \(baselines: klt-pnp, rapid"):
+        registry.get("tracker", "nope")

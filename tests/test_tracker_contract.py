@@ -11,7 +11,7 @@ from hybridpose.registry import available, create
 from hybridpose.render import Renderer
 from hybridpose.render.sequences import SequenceSpec, make_sequence
 
-TRACKERS = available("tracker")
+TRACKERS = available("tracker", baselines=True)
 FULLY_COVERED = 0.05  # visible fraction below which the arm hides the object
 LOSS_WITHIN_FRAMES = 5
 

@@ -8,7 +8,7 @@ from hybridpose.registry import available
 def test_every_backend_warms_up_on_the_drawn_cube():
     from hybridpose.geometry.raster import zbuffer_front_faces
 
-    seconds = warm_up(trackers=tuple(available("tracker")), fusions=tuple(available("fusion")))
+    seconds = warm_up(trackers=tuple(available("tracker", baselines=True)), fusions=tuple(available("fusion")))
     assert seconds > 0 and zbuffer_front_faces.signatures
 
 

@@ -66,7 +66,7 @@ def plan(req: BenchRequest) -> tuple[list[RunSpec], dict[str, Path] | None, list
         if mode not in MODES:
             raise ValueError(f"--modes: unknown mode {mode!r}; expected some of {', '.join(MODES)}")
     for role, names, option in (("tracker", trackers_of(req), "--trackers"), ("fusion", req.fusions, "--fusions")):
-        known = available(role)
+        known = available(role, baselines=True)
         for n in names:
             if n not in known:
                 raise ValueError(f"{option}: unknown {role} {n!r}; available: {', '.join(known)}")

@@ -315,7 +315,8 @@ def add_commands(sub) -> None:
                         "or BOP cam_R_m2c + cam_t_m2c (mm); or a ViSP .pos file (tx ty tz in m, θu in rad)")
     k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
     k.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
-    k.add_argument("--tracker", default="edges", help="registered tracker (edges, combined, klt-pnp, rapid, rapid-gos, rapid-ols; combined for real footage of a printed part or clutter)")
+    k.add_argument("--tracker", default="edges", help="tracker: edges (space, the default) or combined (real footage: a printed part, clutter, a "
+                   "hand-held camera); the baselines klt-pnp, rapid, rapid-gos and rapid-ols by name too")
     k.add_argument("--tracker-option", action="append", metavar="NAME=VALUE",
                    help="a keyword of the tracker (repeatable), e.g. explain=false or lost_quality=0.4 for "
                         "edges; an unknown name lists the ones it takes")
@@ -435,7 +436,8 @@ def add_commands(sub) -> None:
     d.add_argument("--frames", type=int, default=60, help="frames to render at 30 fps (default 60: 2 s)")
     d.add_argument("--size", default="640x480", help="image size WxH (default 640x480; at 160x120 the CNN "
                                                      "finds no truss: the hybrid never starts)")
-    d.add_argument("--tracker", default="edges", help="registered tracker (edges, combined, klt-pnp, rapid, rapid-gos, rapid-ols; combined for real footage of a printed part or clutter)")
+    d.add_argument("--tracker", default="edges", help="tracker: edges (space, the default) or combined (real footage: a printed part, clutter, a "
+                   "hand-held camera); the baselines klt-pnp, rapid, rapid-gos and rapid-ols by name too")
     d.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
     d.add_argument("--seed", type=int, default=1, help="the tumble's and the arm's draw (default 1)")
     d.set_defaults(func=cmd_demo)

@@ -41,7 +41,7 @@ MIN_INLIERS_FULL = 20
 RMS_SCALE_PX = 2.0
 
 
-@register("tracker", "klt-pnp")
+@register("tracker", "klt-pnp", baseline=True)
 class KltPnpTracker(Tracker):
     """Keypoint tracker: KLT on model-lifted corners + PnP.
 

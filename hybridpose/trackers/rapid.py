@@ -140,4 +140,4 @@ def _factory(variant: str):
 
 
 for _variant in VARIANTS:
-    register("tracker", _variant)(_factory(_variant))
+    register("tracker", _variant, baseline=True)(_factory(_variant))

@@ -291,10 +291,21 @@ def _run(frames: Iterator[Frame], step: Callable[[Frame], tuple], out, fields: l
     """The loop both runs share: ``step(frame)`` → (result for ``on_frame``, pose written or None, trusted,
     lost, reinit, ms, extra csv cells, overlay); video, poses.csv and scene_gt.json written at the end —
     also when the user stops the run (Ctrl-C), with the frames done by then."""
+    out = Path(out)
+    made = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        return _loop(frames, step, out, fields, max_frames, progress, on_frame)
+    except BaseException:
+        if made and not any(out.iterdir()):  # a run that failed before its first frame leaves no empty folder
+            out.rmdir()
+        raise
+
+
+def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fields: list[str],
+          max_frames: int | None, progress: Callable[[int], None] | None, on_frame: Callable | None) -> RunResult:
     from .datasets.bop import pose_to_bop
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     rows, scene_gt, video, ms, lost, reinits, interrupted = [], {}, None, [], 0, 0, False
     try:
         try:

@@ -224,7 +224,11 @@ def test_track_errors_name_the_problem(clip, tmp_path, capsys):
     behind.write_text(json.dumps({"quat_wxyz": [1, 0, 0, 0], "t_m": [0, 0, -1]}))
     assert main(["track", str(root / "png"), "--camera", str(root / "camera.json"), "--object", "truss",
                  "--init-pose", str(behind), "--out", str(tmp_path / "y")]) == 2
-    assert "behind the camera" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    # on a line of its own, not glued onto the progress bar's
+    assert "behind the camera" in err and any(line.startswith("hybridpose track: error") for line in err.splitlines())
+    # a run that failed before its first frame leaves no folder behind
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
 
 def test_track_without_an_initial_pose_runs_the_hybrid(clip, tmp_path, capsys):

@@ -33,6 +33,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, TypeError) as exc:
+        from .common import close_bars
+
+        close_bars()
         print(f"hybridpose {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

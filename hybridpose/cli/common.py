@@ -33,6 +33,15 @@ def counter(desc: str, unit: str = "frame"):
     return update
 
 
+def close_bars() -> None:
+    """Close every open progress bar, ending its line, so that what is printed next starts a line of
+    its own (an error glued onto a bar's last line is easy to miss)."""
+    from tqdm import tqdm
+
+    for bar in list(getattr(tqdm, "_instances", ())):
+        bar.close()
+
+
 def base_camera(args) -> Camera:
     # a camera file without an image size (a ViSP tracker configuration) calibrates frames of --size
     cam = load_camera(args.camera, image_size=args.size) if getattr(args, "camera", None) else Camera.default()

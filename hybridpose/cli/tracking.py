@@ -9,7 +9,7 @@ import numpy as np
 
 from ..geometry import Camera
 from ..hybrid_config import DEFAULT_FUSION
-from .common import backend_options, counter, float_pair, names, progress
+from .common import backend_options, close_bars, counter, float_pair, names, progress
 from .data import verify_dataset
 
 
@@ -51,6 +51,7 @@ def cmd_track(args) -> int:
         policy = changes_text(est.config)
         res = run_hybrid_on_frames(frames, est, args.out, max_frames=args.max_frames, progress=counter("track"),
                                    draw_sites=args.draw_sites)
+        close_bars()
         write_run_record(res, args, obj, camera, policy={"fields": asdict(est.config), "changed": policy})
         print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}"
               f"{'; policy ' + policy if policy else ''}; "
@@ -64,6 +65,7 @@ def cmd_track(args) -> int:
     tracker = create("tracker", args.tracker, object=obj, **tracker_kw)
     res = track_sequence(frames, tracker, pose0, args.out, max_frames=args.max_frames, progress=counter("track"),
                          draw_sites=args.draw_sites)
+    close_bars()
     write_run_record(res, args, obj, camera)
     print(f"track: {res.frames} frames with {args.tracker} ({_cost(res)}, {res.lost} flagged lost) → "
           f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}, {res.out / 'run.json'}")
@@ -144,6 +146,7 @@ def cmd_bench(args) -> int:
         bar[0](bar[1])
 
     result = bench(req, progress=progress)
+    close_bars()
     out = Path(args.out)
     print(f"bench: {len(result['rows'])} rows → {out / 'results.json'}, {out / 'report.md'}, plots in {out}")
     print((out / "report.md").read_text())

@@ -95,11 +95,14 @@ def draw_mask_contour(image: np.ndarray, mask: np.ndarray, color=(255, 0, 255), 
 
 
 def put_label(image: np.ndarray, text: str, bottom: bool = False) -> np.ndarray:
-    """Copy of ``image`` with one line of white-on-black text at its top (or ``bottom``) left."""
+    """Copy of ``image`` with one line of white text on a dark box at its top (or ``bottom``) left (a
+    box, not an outline: an outline's dark strokes stood out as ghost letters on a bright arm)."""
     img = np.ascontiguousarray(image).copy()
     y = img.shape[0] - 7 if bottom else 16
-    for color, th in (((0, 0, 0), 3), ((255, 255, 255), 1)):
-        cv2.putText(img, text, (5, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, color, th, cv2.LINE_AA)
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+    x0, y0, x1, y1 = 2, max(y - h - 3, 0), min(5 + w + 3, img.shape[1]), min(y + base + 1, img.shape[0])
+    img[y0:y1, x0:x1] = (0.35 * img[y0:y1, x0:x1]).astype(np.uint8)
+    cv2.putText(img, text, (5, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
     return img
 
 

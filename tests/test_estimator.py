@@ -631,7 +631,11 @@ def test_rendered_arm_occlusion_with_the_real_backends(truss):
     assert np.nanmedian(err[trusted & (vis >= 0.5)]) < 1.0
     last_covered = np.flatnonzero(vis < 0.05).max()
     assert np.all(status[np.flatnonzero(vis < 0.05)] == "lost")
-    assert "reinit" in status[last_covered:], "never re-initialised after the arm's pass"
+    # back after the pass — the CNN re-initialising it or the tracker resuming from the prediction,
+    # whichever the fits allow — and right where it is trusted
+    back = last_covered + np.flatnonzero(np.isin(status[last_covered:], ("reinit", "tracking")))
+    assert len(back) and back[0] - last_covered <= 5, "not back within 5 frames of the arm's pass"
+    assert np.all(err[back[vis[back] >= 0.5]] < 2.0)
 
 
 def test_a_mediocre_tracker_quality_calls_a_check_at_once():

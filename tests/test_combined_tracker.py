@@ -178,21 +178,3 @@ def test_a_start_far_off_or_partly_behind_the_camera_is_lost_not_a_crash(start_t
     tracker.init(Frame(frames[0].image, camera, 0.0, 0), frames[0].pose)
     m = tracker.track(Frame(frames[1].image, camera, 1 / 30, 1), Pose(frames[1].pose.R, np.array(start_t)))
     assert m.lost and m.pose is None
-
-
-def test_the_cropped_flow_finds_what_the_whole_frames_flow_finds():
-    """forward_backward_flow cuts both images to the points' box: the points it follows land where
-    OpenCV's KLT over the whole frames puts them (within 0.05 px)."""
-    from hybridpose.trackers.surface_points import forward_backward_flow
-
-    rng = np.random.default_rng(3)
-    base = cv2.GaussianBlur(rng.uniform(0, 255, (240, 320)).astype(np.float32), (0, 0), 2.0)
-    previous = np.clip(base, 0, 255).astype(np.uint8)
-    current = np.roll(previous, (3, 5), axis=(0, 1))  # the scene moved 5 px right, 3 px down
-    points = cv2.goodFeaturesToTrack(previous[60:180, 80:240], 40, 0.01, 7).reshape(-1, 2) + (80, 60)
-    lk = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
-    uv, good = forward_backward_flow(previous, current, points, points, lk, 1.0)
-    whole, st, _ = cv2.calcOpticalFlowPyrLK(previous, current, points.astype(np.float32).reshape(-1, 1, 2), None, **lk)
-    assert good.mean() > 0.9
-    assert np.allclose(uv[good], points[good] + (5, 3), atol=0.05)
-    assert np.abs(uv[good] - whole.reshape(-1, 2)[good]).max() < 0.05

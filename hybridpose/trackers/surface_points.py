@@ -56,23 +56,8 @@ def forward_backward_flow(previous: np.ndarray, current: np.ndarray, points: np.
     trip lands within ``fb_px`` of where it began)."""
     prev = np.asarray(points, np.float32).reshape(-1, 1, 2)
     start = np.asarray(guess, np.float32).reshape(-1, 1, 2).copy()
-    if len(prev) == 0:
-        return np.zeros((0, 2), np.float32), np.zeros(0, bool)
-    # both images cut to the points' box grown by what the pyramid's coarsest window reaches: OpenCV
-    # builds each call's pyramids over the images it is given, and the whole frame cost 4× the part's box
-    levels = max(lk.get("maxLevel", 3), (back_lk or lk).get("maxLevel", 3))
-    win = max(lk.get("winSize", (21, 21))[0], (back_lk or lk).get("winSize", (21, 21))[0])
-    reach = (win // 2 + 2) * 2 ** levels + 8
-    both = np.concatenate([prev.reshape(-1, 2), start.reshape(-1, 2)])
-    h, w = previous.shape[:2]
-    # corners on the coarsest level's grid: the crop's pyramid samples the pixels the frame's would
-    grid = 2 ** (levels + 1)
-    x0, y0 = ((np.floor(both.min(0)).astype(int) - reach).clip(0) // grid) * grid
-    x1, y1 = np.minimum(np.ceil(both.max(0)).astype(int) + reach + 1, (w, h))
-    offset = np.array([x0, y0], np.float32)
-    a, b = previous[y0:y1, x0:x1], current[y0:y1, x0:x1]
-    nxt, st, _ = cv2.calcOpticalFlowPyrLK(a, b, prev - offset, start - offset, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
-    back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, nxt, prev - offset, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    nxt, st, _ = cv2.calcOpticalFlowPyrLK(previous, current, prev, start, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(current, previous, nxt, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
                                             **(lk if back_lk is None else back_lk))
-    good = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((back + offset - prev).reshape(-1, 2), axis=1) < fb_px)
-    return (nxt + offset).reshape(-1, 2), good
+    good = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((back - prev).reshape(-1, 2), axis=1) < fb_px)
+    return nxt.reshape(-1, 2), good

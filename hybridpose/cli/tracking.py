@@ -159,6 +159,7 @@ def cmd_bench(args) -> int:
 def cmd_fit(args) -> int:
     from ..fit import fit
     from ..geometry import NoImageSize, load_camera
+    from ..registry import get
 
     try:
         camera = load_camera(args.camera) if args.camera else None
@@ -166,11 +167,25 @@ def cmd_fit(args) -> int:
         raise ValueError(f"--camera: {exc}: fit renders views of that size; write a camera file with width and "
                          "height, e.g. JSON {\"width\": 640, \"height\": 480, \"fx\": px, \"fy\": py, "
                          "\"cx\": u0, \"cy\": v0}") from None
+    if args.video is not None and not Path(args.video).exists():
+        raise ValueError(f"--video: {args.video}: no such video file or image folder")
+    get("tracker", args.video_tracker)  # an unknown name refused before the fit's hour
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
         backgrounds=args.backgrounds, workers=args.workers,
         init_from=None if args.init_from == "none" else args.init_from, bar=progress,
         occluded_share=args.occluded_share, textured_share=args.textured_share, look=args.look,
         distance_range_m=args.distances)
+    if args.video is not None:
+        from ..footage_check import check_on_footage
+        from ..io import atomic_write_text
+        from ..objects import load_object
+
+        obj = load_object(args.mesh, scale=args.scale)
+        check = check_on_footage(args.video, obj, camera or Camera.default(), str(Path(args.out) / "best.pt"),
+                                 tracker=args.video_tracker)
+        report = Path(args.out) / "report.md"
+        atomic_write_text(report, report.read_text().rstrip("\n") + "\n\n## On your footage\n\n" + check.text() + "\n")
+        print(f"fit: {check.text()}")
     return 0
 
 
@@ -427,6 +442,13 @@ def add_commands(sub) -> None:
     f.add_argument("--occluded-share", type=float, default=OCCLUDED_SHARE, metavar="SHARE",
                    help="share of the training views with the arm partly in front of the part "
                         f"(default {OCCLUDED_SHARE:g})")
+    f.add_argument("--video", default=None, metavar="FILE",
+                   help="your own footage (video file or image folder, same camera): after the fit, the network is "
+                        "checked on 40 of its frames without labels — how often the tracker confirms its pose "
+                        "(where the hybrid can start) — and report.md says so")
+    f.add_argument("--video-tracker", default="combined",
+                   help="the tracker that confirms the CNN's poses in the --video check (default combined: real "
+                        "footage; edges in space)")
     f.add_argument("--textured-share", type=float, default=TEXTURED_SHARE, metavar="SHARE",
                    help="share of the training views with a random print on the part: for a printed or "
                         f"painted part (default {TEXTURED_SHARE:g})")

@@ -23,7 +23,7 @@ def test_render_random_and_sequence_then_verify(tmp_path, capsys):
     img = read_image(sheet)
     assert img.shape[2] == 3 and img.max() > 0 and (img[..., 1] == 255).any()  # green wireframe
     magenta = (img[..., 0] > 200) & (img[..., 1] < 80) & (img[..., 2] > 200)
-    assert magenta.sum() > 500  # the mask's outline shows (it once drowned under the wireframe)
+    assert magenta.sum() > 500  # the mask's outline shows, not hidden under the wireframe
 
 
 def test_render_views_near_edge_on(tmp_path, truss):

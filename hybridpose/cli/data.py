@@ -68,8 +68,7 @@ def verify_dataset(root, out, frames: int = 12, columns: int = 4, object_name: s
         union = (sil | mask_full).sum()
         if union:
             ious.append(float((sil & mask_full).sum() / union))
-        # the outline over the edges and thick enough to survive the sheet's downscaling (half size at
-        # 640 px): drawn 1 px under the wireframe it was 16 pixels in the whole sheet
+        # the outline over the edges, thick enough to survive the sheet's downscaling (half size at 640 px)
         tile = draw_wireframe(img, obj, gt.pose, gt.camera, color=(0, 255, 0))
         tile = draw_mask_contour(tile, scene.mask(im_id, visible=True),
                                  thickness=max(1, int(round(2 * img.shape[1] / SHEET_TILE_PX))))

@@ -116,7 +116,6 @@ class CombinedTracker(Tracker):
         self._sight = sight
         # a fit of the very frame the tracker started on (the hybrid checking a CNN pose) must not hear
         # the texture cue: its points were lifted at that pose, so they agree with any pose, wrong too
-        # (a start 40° off scored 1.0 on texture, 0.1-0.3 on region and edges)
         self._deaf = {"texture"} if frame is self._init_frame else set()
         pose = self._fit(frame, gray, start, search_px or self.search_px)
         if pose is None:

@@ -2,7 +2,7 @@
 scenes filmed by a hand-held camera (:mod:`hybridpose.render.handheld`: 5–30 px a frame, stops and
 turns, motion blur, auto-exposure, noise, JPEG; photo or procedural backgrounds; a hand passing in
 front of some): the sequences of ``hybridpose bench --suite realistic``, rendered once into the same
-cache. Every registered tracker from the true first pose, never re-initialised, its defaults; the
+cache. Every tracker, the baselines included, from the true first pose, never re-initialised, its defaults; the
 three modes (tracker, CNN, hybrid) on the same sequences: ``hybridpose bench --suite realistic``.
 
     pip install hybridpose[bench]          # scikit-image's sample photos: backgrounds and prints
@@ -108,7 +108,7 @@ def summary_lines(rows: dict, trackers: list[str]) -> list[str]:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--split", choices=("report", "tuning"), default="report")
-    ap.add_argument("--trackers", default=None, help="comma list (default: every registered tracker)")
+    ap.add_argument("--trackers", default=None, help="comma list (default: every tracker, the baselines included)")
     ap.add_argument("--cache", default="runs/bench_cache", help="rendered sequences (shared with hybridpose bench)")
     args = ap.parse_args(argv)
     import cv2

@@ -50,6 +50,23 @@ class FootageCheck:
                 "its distances (`--distances`), or a longer budget.")
 
 
+class _Remembering:
+    """A regressor that remembers whether any of its answers since :meth:`forget` had a pose (the
+    start's CNN call inside the estimator), so that the check asks the CNN once a frame."""
+
+    def __init__(self, regressor) -> None:
+        self.regressor, self.found = regressor, False
+        self.hybrid_config = getattr(regressor, "hybrid_config", None)
+
+    def forget(self) -> None:
+        self.found = False
+
+    def predict(self, frame, *args, **kwargs):
+        m = self.regressor.predict(frame, *args, **kwargs)
+        self.found = self.found or m.pose is not None
+        return m
+
+
 def _count_frames(source) -> int:
     from .tracking import _raw_frames
 
@@ -71,7 +88,9 @@ def check_on_footage(source, obj: ObjectModel, camera: Camera, regressor: str, t
     if total == 0:
         raise ValueError(f"video: {source} holds no frames")
     chosen = set(np.linspace(0, total - 1, min(frames, total)).round().astype(int).tolist())
-    est = HybridEstimator.from_names(object=obj, tracker=tracker, regressor=regressor)
+    built = HybridEstimator.from_names(object=obj, tracker=tracker, regressor=regressor)
+    cnn = _Remembering(built.regressor)
+    est = HybridEstimator(built.tracker, cnn, built.fusion, config=built.config)
     found = confirmed = 0
     at, ms = [], []
     for k, frame in enumerate(read_frames(source, camera)):
@@ -79,8 +98,9 @@ def check_on_footage(source, obj: ObjectModel, camera: Camera, regressor: str, t
             continue
         t0 = time.perf_counter()
         est.reset()
+        cnn.forget()
         e = est.step(frame)
-        found += est.regressor.predict(frame.undistorted()).pose is not None if e.pose is None else 1
+        found += cnn.found
         if e.pose is not None:
             confirmed += 1
             at.append(k)

@@ -280,12 +280,15 @@ def cmd_demo(args) -> int:
 def recoveries_text(statuses: list[str]) -> str:
     """How the hybrid came back after each stretch it flagged lost: the CNN re-initialised it
     (``reinit``) or the tracker resumed from the fused prediction (``tracking``)."""
-    back = []
-    for k in range(1, len(statuses)):
-        if statuses[k - 1] == "lost" and statuses[k] in ("tracking", "reinit"):
-            start = max(j for j in range(k) if statuses[j] != "lost") + 1 if any(s != "lost" for s in statuses[:k]) else 0
-            how = "the CNN re-initialised it" if statuses[k] == "reinit" else "the tracker resumed from the prediction"
-            back.append(f"lost from frame {start}, back at frame {k}: {how}")
+    back, lost_from = [], None
+    for k, status in enumerate(statuses):
+        if status == "lost":
+            lost_from = k if lost_from is None else lost_from
+            continue
+        if lost_from is not None and status in ("tracking", "reinit"):
+            how = "the CNN re-initialised it" if status == "reinit" else "the tracker resumed from the prediction"
+            back.append(f"lost from frame {lost_from}, back at frame {k}: {how}")
+        lost_from = None
     if back:
         return "; ".join(back)
     if not {"tracking", "reinit"} & set(statuses):

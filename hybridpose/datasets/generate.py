@@ -7,7 +7,6 @@ different configuration in the same ``out`` is refused.
 from __future__ import annotations
 
 import json
-
 import logging
 import multiprocessing
 import time

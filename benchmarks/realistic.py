@@ -14,7 +14,7 @@ Per frame: the pose a tracker trusts is *held* within 5° and 2 cm of the truth;
 own pose within 5° and 2 cm. Per kind, the spread of each sequence's held share over its seeds
 (median, p90 from the bottom — the tenth-worst percentile — and worst), and the pooled counts.
 
-Seeds: report 1–10 of each kind (the figures), tuning 101–105 (what the trackers' defaults may be
+Seeds: report 1–10 of each kind (the figures), tuning 101–120 (what the trackers' defaults may be
 chosen on). Photos: scikit-image's scene photos for both splits (without scikit-image, procedural
 clutter), drawn per sequence by its seed.
 """

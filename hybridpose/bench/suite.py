@@ -15,7 +15,7 @@ Suites:
 - ``realistic``: off black space (:mod:`hybridpose.render.handheld`): a printed 8.5-cm ``cube`` on a
   photo, the same in procedural clutter with a hand passing in front, and a plain ``box`` on a photo,
   each filmed by a hand-held camera (5–30 px a frame, stops and turns, blur, exposure, noise, JPEG);
-  90 frames a sequence, seeds of their own (report 1–10, tuning 101–105).
+  90 frames a sequence, seeds of their own (report 1–10, tuning 101–120).
 """
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ REALISTIC_KINDS = {
     "printed-cube-clutter-hand": ("cube", {"printed": True, "background": "clutter", "hand": True}),
     "plain-box-photo": ("box", {"printed": False, "background": "photo"}),
 }
-REALISTIC_SEEDS = {"report": tuple(range(1, 11)), "tuning": tuple(range(101, 106))}
+REALISTIC_SEEDS = {"report": tuple(range(1, 11)), "tuning": tuple(range(101, 121))}
 REALISTIC_TUNING_RANGE = range(100, 200)
 REALISTIC_FRAMES = 90
 SUITES = ("standard", "occlusion", "smoke", "realistic")

@@ -133,9 +133,14 @@ class CombinedTracker(Tracker):
             q >= LEARN_CUE_QUALITY for q in self.cue_qualities.values() if np.isfinite(q))
         texture = self._cue("texture")
         if texture is not None:
-            # a keyframe fixes its pose's error into its points: only where the other cues vouch for it
-            texture.may_keyframe = all(q >= KEYFRAME_CUE_QUALITY for n, q in self.cue_qualities.items()
-                                       if n != "texture" and np.isfinite(q))
+            # a keyframe fixes its pose's error into its points: only where the other cues vouch for it,
+            # each of them; a cue starved by blur that still follows a few points (it votes low until it
+            # lifts new ones) may also re-key where they vouch together. One that follows none (covered,
+            # or the pose is elsewhere) waits for each of them.
+            others = {n: q for n, q in self.cue_qualities.items() if n != "texture" and np.isfinite(q)}
+            texture.may_keyframe = all(q >= KEYFRAME_CUE_QUALITY for q in others.values())
+            texture.may_rekey_starved = texture.may_keyframe or (
+                texture.active and self._vote(others) >= self.lost_quality)
         full_ids = _Once(lambda: self.view.facet_ids(pose, frame.camera, scale=1.0))
         for cue in self.cues:
             cue.finish(frame, gray, pose, trusted, full_ids)
@@ -213,8 +218,12 @@ class CombinedTracker(Tracker):
                 and not np.isfinite(self.cue_qualities.get("texture", np.nan))):
             # a part that shows a print but none of it here: covered, or the pose is elsewhere
             self.cue_qualities["texture"] = 0.0
+        return self._vote(self.cue_qualities)
+
+    def _vote(self, qualities: dict[str, float]) -> float:
+        """The weighted mean of the cues' qualities that have a verdict (0 where none has)."""
         weights = {"edges": 0.5 if self.printed else 1.0}
-        votes = [(weights.get(n, 1.0), q) for n, q in self.cue_qualities.items() if np.isfinite(q)]
+        votes = [(weights.get(n, 1.0), q) for n, q in qualities.items() if np.isfinite(q)]
         if not votes:
             return 0.0
         return float(sum(w * q for w, q in votes) / sum(w for w, _ in votes))

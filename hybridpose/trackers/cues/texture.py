@@ -15,9 +15,12 @@ their image positions do not drift (the role of M3T's texture modality).
   face, ``PRINT_CLEAR_PX`` from its border, stronger than noise (``MIN_PRINT_EIGEN``). A plain part's
   corners are corners of its outline and shading, which slide as it turns (on the truss's tumble the
   edge cue alone held 0.37° median, with its corners as texture points 1.74°).
-* A new keyframe when fewer than ``min_points`` points survive or the view turned ``KEYFRAME_DEG``
-  since the last one, where the tracker allows it (``may_keyframe``: the other cues vouch for the pose)
-  and the pose is trusted — or the cue is starved, its points lost to blur or a fast turn.
+* A new keyframe when the view turned ``KEYFRAME_DEG`` since the last one, where the pose is trusted
+  and the tracker allows it (``may_keyframe``: the other cues vouch for the pose); or when fewer than
+  ``min_points`` points survive (starved: its points lost to blur or a fast turn), where the tracker
+  allows that (``may_rekey_starved``).
+* A fit of a frame the cue sat out (the tracker's own init frame: its points agree with any pose
+  there) lifts its points again at the fitted pose where that is trusted.
 
 Quality = share of the tracks that entered the frame that agree with the fitted pose within
 ``INLIER_PX`` × min(1, inliers / ``FULL_SUPPORT``); NaN (no verdict) where the part shows no
@@ -80,6 +83,7 @@ class TextureCue(Cue):
         # the tracker's say whether this frame's pose may lift a new keyframe: its points then carry the
         # pose's error for as long as they live (set before each finish)
         self.may_keyframe = True
+        self.may_rekey_starved = True  # …and whether a starved cue may (the tracker's word, set with it)
 
     # --- keyframes ---------------------------------------------------------------------------------
     def start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
@@ -176,6 +180,13 @@ class TextureCue(Cue):
     def finish(self, frame: Frame, gray: np.ndarray, pose: Pose, trusted: bool, ids) -> None:
         if self.prev is None:
             return
+        if self.active and frame is not getattr(self, "_frame", None):
+            # the cue sat this frame out (the tracker's own init frame, where its points agree with any
+            # pose): its points were lifted at the start pose; a trusted fit of the same frame knows better
+            if trusted and ids is not None:
+                self._keyframe(gray, pose, frame, ids())
+                self.active = len(self.X) >= 6
+            return
         keep = self.residuals_px(pose) < INLIER_PX if trusted else np.ones(len(self.index), bool)
         self.X, self.uv = self.X[self.index[keep]], self.matched[keep].astype(np.float32)
         self.kf_uv = self.kf_uv[self.index[keep]]
@@ -184,8 +195,7 @@ class TextureCue(Cue):
         # a starved cue (most of its points lost to blur or a fast turn) drags the tracker's quality down:
         # the other cues' word is enough to lift new points then
         starved = len(self.X) < self.min_points
-        if ids is not None and self.may_keyframe and (trusted or starved):
-            turned = rotation_error_deg(self.kf_pose.R, pose.R) > KEYFRAME_DEG
-            if starved or turned:
-                self._keyframe(gray, pose, frame, ids())
+        turned = rotation_error_deg(self.kf_pose.R, pose.R) > KEYFRAME_DEG
+        if ids is not None and ((starved and self.may_rekey_starved) or (trusted and turned and self.may_keyframe)):
+            self._keyframe(gray, pose, frame, ids())
         self.active = len(self.X) >= 6

@@ -230,3 +230,26 @@ def test_the_polish_sharpens_the_fit_where_model_edges_crowd(truss):
                 plain.append(rotation_error_deg(a.pose, truth))
                 polished.append(rotation_error_deg(b.pose, truth))
     assert len(plain) >= 6 and np.median(polished) < np.median(plain)
+
+
+def test_an_edge_fit_whose_normal_equations_are_singular_fails_instead_of_stopping_the_run(monkeypatch):
+    """A CNN start far off can match a handful of samples that fix no pose (all on one short edge):
+    the Gauss–Newton solve is singular. That is a failed fit (None), not an exception out of
+    ``predict`` or ``track`` that ends the user's run."""
+    from hybridpose.edges import ModelView, fit_edges
+    from hybridpose.edges import _kernels
+    from hybridpose.objects import load_object
+
+    cube, camera = load_object("cube"), Camera.default()
+    view = ModelView(cube)
+    pose = Pose.from_rotvec_t([0.4, -0.3, 0.2], [0.0, 0.0, 0.4])
+    image = np.full((camera.height, camera.width, 3), 30, np.uint8)
+    image[view.facet_ids(pose, camera, scale=1.0) > 0] = 200  # the cube, flat grey on dark
+    frame = Frame(image, camera, 0.0)
+    assert fit_edges(view, frame, pose) is not None
+
+    def singular(*args):
+        raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
+
+    monkeypatch.setattr(_kernels, "gauss_newton_lines", singular)
+    assert fit_edges(view, frame, pose) is None

@@ -183,6 +183,7 @@ class HybridEstimator:
         self.status = "init"
         self._frames = 0  # frames stepped since reset (the one being stepped: not yet counted)
         self._restarts: list[int] = []  # frame counts at which fusion and tracker restarted
+        self._first_start = False  # whether the last restart was the first start since reset
         self.camera: Camera | None = None
         self.last_timestamp: float | None = None
         self._n = _Counters()
@@ -204,6 +205,7 @@ class HybridEstimator:
         self._frames += 1
         if estimate.status in ("tracking", "reinit") and self._unsettled():
             estimate = replace(estimate, status="lost")
+        estimate = self._on_probation(estimate, frame)
         self.last_timestamp = frame.timestamp
         timings["total"] = 1000 * (time.perf_counter() - t_start)
         estimate.timings_ms.update(timings)
@@ -222,6 +224,7 @@ class HybridEstimator:
             return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status="init")
         self._restart(frame, fit, timings)
         self.status = "tracking"
+        self._first_start = True
         return self._estimate("init", (m.source, fit.source))
 
     def _track(self, frame: Frame, timings: dict) -> Estimate:
@@ -480,6 +483,20 @@ class HybridEstimator:
             pass
         self._n = _Counters()
         self._restarts.append(self._frames)
+        self._first_start = False  # (the first start says so after this)
+
+    def _on_probation(self, estimate: Estimate, frame: Frame) -> Estimate:
+        """``estimate`` as the start's probation has it (``confirm_frames``): within a start's first
+        frames ``init`` without a pose (the first start) or ``lost`` (a restart); a first start lost
+        within them sends the estimator back to ``init``."""
+        n = self.config.confirm_frames
+        if n == 0 or not self._restarts or self._frames - self._restarts[-1] > n:
+            return estimate
+        if estimate.status == "lost" and self._first_start:
+            self.status = "init"  # a wrong first start: look again from scratch
+        if self._first_start:
+            return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status="init")
+        return replace(estimate, status="lost")
 
     def _unsettled(self) -> bool:
         """Restarted twice within ``unstable_window`` frames and not yet ``settle_frames`` frames since:

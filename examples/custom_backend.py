@@ -1,8 +1,12 @@
 """Plug your own backend into the hybrid: here a tracker that wraps the built-in edge tracker and
 refuses to trust any frame darker than a threshold (e.g. an eclipse your sensor cannot see through).
 
-Any object with the role's methods works (``init / track / reset`` for a tracker, ``predict`` for a
-regressor, ``reset / predict / update / estimate`` for a fusion). To make it available by name to
+A backend derives from its role's base class (``hybridpose.trackers.base.Tracker``,
+``hybridpose.regressors.base.PoseRegressor``, ``hybridpose.fusion.base.Fusion``), or gives every member
+of the role's contract itself (``hybridpose.contracts``: a tracker's ``init / track / reset`` and
+``object``, ``lost_quality``, ``tells_covered``; ``track`` takes the keywords ``search_px``,
+``lost_quality`` and ``covered_lost_quality`` and may ignore them), as this one does: the estimator
+names what is missing when it is built. To make it available by name to
 ``HybridEstimator.from_names`` and ``hybridpose track --tracker``, register it — in your package's
 ``pyproject.toml``::
 
@@ -33,6 +37,8 @@ class DarkAwareTracker:
     def __init__(self, object, min_mean_grey: float = 3.0):
         self.inner = registry.create("tracker", "edges", object=object)
         self.object = object              # the estimator crops its CNN checks around this model
+        self.lost_quality = self.inner.lost_quality    # the estimator never asks a fit to hold below it
+        self.tells_covered = self.inner.tells_covered  # whether track() can see the object covered
         self.min_mean_grey = min_mean_grey
 
     def init(self, frame, pose):
@@ -41,10 +47,10 @@ class DarkAwareTracker:
     def reset(self):
         self.inner.reset()
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, search_px=None, lost_quality=None, covered_lost_quality=None):
         if frame.image.mean() < self.min_mean_grey:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:dark-aware-edges", frame.timestamp)
-        return self.inner.track(frame, prior)
+        return self.inner.track(frame, prior, search_px, lost_quality, covered_lost_quality)
 
 
 truss = load_object("truss")

@@ -50,7 +50,6 @@ suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).
 """
 from __future__ import annotations
 
-import inspect
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -58,6 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .contracts import check_backend
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
 from .fusion.base import adjoint
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
@@ -100,9 +100,12 @@ class HybridEstimator:
     """Track a known object in a monocular sequence with no initial pose.
 
     Args:
-        tracker: a :class:`~hybridpose.trackers.base.Tracker` (``init`` / ``track`` / ``reset``).
-        regressor: a :class:`~hybridpose.regressors.base.PoseRegressor` (``predict(frame, roi)``).
-        fusion: a :class:`~hybridpose.fusion.base.Fusion` (``reset`` / ``predict`` / ``update``).
+        tracker: a :class:`~hybridpose.trackers.base.Tracker`, or any object giving the members of
+            :class:`~hybridpose.contracts.TrackerContract` (checked here: TypeError naming those missing).
+        regressor: a :class:`~hybridpose.regressors.base.PoseRegressor`, or the same for
+            :class:`~hybridpose.contracts.RegressorContract`.
+        fusion: a :class:`~hybridpose.fusion.base.Fusion`, or the same for
+            :class:`~hybridpose.contracts.FusionContract`.
         config: the policy's thresholds: a :class:`HybridConfig`, used as given; None (default): the
             defaults with the fields the regressor recommends (``regressor.hybrid_config``: a part's
             fitted network carries ``reacquire_deg=20``); a mapping of fields: those recommended
@@ -118,29 +121,16 @@ class HybridEstimator:
 
     def __init__(self, tracker, regressor, fusion, config: HybridConfig | Mapping | None = None,
                  threads: int | None = None) -> None:
-        for name, obj, methods in (("tracker", tracker, ("init", "track", "reset")),
-                                   ("regressor", regressor, ("predict",)),
-                                   ("fusion", fusion, ("reset", "predict", "update"))):
-            missing = [m for m in methods if not callable(getattr(obj, m, None))]
-            if missing:
-                raise TypeError(f"{name}: expected an object with {', '.join(methods)}; "
-                                f"{type(obj).__name__} lacks {', '.join(missing)}")
+        for role, backend in (("tracker", tracker), ("regressor", regressor), ("fusion", fusion)):
+            check_backend(role, backend)
         self.tracker, self.regressor, self.fusion = tracker, regressor, fusion
         self.threads = set_threads(threads)
         if config is None or isinstance(config, Mapping):
-            config = recommended_config(getattr(regressor, "hybrid_config", None), config, type(regressor).__name__)
+            config = recommended_config(regressor.hybrid_config, config, type(regressor).__name__)
         if not isinstance(config, HybridConfig):
             raise TypeError(f"config: expected a HybridConfig, a mapping of its fields or None, got {type(config).__name__}")
         self.config = config
-        self.object: ObjectModel | None = getattr(tracker, "object", None)
-        # a tracker whose track() takes search_px searches further from a CNN pose than frame to frame
-        # and one that takes lost_quality keeps an established track through a partial occlusion
-        try:
-            params = inspect.signature(tracker.track).parameters
-        except (TypeError, ValueError):
-            params = {}
-        self._widens, self._keeps = "search_px" in params, "lost_quality" in params
-        self._covers = "covered_lost_quality" in params and bool(getattr(tracker, "tells_covered", False))
+        self.object: ObjectModel | None = tracker.object
         self.regressor_calls = 0  # since construction: the CNN's share of the work
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.reset()
@@ -320,7 +310,7 @@ class HybridEstimator:
         self._n.last_cnn = m
         if m.pose is not None and previous is not None and previous.pose is not None:
             dt = m.timestamp - previous.timestamp
-            motion = getattr(self.fusion, "initial_twist_covariance", np.zeros((6, 6))) * dt**2
+            motion = self.fusion.initial_twist_covariance * dt**2
             cap = self.config.reacquire_deg
             if (_mahalanobis2(previous.pose, previous.covariance + motion, m.pose, m.covariance) <= self.config.reacquire_chi2
                     and (cap is None or rotation_error_deg(previous.pose, m.pose) <= cap)):
@@ -451,25 +441,25 @@ class HybridEstimator:
 
     def _keep_quality(self) -> tuple[float | None, float | None]:
         """The tracker's lost thresholds for the next frame-to-frame fit (in general, where it sees
-        the object covered), once the track has run ``keep_after`` frames since its start and where
-        the tracker takes them per call; else None (the tracker's own). A tracker that tells when the
-        object is covered (``tells_covered``) keeps its own threshold in general and gets
-        ``keep_covered_quality`` where covered; any other gets ``keep_quality``; neither above its own."""
-        if not self._keeps or self._n.since_start < self.config.keep_after:
+        the object covered), once the track has run ``keep_after`` frames since its start; else None
+        (the tracker's own). A tracker that tells when the object is covered (``tells_covered``) keeps
+        its own threshold in general and gets ``keep_covered_quality`` where covered; any other gets
+        ``keep_quality``; neither above its own (``lost_quality``)."""
+        if self._n.since_start < self.config.keep_after:
             return None, None
-        own = getattr(self.tracker, "lost_quality", None)
+        own = self.tracker.lost_quality
 
         def capped(q: float | None) -> float | None:
             return q if q is None or own is None else min(q, float(own))
 
-        if self._covers:
+        if self.tracker.tells_covered:
             return None, capped(self.config.keep_covered_quality)
         return capped(self.config.keep_quality), None
 
     def _cnn_search_px(self) -> float | None:
-        """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` where the tracker can widen
-        its search, else None (its own range)."""
-        return self.config.cnn_search_px if self._widens and self.config.cnn_search_px > 0 else None
+        """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` (None where 0: the
+        tracker's own frame-to-frame range; a tracker with a fixed range ignores it)."""
+        return self.config.cnn_search_px if self.config.cnn_search_px > 0 else None
 
     def _restart(self, frame: Frame, m: Measurement, timings: dict, twist: np.ndarray | None = None) -> None:
         """Fusion and tracker start over from ``m``, the tracker's fit from a CNN pose, with body twist

@@ -56,7 +56,7 @@ class _Remembering:
 
     def __init__(self, regressor) -> None:
         self.regressor, self.found = regressor, False
-        self.hybrid_config = getattr(regressor, "hybrid_config", None)
+        self.hybrid_config = regressor.hybrid_config
 
     def forget(self) -> None:
         self.found = False

@@ -31,7 +31,10 @@ def tilt(pose: Pose, deg: float) -> Pose:
 class ScriptedTracker:
     """Follows the truth, but from ``drift_at`` on it is ``drift_deg`` off while reporting full
     confidence, until it is initialised again; ``lost_frames`` it reports lost. (A user-defined
-    backend: any object with init / track / reset.)"""
+    backend that does not derive from the base: the tracker contract's members, no more.)"""
+
+    lost_quality = None  # no threshold of its own
+    tells_covered = False
 
     def __init__(self, drift_at=None, drift_deg=6.0, lost_frames=(), object=None):
         self.object = object  # the estimator crops the CNN checks around its projection when there is one
@@ -44,7 +47,7 @@ class ScriptedTracker:
     def reset(self):
         pass
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         k = frame.index
         if k in self.lost_frames:
             return Measurement(None, np.eye(6), 0.0, "tracker:scripted", frame.timestamp)
@@ -56,6 +59,8 @@ class ScriptedTracker:
 
 class OracleRegressor:
     """The truth with a 1° / 5 mm covariance; a flipped answer at ``outliers``; nothing at ``blind``."""
+
+    hybrid_config = {}  # no policy of its own
 
     def __init__(self, outliers=(), blind=()):
         self.outliers, self.blind, self.calls = set(outliers), set(blind), []
@@ -109,7 +114,7 @@ class Creeping(ScriptedTracker):
         super().__init__(**kw)
         self.rate_deg = rate_deg
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         k = frame.index
         off = self.rate_deg * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
         if off > 2.0 and prior is not None and rotation_error_deg(prior, truth(k)) < 1.0:
@@ -155,7 +160,7 @@ class Stubborn(ScriptedTracker):
     """0.5° more off every frame from frame 12, fully confident, wherever it is started (a fit from
     the CNN pose lands back on the drift) until initialised again."""
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         k = frame.index
         off = 0.5 * (k - 11) if k >= 12 and max(self.inits) < 12 else 0.0
         cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
@@ -178,7 +183,7 @@ def test_a_cnn_pose_the_edges_do_not_confirm_declares_the_object_lost(restart_un
 class PoorFitAtFirst(ScriptedTracker):
     """Follows the truth, with fit quality 0.5 before frame 4 and 0.85 from there on."""
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         m = super().track(frame, prior)
         return m if frame.index >= 4 else Measurement(m.pose, m.covariance, 0.5, m.source, m.timestamp)
 
@@ -201,7 +206,7 @@ class DepthBasinTracker(ScriptedTracker):
     """Converges on the truth only from a start within 2 % of its distance (the edge fit's basin in
     depth); lost from anywhere else."""
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         if abs(np.linalg.norm(prior.t) / np.linalg.norm(truth(frame.index).t) - 1) > 0.02:
             return Measurement(None, np.eye(6), 0.2, "tracker:scripted", frame.timestamp)
         return super().track(frame, prior)
@@ -246,7 +251,7 @@ class LocalMinimumTracker(ScriptedTracker):
     """Converges on the truth from starts within 2.5° of it; from 2.5–8° off it settles in a local
     minimum 6° off that fits worse (0.66 against 0.85: the truss's parallel beams); lost beyond."""
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         k = frame.index
         err = rotation_error_deg(prior, truth(k))
         cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
@@ -294,7 +299,7 @@ class RangeRecordingTracker(ScriptedTracker):
         super().__init__(**kw)
         self.ranges = []
 
-    def track(self, frame, prior=None, search_px=None):
+    def track(self, frame, prior=None, search_px=None, **options):
         self.ranges.append((frame.index, search_px))
         return super().track(frame, prior)
 
@@ -320,7 +325,7 @@ def test_fits_from_a_cnn_pose_search_further_than_frame_to_frame():
 class SunRecordingTracker(RangeRecordingTracker):
     """Records whether each fit's frame carries the sun's direction."""
 
-    def track(self, frame, prior=None, search_px=None):
+    def track(self, frame, prior=None, search_px=None, **options):
         self.sun = getattr(self, "sun", []) + [(frame.index, search_px, frame.sun_direction_cam is not None)]
         return super().track(frame, prior, search_px)
 
@@ -343,7 +348,7 @@ def test_fits_from_a_cnn_pose_leave_out_the_sun_unless_asked(sun_in_cnn_fits):
 class ElsewhereTracker(ScriptedTracker):
     """Fits a pose 10° from the truth with full confidence, wherever it starts."""
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         m = super().track(frame, prior)
         return Measurement(tilt(m.pose, 10.0), m.covariance, m.quality, m.source, m.timestamp)
 
@@ -370,7 +375,7 @@ class EdgesOnlyAtTheTruth(ScriptedTracker):
     """Fits the truth from anywhere within 90° of it and finds nothing to hold further off (an
     end-for-end twin)."""
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         if prior is not None and rotation_error_deg(prior, truth(frame.index)) > 90:
             return Measurement(None, np.eye(6), 0.0, "tracker:scripted", frame.timestamp)
         return super().track(frame, prior)
@@ -395,7 +400,7 @@ class HalfCoveredTracker(EdgesOnlyAtTheTruth):
         super().__init__(**kw)
         self.covered = set(covered)
 
-    def track(self, frame, prior=None, lost_quality=None):
+    def track(self, frame, prior=None, lost_quality=None, **options):
         m = super().track(frame, prior)
         if m.lost:
             return m
@@ -440,7 +445,7 @@ class DeeplyCoveredTracker(EdgesOnlyAtTheTruth):
         super().__init__(**kw)
         self.covered_frames, self.covered = set(covered), False
 
-    def track(self, frame, prior=None, lost_quality=None, covered_lost_quality=None):
+    def track(self, frame, prior=None, lost_quality=None, covered_lost_quality=None, **options):
         m = super().track(frame, prior)
         self.covered = frame.index in self.covered_frames
         if m.lost:
@@ -564,8 +569,15 @@ def test_every_fusion_backend_runs_the_policy(fusion):
 
 
 def test_bad_input_gets_clear_errors():
-    with pytest.raises(TypeError, match="tracker: expected an object with init, track, reset"):
+    with pytest.raises(TypeError, match="tracker: object lacks object, lost_quality, tells_covered, init, track, reset"):
         HybridEstimator(object(), OracleRegressor(), registry.create("fusion", "ukf"))
+
+    class NoPolicy:  # a regressor missing the contract's attribute, though it predicts
+        def predict(self, frame, roi=None):
+            return OracleRegressor().predict(frame, roi)
+
+    with pytest.raises(TypeError, match="regressor: NoPolicy lacks hybrid_config .*derive it from"):
+        HybridEstimator(ScriptedTracker(), NoPolicy(), registry.create("fusion", "ukf"))
     with pytest.raises(ValueError, match="check_period"):
         HybridConfig(check_period=-1)
     with pytest.raises(ValueError, match="confirm_checks"):
@@ -640,7 +652,7 @@ def test_rendered_arm_occlusion_with_the_real_backends(truss):
 
 def test_a_mediocre_tracker_quality_calls_a_check_at_once():
     class Mediocre(ScriptedTracker):
-        def track(self, frame, prior=None):
+        def track(self, frame, prior=None, **options):
             m = super().track(frame, prior)
             q = 0.5 if frame.index == 5 else 0.85  # below check_below_quality, above lost
             return Measurement(m.pose, m.covariance, q, m.source, m.timestamp)
@@ -696,7 +708,7 @@ class WrongStartsDie(ScriptedTracker):
         super().init(frame, pose)
         self.start, self.wrong = frame.index, rotation_error_deg(pose, truth(frame.index)) > 10
 
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         k, cov = frame.index, np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
         if k == self.start:
             return Measurement(prior, cov, 0.85, "tracker:scripted", frame.timestamp)
@@ -738,7 +750,7 @@ def swerve(k: int) -> Pose:
 
 
 class SwerveTracker(ScriptedTracker):
-    def track(self, frame, prior=None):
+    def track(self, frame, prior=None, **options):
         m = super().track(frame, prior)
         return Measurement(swerve(frame.index), m.covariance, m.quality, m.source, m.timestamp)
 
@@ -772,7 +784,7 @@ def test_a_start_the_tracker_refuses_counts_as_lost():
     """A tracker refuses a start (ValueError: e.g. a prediction coasting behind the camera while lost):
     the frame counts as lost, ``step`` does not raise, and the CNN restarts tracking."""
     class Refusing(ScriptedTracker):
-        def track(self, frame, prior=None):
+        def track(self, frame, prior=None, **options):
             if 10 <= frame.index < 14:
                 raise ValueError("prior: the object is behind the camera")
             return super().track(frame, prior)
@@ -839,7 +851,7 @@ class NearSightedTracker(ScriptedTracker):
     """Finds the object (``swing``) only from a prior within 1.2° and 4 mm of it: an edge search of
     a few pixels."""
 
-    def track(self, frame, prior=None, lost_quality=None):
+    def track(self, frame, prior=None, lost_quality=None, **options):
         pose = swing(frame.index)
         cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
         if prior is not None and (rotation_error_deg(prior, pose) > 1.2 or np.linalg.norm(prior.t - pose.t) > 0.004):

@@ -31,6 +31,15 @@ def test_expected_backends_are_registered():
 
 
 @pytest.mark.parametrize("name", FUSIONS)
+def test_every_fusion_gives_every_member_of_the_contract_the_estimator_reads(name):
+    from hybridpose.contracts import check_backend
+
+    fusion = create("fusion", name)
+    check_backend("fusion", fusion)  # before reset, where reading its estimate would raise
+    assert fusion.initial_twist_covariance.shape == (6, 6)
+
+
+@pytest.mark.parametrize("name", FUSIONS)
 def test_static_object_converges(name):
     rng = np.random.default_rng(0)
     # a quiet motion model, as for an object known to be still

@@ -68,7 +68,10 @@ def test_expected_backends_are_registered():
 
 @pytest.mark.parametrize("name", REGRESSORS)
 def test_every_regressor_keeps_the_measurement_contract(name, truss, view, tmp_path, tiny_keypoints):
+    from hybridpose.contracts import check_backend
+
     reg = _regressor(name, truss, tmp_path, tiny_keypoints)
+    check_backend("regressor", reg)
     frame, truth = view
     m = reg.predict(frame)
     _check(m, name, frame)

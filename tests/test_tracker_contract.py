@@ -42,6 +42,15 @@ def test_expected_backends_are_registered():
 
 
 @pytest.mark.parametrize("name", TRACKERS)
+def test_every_tracker_gives_every_member_of_the_contract_the_estimator_reads(name, truss):
+    from hybridpose.contracts import TrackerContract, check_backend
+
+    trk = create("tracker", name, object=truss)
+    check_backend("tracker", trk)
+    assert isinstance(trk, TrackerContract) and trk.object is truss and isinstance(trk.tells_covered, bool)
+
+
+@pytest.mark.parametrize("name", TRACKERS)
 def test_follows_a_slow_tumble_from_the_true_pose(name, truss, tumble):
     trk = create("tracker", name, object=truss)
     frame0, pose0, _ = tumble[0]

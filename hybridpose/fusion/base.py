@@ -1,7 +1,8 @@
 """The fusion contract: one pose belief over time, predicted to each frame and updated with
 measurements from any tracker or regressor.
 
-Every backend derives from :class:`Fusion`, which checks inputs (timestamps that go forward, a
+Every built-in backend derives from :class:`Fusion` (which fulfils the role's contract,
+:mod:`hybridpose.contracts`), which checks inputs (timestamps that go forward, a
 measurement at the predicted time, finite poses and covariances), holds the gating rule and turns
 the backend's state into an immutable :class:`~hybridpose.core.Estimate`. Backends implement
 :meth:`Fusion._reset`, :meth:`Fusion._predict`, :meth:`Fusion._innovation`, :meth:`Fusion._update` and

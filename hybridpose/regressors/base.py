@@ -1,4 +1,5 @@
-"""The regressor contract: one image in, a pose ``Measurement`` out, no prior needed."""
+"""The regressor contract: one image in, a pose ``Measurement`` out, no prior needed
+(:class:`PoseRegressor` fulfils :class:`hybridpose.contracts.RegressorContract`)."""
 from __future__ import annotations
 
 from abc import ABC, abstractmethod

@@ -1,7 +1,8 @@
 """The tracker contract: given the pose at the previous frame (or the caller's prior), follow the
 object into the next frame and say how sure it is — or that it has lost the object.
 
-Every backend derives from :class:`Tracker`, which checks inputs, keeps the state machine
+Every built-in backend derives from :class:`Tracker` (which fulfils the role's contract,
+:mod:`hybridpose.contracts`), which checks inputs, keeps the state machine
 (``init`` → ``track``… → ``reset``) and guarantees that no NaN leaves a tracker: a backend whose
 solver produces non-finite numbers reports ``lost`` instead.
 """

@@ -2,13 +2,37 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from enum import Enum
 
 import numpy as np
 
 from .geometry import Camera, Pose
 from .geometry.checks import as_array, as_unit_direction
 
-ESTIMATE_STATUSES = ("init", "tracking", "lost", "reinit")
+
+class Status(str, Enum):
+    """An :class:`Estimate`'s status, and the state of the estimator that gave it. A ``str``:
+    ``Status.LOST == "lost"``, and it prints and serialises as its value.
+
+    - ``INIT``: no pose yet (the CNN looks for the object, or the first start is on probation);
+    - ``TRACKING``: the pose is tracked and trusted;
+    - ``LOST``: the object was lost; the pose, where given, is a prediction not to be trusted;
+    - ``REINIT``: the track restarted from the CNN on this frame (trusted).
+    """
+
+    INIT = "init"
+    TRACKING = "tracking"
+    LOST = "lost"
+    REINIT = "reinit"
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+
+ESTIMATE_STATUSES = tuple(s.value for s in Status)
 # the covariance of a measurement that knows nothing: ±180° rotation, ±1 m translation
 LOST_COVARIANCE = np.diag([np.pi**2] * 3 + [1.0] * 3)
 
@@ -137,7 +161,8 @@ class Estimate:
         pose: ``T_cam_obj`` or None before initialisation.
         covariance: (6, 6) right-perturbation covariance of ``pose``, tangent ``[ω, v]``.
         velocity: (6,) body-frame twist ``[ω (rad/s), v (m/s)]``.
-        status: one of ``"init"``, ``"tracking"``, ``"lost"``, ``"reinit"``.
+        status: a :class:`Status` (``"init"``, ``"tracking"``, ``"lost"`` or ``"reinit"``; a str given
+            here is turned into one).
         timestamp: seconds.
         sources: the measurements fused into this estimate, e.g. ``("tracker:edges",
             "regressor:default")`` (empty when only predicted).
@@ -148,7 +173,7 @@ class Estimate:
     pose: Pose | None
     covariance: np.ndarray
     timestamp: float
-    status: str = "init"
+    status: Status = Status.INIT
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(6))
     sources: tuple[str, ...] = ()
     timings_ms: dict = field(default_factory=dict)
@@ -156,5 +181,6 @@ class Estimate:
     def __post_init__(self) -> None:
         if self.status not in ESTIMATE_STATUSES:
             raise ValueError(f"status: expected one of {ESTIMATE_STATUSES}, got {self.status!r}")
+        object.__setattr__(self, "status", Status(self.status))
         object.__setattr__(self, "covariance", as_covariance6(self.covariance))
         object.__setattr__(self, "velocity", as_array(self.velocity, "velocity", (6,)))

@@ -14,32 +14,31 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   convincing (``start_sure_quality``), a clearly better one from the start turned a few degrees (a
   local minimum of the object's edges lies next to the truth). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
-  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality``
-  where the tracker sees the object covered, or, for a tracker that cannot tell, down to
-  ``keep_quality``: an arm covering half the object lowers a right fit's quality under the
-  tracker's own threshold). Every
-  ``check_period`` frames the CNN runs on a crop around the predicted projection, and the tracker
-  fits the edges from the CNN pose too. The check disagrees when the CNN pose is far from the fused
-  one (``disagreement_chi2`` with both covariances; optionally ``disagreement_deg`` apart whatever
-  the covariances) or when the fit from the CNN pose lands
-  elsewhere and matches the image better than the current track
-  (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows
-  at once) restart everything from that fit — the drift the tracker did not flag. A check whose CNN
-  pose the edges cannot fit at all (typically its end-for-end twin) while the track fits better
-  (by ``switch_quality_margin``) does not count. A CNN pose that agrees is fused. A tracker
-  measurement the gate refuses calls a check at once; where the CNN and the edges from its pose
-  vouch for it, the fusion (not the tracker) was wrong and starts over there.
-  Where the tracker loses the object from the prediction, an established track (``retry_after``)
-  tries once more from the tracker's previous pose and, found there, starts the fusion over from
-  that fit: a hand-held camera stops where a constant-velocity model runs on.
+  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where
+  the tracker sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``:
+  an arm covering half the object lowers a right fit's quality under the tracker's own threshold).
+  Every ``check_period`` frames the CNN runs on a crop around the predicted projection, and the
+  tracker fits the edges from the CNN pose too (:class:`CnnCheck`). The check disagrees when the CNN
+  pose is far from the fused one (``disagreement_chi2`` with both covariances; optionally
+  ``disagreement_deg``) or when the fit from it lands elsewhere and matches the image better than
+  the track (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next
+  check follows at once) restart everything from that fit — the drift the tracker did not flag. A
+  check whose CNN pose the edges cannot fit at all (typically its end-for-end twin) while the track
+  fits better does not count. A CNN pose that agrees is fused. A tracker measurement the gate refuses
+  calls a check at once; where the CNN and the edges from its pose vouch for it, the fusion (not the
+  tracker) was wrong and starts over there. Where the tracker loses the object from the prediction,
+  an established track (``retry_after``) tries once more from the tracker's previous pose and, found
+  there, starts the fusion over from that fit: a hand-held camera stops where a constant-velocity
+  model runs on.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
   consecutive answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the
-  tracker, started from the latest, confirms it (not lost: under the arm the CNN can repeat the same
-  wrong answer, but the edges do not match);
-  then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
-  from the prediction each frame and takes up again by itself when its fit is good and inside the
-  gate (``tracker_resumes``); the fusion then starts over from that fit.
+  tracker, started from the latest, confirms it (under the arm the CNN can repeat the same wrong
+  answer, but the edges do not match); then everything restarts from the tracker's fit
+  (**reinit**). Meanwhile the tracker also tries from the prediction each frame and takes up again by
+  itself when its fit is good and inside the gate (``tracker_resumes``).
+
+A start (init, reinit) may be put on probation (``confirm_frames``): not trusted until it has held.
 
 For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose
 nearest the track (or, while lost, nearest the previous answer): the CNN may give any of the poses that
@@ -53,17 +52,16 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
 from .contracts import check_backend
-from .core import LOST_COVARIANCE, Estimate, Frame, Measurement
-from .fusion.base import adjoint
+from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status
+from .fusion.base import nearest_equivalent_measurement
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose, rotvec_to_matrix
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
-from .metrics import rotation_error_deg, rotation_error_rad
+from .metrics import rotation_error_deg
 from .objects import ObjectModel
 from .threads import set_threads
 
@@ -81,19 +79,20 @@ class _Counters:
     last_cnn: Measurement | None = None
 
 
-def nearest_equivalent_measurement(m: Measurement, near: Pose, symmetries) -> Measurement:
-    """``m`` restated as the equivalent pose ``m.pose @ S`` (``S`` one of the object's ``symmetries``,
-    or the identity) nearest ``near`` in rotation, its right-perturbation covariance carried along:
-    ``T·Exp(ξ)·S = (T·S)·Exp(Ad(S⁻¹)·ξ)``, so ``Σ' = Ad(S⁻¹) Σ Ad(S⁻¹)ᵀ``. ``m`` itself when it has no
-    pose, the object no symmetry, or the identity is nearest."""
-    if m.pose is None or near is None or not symmetries:
-        return m
-    identity = Pose.identity()
-    best = min((identity, *symmetries), key=lambda S: rotation_error_rad(m.pose @ S, near))  # first on a tie
-    if best is identity:
-        return m
-    A = adjoint(best.inverse())
-    return replace(m, pose=m.pose @ best, covariance=A @ np.asarray(m.covariance) @ A.T)
+@dataclass(frozen=True)
+class CnnCheck:
+    """A CNN check of a track: the CNN's answer, the tracker's fit from it, whether they disagree with
+    the fused pose (the CNN's pose beyond the gate or ``disagreement_deg``, or the fit from it landing
+    elsewhere and matching the image better than the track) and whether the fit stayed with the CNN."""
+
+    cnn: Measurement
+    fit: Measurement
+    disagrees: bool
+    stayed: bool
+
+    def backed_by(self, track: Measurement, margin: float) -> bool:
+        """Whether the ``track`` measurement fits the image better than the fit from the CNN by ``margin``."""
+        return not track.lost and track.quality >= self.fit.quality + margin
 
 
 class HybridEstimator:
@@ -152,25 +151,17 @@ class HybridEstimator:
             threads: as for the constructor.
         """
         from .objects import load_object
-        from .registry import available, create
+        from .registry import create, create_regressor
 
         obj = object if isinstance(object, ObjectModel) else load_object(object, scale=scale)
-        trk = create("tracker", tracker, object=obj, **(tracker_kw or {}))
-        if regressor not in available("regressor") and (Path(regressor).suffix == ".pt" or Path(regressor).is_file()):
-            from .regressors.predictor import CheckpointRegressor
-
-            if not Path(regressor).is_file():
-                raise FileNotFoundError(f"regressor: {regressor}: no such checkpoint file")
-            reg = CheckpointRegressor(regressor, object=obj, **(regressor_kw or {}))
-        else:
-            reg = create("regressor", regressor, object=obj, **(regressor_kw or {}))
-        fus = create("fusion", fusion, **(fusion_kw or {}))
-        return cls(trk, reg, fus, config=config, threads=threads)
+        return cls(create("tracker", tracker, object=obj, **(tracker_kw or {})),
+                   create_regressor(regressor, object=obj, **(regressor_kw or {})),
+                   create("fusion", fusion, **(fusion_kw or {})), config=config, threads=threads)
 
     # --- public API --------------------------------------------------------------------------------
     def reset(self) -> None:
         """Forget everything: the next frame starts from the CNN again."""
-        self.status = "init"
+        self.status = Status.INIT
         self._frames = 0  # frames stepped since reset (the one being stepped: not yet counted)
         self._restarts: list[int] = []  # frame counts at which fusion and tracker restarted
         self._first_start = False  # whether the last restart was the first start since reset
@@ -186,15 +177,11 @@ class HybridEstimator:
         timings = {"tracker": 0.0, "regressor": 0.0, "fusion": 0.0}
         t_start = time.perf_counter()
         frame = frame.undistorted()  # once for the tracker and the CNN, which both model a pinhole
-        if self.status == "init":
-            estimate = self._initialise(frame, timings)
-        elif self.status == "lost":
-            estimate = self._reacquire(frame, timings)
-        else:
-            estimate = self._track(frame, timings)
+        state = {Status.INIT: self._initialise, Status.LOST: self._reacquire, Status.TRACKING: self._track}
+        estimate = state[self.status](frame, timings)
         self._frames += 1
-        if estimate.status in ("tracking", "reinit") and self._unsettled():
-            estimate = replace(estimate, status="lost")
+        if estimate.status in (Status.TRACKING, Status.REINIT) and self._unsettled():
+            estimate = replace(estimate, status=Status.LOST)
         estimate = self._on_probation(estimate, frame)
         self.last_timestamp = frame.timestamp
         timings["total"] = 1000 * (time.perf_counter() - t_start)
@@ -211,11 +198,11 @@ class HybridEstimator:
         m = self._cnn(frame, None, timings)
         fit = self._confirmed(frame, m, timings, depth_search=True)
         if fit is None:
-            return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status="init")
+            return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status=Status.INIT)
         self._restart(frame, fit, timings)
-        self.status = "tracking"
+        self.status = Status.TRACKING
         self._first_start = True
-        return self._estimate("init", (m.source, fit.source))
+        return self._estimate(Status.INIT, (m.source, fit.source))
 
     def _track(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
@@ -252,44 +239,51 @@ class HybridEstimator:
                or (rejected and self.config.check_on_rejection))
         if due:
             self._n.since_check = 0
-            fused = self.fusion.estimate
-            c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings, near=fused.pose)
-            if c.pose is not None:
-                far = (_mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > self.config.disagreement_chi2
-                       or (self.config.disagreement_deg is not None
-                           and rotation_error_deg(fused.pose, c.pose) > self.config.disagreement_deg))
-                fit = self._track_from(frame, c.pose, timings, self._cnn_search_px(), from_cnn=True)
-                if rejected and self.config.check_on_rejection and self._vouched(m, c, fit):
-                    # the edges from the CNN pose land on the refused measurement: the motion model
-                    # was wrong, not the tracker; start the fusion over from the tracker
-                    self._restart(frame, m, timings, self._tracker_twist(previous, m))
-                    return self._estimate("tracking", (m.source, c.source))
-                better = (fit.pose is not None and fit.quality > m.quality + self.config.switch_quality_margin
-                          and _mahalanobis2(fused.pose, fused.covariance, fit.pose, fit.covariance)
-                          > self.config.disagreement_chi2)
-                stayed = fit.pose is not None and _mahalanobis2(
-                    c.pose, c.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2
-                backed = not m.lost and m.quality >= fit.quality + self.config.switch_quality_margin
-                if (far or better) and fit.lost and backed:
-                    # the model's edges find nothing to hold at the CNN pose (typically its end-for-end
-                    # twin) while the track fits better: the image backs the track, the check is an outlier
-                    self._n.disagreements = 0
-                elif far or better:
-                    self._n.disagreements += 1
-                    if self._n.disagreements >= self.config.confirm_checks:
-                        if not stayed and not self.config.restart_unconfirmed:
-                            return self._declare_lost(frame, timings)
-                        # restart from the edge fit where it stayed with the CNN, else from the CNN itself
-                        start = fit if stayed else c
-                        self._restart(frame, start, timings)
-                        return self._estimate("reinit", (c.source, fit.source) if stayed else (c.source,))
-                else:
-                    self._n.disagreements = 0
-                    if self._timed(timings, "fusion", self.fusion.update, c):
-                        sources.append(c.source)
-                # (the trial fit leaves the tracker's own last pose there; harmless: every track call
-                # here passes the fused prediction as its prior)
-        return self._estimate("tracking", tuple(sources))
+        check = self._check(frame, m, timings) if due else None
+        if check is None:
+            return self._estimate(Status.TRACKING, tuple(sources))
+        if rejected and self.config.check_on_rejection and self._vouched(m, check.cnn, check.fit):
+            # the edges from the CNN pose land on the refused measurement: the motion model was
+            # wrong, not the tracker; start the fusion over from the tracker
+            self._restart(frame, m, timings, self._tracker_twist(previous, m))
+            return self._estimate(Status.TRACKING, (m.source, check.cnn.source))
+        if check.disagrees and check.fit.lost and check.backed_by(m, self.config.switch_quality_margin):
+            # the model's edges find nothing to hold at the CNN pose (typically its end-for-end twin)
+            # while the track fits better: the image backs the track, the check is an outlier
+            self._n.disagreements = 0
+        elif check.disagrees:
+            self._n.disagreements += 1
+            if self._n.disagreements >= self.config.confirm_checks:
+                if not check.stayed and not self.config.restart_unconfirmed:
+                    return self._declare_lost(frame, timings)
+                # restart from the edge fit where it stayed with the CNN, else from the CNN itself
+                self._restart(frame, check.fit if check.stayed else check.cnn, timings)
+                return self._estimate(Status.REINIT, (check.cnn.source, check.fit.source) if check.stayed
+                                      else (check.cnn.source,))
+        else:
+            self._n.disagreements = 0
+            if self._timed(timings, "fusion", self.fusion.update, check.cnn):
+                sources.append(check.cnn.source)
+        # (the trial fit leaves the tracker's own last pose there; harmless: every track call here
+        # passes the fused prediction as its prior)
+        return self._estimate(Status.TRACKING, tuple(sources))
+
+    def _check(self, frame: Frame, m: Measurement, timings: dict) -> CnnCheck | None:
+        """The CNN on a crop around the fused pose, and the tracker's fit from its answer, held against
+        the fused pose and the track's measurement ``m`` (None where the CNN found nothing)."""
+        fused = self.fusion.estimate
+        c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings, near=fused.pose)
+        if c.pose is None:
+            return None
+        chi2 = self.config.disagreement_chi2
+        fit = self._track_from(frame, c.pose, timings, self._cnn_search_px(), from_cnn=True)
+        far = (_mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > chi2
+               or (self.config.disagreement_deg is not None
+                   and rotation_error_deg(fused.pose, c.pose) > self.config.disagreement_deg))
+        better = (fit.pose is not None and fit.quality > m.quality + self.config.switch_quality_margin
+                  and _mahalanobis2(fused.pose, fused.covariance, fit.pose, fit.covariance) > chi2)
+        stayed = fit.pose is not None and _mahalanobis2(c.pose, c.covariance, fit.pose, fit.covariance) <= chi2
+        return CnnCheck(c, fit, disagrees=far or better, stayed=stayed)
 
     def _reacquire(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)
@@ -303,7 +297,7 @@ class HybridEstimator:
                 return self._take_up(frame, m, timings)
         self._n.since_check += 1
         if self._n.since_check < self.config.lost_check_period:
-            return self._estimate("lost", ())
+            return self._estimate(Status.LOST, ())
         self._n.since_check = 0
         previous = self._n.last_cnn
         m = self._cnn(frame, None, timings, near=previous.pose if previous is not None else None)
@@ -317,17 +311,17 @@ class HybridEstimator:
                 fit = self._confirmed(frame, m, timings)
                 if fit is not None:
                     self._restart(frame, fit, timings)
-                    self.status = "tracking"
-                    return self._estimate("reinit", (m.source, fit.source))
-        return self._estimate("lost", ())
+                    self.status = Status.TRACKING
+                    return self._estimate(Status.REINIT, (m.source, fit.source))
+        return self._estimate(Status.LOST, ())
 
     # --- helpers -----------------------------------------------------------------------------------
     def _declare_lost(self, frame: Frame, timings: dict) -> Estimate:
-        self.status = "lost"
+        self.status = Status.LOST
         self._n = _Counters()
         # the CNN starts looking at once; its answer here is the first of the two that must agree
         self._n.last_cnn = self._cnn(frame, None, timings, near=self.fusion.estimate.pose)
-        return self._estimate("lost", ())
+        return self._estimate(Status.LOST, ())
 
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
         """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing,
@@ -402,9 +396,9 @@ class HybridEstimator:
         """The track goes on from the tracker's own fit ``m`` (no CNN involved): the fusion starts over
         there with zero twist and its initial uncertainty, the counters of the track from zero."""
         self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp)
-        self.status = "tracking"
+        self.status = Status.TRACKING
         self._n = _Counters()
-        return self._estimate("tracking", (m.source,))
+        return self._estimate(Status.TRACKING, (m.source,))
 
     def _retries(self, previous: Measurement | None) -> bool:
         """Whether a fit lost from the prediction is tried again from the tracker's ``previous`` pose:
@@ -482,11 +476,11 @@ class HybridEstimator:
         n = self.config.confirm_frames
         if n == 0 or not self._restarts or self._frames - self._restarts[-1] > n:
             return estimate
-        if estimate.status == "lost" and self._first_start:
-            self.status = "init"  # a wrong first start: look again from scratch
+        if estimate.status == Status.LOST and self._first_start:
+            self.status = Status.INIT  # a wrong first start: look again from scratch
         if self._first_start:
-            return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status="init")
-        return replace(estimate, status="lost")
+            return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status=Status.INIT)
+        return replace(estimate, status=Status.LOST)
 
     def _unsettled(self) -> bool:
         """Restarted twice within ``unstable_window`` frames and not yet ``settle_frames`` frames since:

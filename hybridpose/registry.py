@@ -8,6 +8,7 @@ from __future__ import annotations
 import importlib
 import logging
 from importlib.metadata import entry_points
+from pathlib import Path
 from typing import Any, Callable
 
 log = logging.getLogger(__name__)
@@ -88,3 +89,22 @@ def get(role: str, name: str) -> Callable[..., Any]:
 def create(role: str, name: str, **kwargs) -> Any:
     """Build the backend registered as ``name`` for ``role`` with keyword arguments."""
     return get(role, name)(**kwargs)
+
+
+def is_checkpoint_path(name: str) -> bool:
+    """Whether a regressor ``name`` means a trained checkpoint file rather than a registered name: not
+    registered, and ending in ``.pt`` or naming an existing file."""
+    return name not in available("regressor", baselines=True) and (Path(name).suffix == ".pt" or Path(name).is_file())
+
+
+def create_regressor(name: str, **kwargs) -> Any:
+    """The regressor registered as ``name``, or the one a checkpoint file (``runs/x/best.pt``, by
+    :func:`is_checkpoint_path`) holds, with keyword arguments (``object``, ``threads``, …).
+    FileNotFoundError for a checkpoint path that names no file."""
+    if not is_checkpoint_path(name):
+        return create("regressor", name, **kwargs)
+    if not Path(name).is_file():
+        raise FileNotFoundError(f"regressor: {name}: no such checkpoint file")
+    from .regressors.predictor import CheckpointRegressor
+
+    return CheckpointRegressor(name, **kwargs)

@@ -797,7 +797,7 @@ def test_a_start_the_tracker_refuses_counts_as_lost():
 
 def test_a_symmetric_objects_cnn_answer_is_restated_as_the_equivalent_pose_nearest_the_track():
     """Oracle: Monte Carlo. ``T·Exp(ξ)·S`` seen from ``T·S`` is ``Exp(ξ')`` with ``ξ'`` spread as the carried covariance."""
-    from hybridpose.estimator import nearest_equivalent_measurement
+    from hybridpose.fusion import nearest_equivalent_measurement
 
     rng = np.random.default_rng(4)
     S = Pose.from_rotvec_t([0.0, 0.0, np.pi], [0.01, -0.02, 0.0])  # a half-turn about an axis off the origin

@@ -61,3 +61,24 @@ def test_baselines_are_built_by_name_but_not_offered():
     assert registry.create("tracker", "rapid", object=load_object("cube")).name
     with pytest.raises(ValueError, match=r"available: combined, edges \(baselines: klt-pnp, rapid"):
         registry.get("tracker", "nope")
+
+
+def test_an_estimates_status_is_an_enum_that_reads_and_prints_as_its_word():
+    import json
+
+    from hybridpose import Status
+
+    e = Estimate(pose=None, covariance=np.eye(6), timestamp=0.0, status="lost")
+    assert e.status is Status.LOST and e.status == "lost" and e.status in ("tracking", "lost")
+    assert f"{e.status}|{e.status:>6}" == "lost|  lost" and json.dumps({"s": e.status}) == '{"s": "lost"}'
+    with pytest.raises(ValueError, match="status: expected one of"):
+        Estimate(pose=None, covariance=np.eye(6), timestamp=0.0, status="drifting")
+
+
+def test_a_regressor_is_made_from_a_registered_name_or_a_checkpoint_path_in_one_place(tmp_path):
+    assert not registry.is_checkpoint_path("default")
+    assert registry.is_checkpoint_path(str(tmp_path / "fit" / "best.pt"))
+    with pytest.raises(FileNotFoundError, match="best.pt: no such checkpoint file"):
+        registry.create_regressor(str(tmp_path / "fit" / "best.pt"))
+    with pytest.raises(ValueError, match="unknown regressor 'nonesuch'"):
+        registry.create_regressor("nonesuch")

@@ -116,7 +116,7 @@ def _backends(spec: RunSpec):
     seconds to load); the regressor is shared by every spec that names it."""
     from ..estimator import HybridEstimator
     from ..objects import load_object
-    from ..registry import create
+    from ..registry import create, create_regressor
 
     obj_key = (spec.object, spec.scale)
     if ("object", obj_key) not in _parts:
@@ -124,12 +124,7 @@ def _backends(spec: RunSpec):
     obj = _parts[("object", obj_key)]
     reg_key = ("regressor", spec.regressor, obj_key, spec.threads)
     if spec.mode != "tracker" and reg_key not in _parts:
-        if spec._is_file():
-            from ..regressors.predictor import CheckpointRegressor
-
-            _parts[reg_key] = CheckpointRegressor(spec.regressor, object=obj, threads=spec.threads)
-        else:
-            _parts[reg_key] = create("regressor", spec.regressor, object=obj, threads=spec.threads)
+        _parts[reg_key] = create_regressor(spec.regressor, object=obj, threads=spec.threads)
     tracker_kw = dict(spec.tracker_options)
     if spec.mode == "tracker":
         return obj, create("tracker", spec.tracker, object=obj, **tracker_kw)

@@ -15,11 +15,13 @@ acceleration of spectral densities ``angular_accel_rad_s2² · s`` and ``linear_
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from dataclasses import replace
 
 import numpy as np
 
 from ..core import Estimate, Measurement, as_covariance6
 from ..geometry import Pose, skew
+from ..metrics import rotation_error_rad
 
 # 99.9 % of a correct 6-dof Gaussian innovation lies inside this squared Mahalanobis distance
 # (scipy.stats.chi2.ppf(0.999, 6); a constant, so that `import hybridpose` does not load scipy.stats)
@@ -191,3 +193,18 @@ def pose_mahalanobis2(a: Pose, cov_a: np.ndarray, b: Pose, cov_b: np.ndarray) ->
     xi = rel.log()
     A = adjoint(rel)
     return mahalanobis2(xi, np.asarray(cov_a) + A @ np.asarray(cov_b) @ A.T)
+
+
+def nearest_equivalent_measurement(m: Measurement, near: Pose, symmetries) -> Measurement:
+    """``m`` restated as the equivalent pose ``m.pose @ S`` (``S`` one of the object's ``symmetries``,
+    or the identity) nearest ``near`` in rotation, its right-perturbation covariance carried along:
+    ``T·Exp(ξ)·S = (T·S)·Exp(Ad(S⁻¹)·ξ)``, so ``Σ' = Ad(S⁻¹) Σ Ad(S⁻¹)ᵀ``. ``m`` itself when it has no
+    pose, the object no symmetry, or the identity is nearest."""
+    if m.pose is None or near is None or not symmetries:
+        return m
+    identity = Pose.identity()
+    best = min((identity, *symmetries), key=lambda S: rotation_error_rad(m.pose @ S, near))  # first on a tie
+    if best is identity:
+        return m
+    A = adjoint(best.inverse())
+    return replace(m, pose=m.pose @ best, covariance=A @ np.asarray(m.covariance) @ A.T)

@@ -26,11 +26,11 @@ import torch
 from _common import PAIRED_HEADER, environment, paired_cells, publish, test_views, weights_tag
 from hybridpose.machine import cpu_label
 from hybridpose.metrics import rotation_error_deg, translation_error_m
-from hybridpose.regressors.compare import paired_comparison
-from hybridpose.regressors.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, network_call_ms
+from hybridpose.training.compare import paired_comparison
+from hybridpose.training.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, network_call_ms
 from hybridpose.regressors.predictor import CheckpointRegressor
 from hybridpose.regressors.checkpoints import shipped_checkpoint
-from hybridpose.regressors.quantize import int8_path
+from hybridpose.training.quantize import int8_path
 
 ENGINES = ("torch", "onnxruntime", "onnxruntime-int8")
 SETTINGS = {"no-expert": {"edge_on_expert": None}, "no-turns": {"turns": "off"}}

@@ -27,7 +27,7 @@ import numpy as np
 
 from _common import environment, publish, set_names, weights_tag
 from hybridpose.machine import cpu_label
-from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, PAPER
+from hybridpose.training.evaluate import GROSS_ERROR_DEG, PAPER
 from hybridpose.regressors.checkpoints import shipped_checkpoint
 
 PAPER_BEST = "Parallel VGG-19"
@@ -40,7 +40,7 @@ def evaluate_set(job) -> str:
     if not report.is_file():
         import torch
 
-        from hybridpose.regressors.evaluate import evaluate_checkpoint
+        from hybridpose.training.evaluate import evaluate_checkpoint
 
         torch.set_num_threads(1)
         evaluate_checkpoint(checkpoint, data, out, limit=limit, gradcam_count=0, timing_images=20, **options)

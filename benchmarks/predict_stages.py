@@ -8,7 +8,7 @@ the outer one): the keypoint network (every pass of the engine that runs it, tor
 first crop, the turned-crop batch, the second pass, the edge-on expert's), PnP, the edge fits (twin choice and refinement), the object detection and the
 twin verifier; *other* is the rest of ``predict`` (crops, twin candidates, covariance). Views are split
 by the network time they needed: *one pass* (one batch-1 call) and *more* (turned crops, second pass,
-expert). The bare network call (batch 1, :func:`hybridpose.regressors.evaluate.network_call_ms`) and the
+expert). The bare network call (batch 1, :func:`hybridpose.training.evaluate.network_call_ms`) and the
 CPU are recorded: the same code ran the whole path in 17.9 ms/view on one host and 31 ms on another
 whose network call was 1.9× slower (:mod:`hybridpose.machine`), so compare the shares, or timings
 from one run.
@@ -26,7 +26,7 @@ import torch
 from _common import environment, publish, test_views
 from hybridpose.machine import cpu_label
 from hybridpose.regressors import engines, keypoint_passes, predictor, twin_verifier
-from hybridpose.regressors.evaluate import network_call_ms
+from hybridpose.training.evaluate import network_call_ms
 from hybridpose.regressors.predictor import CheckpointRegressor
 from hybridpose.regressors.checkpoints import shipped_checkpoint
 from hybridpose.edges import fit as edge_fit

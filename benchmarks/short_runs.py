@@ -32,9 +32,9 @@ from _common import environment, update_results_md, write_json
 from hybridpose.machine import cpu_label
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.io import atomic_write_json
-from hybridpose.regressors.evaluate import GROSS_ERROR_DEG, PAPER, evaluate_checkpoint
+from hybridpose.training.evaluate import GROSS_ERROR_DEG, PAPER, evaluate_checkpoint
 from hybridpose.regressors.models import available_models, model_kind
-from hybridpose.regressors.train import add_train_arguments, config_from_args, train
+from hybridpose.training.train import add_train_arguments, config_from_args, train
 
 MODELS = ("vgg16", "vgg19", "branched-vgg19", "parallel-vgg19", "default", "keypoints")
 PAPER_NAME = {"vgg16": "VGG-16", "vgg19": "VGG-19", "branched-vgg19": "Branched VGG-19",

@@ -326,8 +326,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     """
     from .objects import load_object
     from .regressors.checkpoints import checkpoint_or_shipped, export_checkpoint
-    from .regressors.evaluate import calibrate_checkpoint, evaluate_checkpoint
-    from .regressors.train import TrainConfig, train
+    from .training.evaluate import calibrate_checkpoint, evaluate_checkpoint
+    from .training.train import TrainConfig, train
     from .datasets import render_random_dataset
 
     out = Path(out)

@@ -29,7 +29,7 @@ def tiny_checkpoint(truss, tmp_path_factory):
     """A `default`-architecture model trained for a few batches (mechanics, not accuracy), and the
     24 views (160×120) it was trained on, in ``.parent.parent / "ds"``."""
     from hybridpose.datasets import render_random_dataset
-    from hybridpose.regressors.train import TrainConfig, train
+    from hybridpose.training.train import TrainConfig, train
 
     root = tmp_path_factory.mktemp("kp")
     render_random_dataset(root / "ds", truss, Camera.default().scaled(160), count=24, seed=0)

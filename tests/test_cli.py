@@ -115,7 +115,7 @@ def test_train_verifier_runs_as_typed(tmp_path, capsys):
     assert "best validation accuracy" in capsys.readouterr().out
     assert (out / "best.pt").is_file() and (out / "pairs" / "meta.json").is_file()
     # without --label-max-deg the library's bound applies (one definition, not a second CLI literal)
-    from hybridpose.regressors.train_verifier import LABEL_MAX_DEG
+    from hybridpose.training.train_verifier import LABEL_MAX_DEG
 
     assert json.loads((out / "pairs" / "meta.json").read_text())["label_max_deg"] == LABEL_MAX_DEG
     assert main(args[:5] + ["--epochs", "0"]) == 2

@@ -210,8 +210,8 @@ def test_parallel_models_items_decode_each_image_once(random_ds, monkeypatch):
     """The parallel model's item (full image + crop of one view) decodes its image once and equals the two
     datasets' own items."""
     from hybridpose.datasets import bop
-    from hybridpose.regressors.train import TrainConfig
-    from hybridpose.regressors.train_data import make_datasets
+    from hybridpose.training.train import TrainConfig
+    from hybridpose.training.train_data import make_datasets
 
     train, _ = make_datasets(TrainConfig(model="parallel-vgg19", data=str(random_ds), out="unused", image_size=64))
     paired = train.dataset

@@ -113,7 +113,7 @@ def test_shipped_default_gives_the_same_pose_on_either_engine(truss):
 
 
 def test_quantize_writes_an_8bit_model_the_int8_engine_runs(tiny_checkpoint, tmp_path):
-    from hybridpose.regressors.quantize import int8_path, quantize_checkpoint, read_record
+    from hybridpose.training.quantize import int8_path, quantize_checkpoint, read_record
 
     ck = tmp_path / "net.pt"
     ck.write_bytes(tiny_checkpoint.read_bytes())
@@ -138,7 +138,7 @@ def test_quantize_writes_an_8bit_model_the_int8_engine_runs(tiny_checkpoint, tmp
 
 def test_int8_engine_refuses_a_missing_stale_or_foreign_file(tiny_checkpoint, tmp_path, capsys):
     from hybridpose.cli import main
-    from hybridpose.regressors.quantize import int8_path, read_record
+    from hybridpose.training.quantize import int8_path, read_record
 
     ck = tmp_path / "net.pt"
     ck.write_bytes(tiny_checkpoint.read_bytes())
@@ -167,7 +167,7 @@ def test_int8_engine_refuses_a_missing_stale_or_foreign_file(tiny_checkpoint, tm
 def test_auto_engine_runs_the_8bit_model_made_from_this_very_checkpoint(tiny_checkpoint, tmp_path, caplog):
     """engine='auto': the 8-bit file beside the checkpoint where it was made from it; float32 where there is
     none, or where the checkpoint changed since (a warning naming the file, not a silent older network)."""
-    from hybridpose.regressors.quantize import quantize_checkpoint
+    from hybridpose.training.quantize import quantize_checkpoint
     from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
 
     ck = tmp_path / "net.pt"
@@ -186,7 +186,7 @@ def test_auto_engine_runs_the_8bit_model_made_from_this_very_checkpoint(tiny_che
 
 def test_stale_int8_names_an_8bit_file_not_made_from_the_checkpoint(tiny_checkpoint, tmp_path):
     """What `hybridpose calibrate` checks after writing --out (in place, the 8-bit model goes stale)."""
-    from hybridpose.regressors.quantize import int8_path, quantize_checkpoint, stale_int8
+    from hybridpose.training.quantize import int8_path, quantize_checkpoint, stale_int8
     from hybridpose.regressors.checkpoints import load_checkpoint, save_checkpoint
 
     ck = tmp_path / "net.pt"

@@ -57,7 +57,7 @@ def test_the_training_fills_the_time_the_rendering_left():
 
 def test_a_measured_plan_trains_for_the_time_left_after_rendering(box_mesh, tmp_path, monkeypatch):
     import hybridpose.fit as fit_module
-    import hybridpose.regressors.train as train_module
+    import hybridpose.training.train as train_module
 
     cam = Camera.default().scaled((320, 240))
     box = load_object(str(box_mesh), scale=0.001)
@@ -280,7 +280,7 @@ def test_a_symmetric_parts_covariance_is_calibrated_on_its_errors_to_the_nearest
     errors counted to the true pose put the half-turns' 180° into the covariance."""
     from hybridpose.core import Measurement
     from hybridpose.datasets.bop import BopScene
-    from hybridpose.regressors import evaluate
+    from hybridpose.training import evaluate
     from hybridpose.regressors.predictor import CheckpointRegressor
 
     cam = Camera.default().scaled((320, 240))
@@ -336,7 +336,7 @@ def test_a_space_fit_renders_black_space_at_the_given_distances_and_trains_witho
     no whole-frame crops), its cone around the optical axis (light from every side of the image);
     distances given by the user reach the views and the record."""
     import hybridpose.datasets as datasets
-    import hybridpose.regressors.train as train_module
+    import hybridpose.training.train as train_module
 
     calls, runs = [], []
 
@@ -384,7 +384,7 @@ def test_a_start_from_another_objects_network_keeps_this_objects_keypoints(truss
     """--init-from copies the features, never the 3D keypoints the network's PnP uses."""
     from hybridpose.regressors.checkpoints import shipped_checkpoint
     from hybridpose.regressors.models import build_model
-    from hybridpose.regressors.train import _init_from
+    from hybridpose.training.train import _init_from
 
     other = 0.5 * truss.keypoints  # as many keypoints as the shipped truss network has, elsewhere
     net = build_model("default", keypoints_m=other, image_size=128)

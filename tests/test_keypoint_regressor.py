@@ -395,7 +395,7 @@ def test_eval_writes_the_report_plots_and_gradcam(tiny_checkpoint, tmp_path, cap
 
 
 def test_eval_without_gradcam_writes_no_sheet(tiny_checkpoint, tmp_path):
-    from hybridpose.regressors.evaluate import evaluate_checkpoint
+    from hybridpose.training.evaluate import evaluate_checkpoint
 
     data = tiny_checkpoint.parent.parent / "ds"
     s = evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=3, timing_images=2, gradcam_count=0)
@@ -406,7 +406,7 @@ def test_eval_without_gradcam_writes_no_sheet(tiny_checkpoint, tmp_path):
 def test_eval_without_timing_has_no_timings(tiny_checkpoint, tmp_path, capsys):
     """timing_images=0 (eval --timing-images 0): accuracy only, no timing keys, and the CLI says so."""
     from hybridpose.cli import main
-    from hybridpose.regressors.evaluate import evaluate_checkpoint
+    from hybridpose.training.evaluate import evaluate_checkpoint
 
     data = tiny_checkpoint.parent.parent / "ds"
     s = evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=2, timing_images=0, gradcam_count=0)
@@ -423,7 +423,7 @@ def test_eval_without_timing_has_no_timings(tiny_checkpoint, tmp_path, capsys):
 def test_eval_can_give_the_regressor_each_images_sun(tiny_checkpoint, tmp_path):
     import shutil
 
-    from hybridpose.regressors.evaluate import evaluate_checkpoint
+    from hybridpose.training.evaluate import evaluate_checkpoint
 
     data = tiny_checkpoint.parent.parent / "ds"
     s = evaluate_checkpoint(tiny_checkpoint, data, tmp_path / "rep", limit=3, timing_images=1, gradcam_count=0,
@@ -441,7 +441,7 @@ def test_eval_can_give_the_regressor_each_views_true_box(tiny_checkpoint, tmp_pa
     import shutil
 
     from hybridpose.datasets.bop import BopScene
-    from hybridpose.regressors import evaluate
+    from hybridpose.training import evaluate
     from hybridpose.regressors.predictor import CheckpointRegressor
 
     data = tiny_checkpoint.parent.parent / "ds"
@@ -474,7 +474,7 @@ def test_covariance_check_counts_errors_inside_the_ellipsoid():
     from scipy.stats import chi2
 
     from hybridpose.core import Measurement
-    from hybridpose.regressors.evaluate import covariance_check, covariance_lines, covariance_nees, over_confident
+    from hybridpose.training.evaluate import covariance_check, covariance_lines, covariance_nees, over_confident
 
     truth = Pose.from_rotvec_t([0.1, 0.2, -0.3], [0.05, 0.0, 0.8])
     half_turn = Pose.from_rotvec_t([0.0, 0.0, np.pi], [0.0, 0.0, 0.0])
@@ -503,7 +503,7 @@ def test_covariance_check_counts_errors_inside_the_ellipsoid():
 
 
 def test_calibrate_refuses_bad_coverage_and_too_few_poses(tiny_checkpoint, tmp_path):
-    from hybridpose.regressors.evaluate import MIN_CALIBRATION_POSES, calibrate_checkpoint
+    from hybridpose.training.evaluate import MIN_CALIBRATION_POSES, calibrate_checkpoint
 
     data = tiny_checkpoint.parent.parent / "ds"
     with pytest.raises(ValueError, match="coverage: expected a probability"):
@@ -514,7 +514,7 @@ def test_calibrate_refuses_bad_coverage_and_too_few_poses(tiny_checkpoint, tmp_p
 
 
 def test_accuracy_by_quality_keeps_what_a_gate_would_trust():
-    from hybridpose.regressors.evaluate import accuracy_by_quality, quality_table
+    from hybridpose.training.evaluate import accuracy_by_quality, quality_table
 
     rows = [{"quality": q, "rot_deg": r, "trans_m": t} for q, r, t in
             [(0.9, 1.0, 0.01), (0.6, 3.0, 0.03), (0.4, 170.0, 0.2), (0.0, 180.0, 1.0)]]  # the last: a failure
@@ -541,7 +541,7 @@ def test_compare_reports_pairs_the_views(tmp_path, capsys):
     from scipy.stats import binomtest
 
     from hybridpose.cli import main
-    from hybridpose.regressors.compare import compare_reports
+    from hybridpose.training.compare import compare_reports
 
     rng = np.random.default_rng(0)
     base = rng.gamma(2.0, 0.5, 400)                   # degrees, none gross
@@ -577,7 +577,7 @@ def test_compare_reports_pairs_the_views(tmp_path, capsys):
 
 
 def test_compare_reports_bad_input(tmp_path):
-    from hybridpose.regressors.compare import compare_reports
+    from hybridpose.training.compare import compare_reports
 
     a = _write_report(tmp_path / "a", [1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="not the same images in the same order"):
@@ -655,7 +655,7 @@ def test_twin_scores_weigh_head_against_edges():
 def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
     from scipy.spatial.transform import Rotation
 
-    from hybridpose.regressors.evaluate import view_elevation_deg
+    from hybridpose.training.evaluate import view_elevation_deg
 
     assert int(np.argmin(truss.extents)) == 2  # the truss is flat in its z
     face_on = Pose(np.eye(3), np.array([0.0, 0.0, 0.8]) - truss.center)      # looking along object z
@@ -719,7 +719,7 @@ def test_sun_phase_angle_and_light_azimuth(truss):
     from scipy.spatial.transform import Rotation
 
     from hybridpose.objects import light_azimuth_deg, sun_phase_angle_deg
-    from hybridpose.regressors.evaluate import error_in_bins
+    from hybridpose.training.evaluate import error_in_bins
 
     R = Rotation.from_euler("xyz", [20, -35, 60], degrees=True).as_matrix()
     on_axis = Pose(R, np.array([0.0, 0.0, 0.9]) - R @ truss.center)  # box centre on the optical axis
@@ -1399,7 +1399,7 @@ def test_eval_scores_a_symmetric_part_against_its_nearest_equivalent_pose(tmp_pa
 
     from hybridpose.metrics import add, adds
     from hybridpose.objects import load_object
-    from hybridpose.regressors.evaluate import pose_errors
+    from hybridpose.training.evaluate import pose_errors
 
     path = tmp_path / "box.obj"
     trimesh.creation.box(extents=(0.2, 0.12, 0.08)).export(path)

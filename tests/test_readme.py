@@ -59,7 +59,7 @@ def test_shell_commands_are_ones_the_cli_accepts(page, capsys):
     import argparse
 
     from hybridpose.cli import build_parser
-    from hybridpose.regressors.train import add_train_arguments
+    from hybridpose.training.train import add_train_arguments
 
     parser = build_parser()
     train = argparse.ArgumentParser(prog="hybridpose train")

@@ -30,7 +30,7 @@ def view(truss):
 @pytest.fixture(scope="module")
 def tiny_keypoints(truss, tmp_path_factory):
     from hybridpose.datasets import render_random_dataset
-    from hybridpose.regressors.train import TrainConfig, train
+    from hybridpose.training.train import TrainConfig, train
 
     root = tmp_path_factory.mktemp("kp48")
     render_random_dataset(root / "ds", truss, Camera.default().scaled(160), count=16, seed=1)

@@ -150,8 +150,8 @@ def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
     """`hybridpose eval`'s Grad-CAM sheet and bare-call timing work for each direct model (the branched one runs slices
     of its features, which once left a hook on the whole Sequential unfired)."""
     from hybridpose.core import Camera, Frame
-    from hybridpose.regressors.evaluate import network_call_ms
-    from hybridpose.regressors.gradcam import gradcam
+    from hybridpose.training.evaluate import network_call_ms
+    from hybridpose.training.gradcam import gradcam
     from hybridpose.regressors.predictor import CheckpointRegressor
     from hybridpose.regressors.checkpoints import save_checkpoint
 
@@ -182,7 +182,7 @@ def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
 def test_channels_last_layout_gives_the_same_outputs_and_gradients(name, truss):
     """Training on a GPU puts the weights in NHWC (train.channels_last); flattening, the branch and the
     two streams must read the same numbers as in NCHW."""
-    from hybridpose.regressors.train import channels_last
+    from hybridpose.training.train import channels_last
 
     torch.manual_seed(0)
     build = {"image_size": 64, **({"keypoints_m": truss.keypoints} if name == "default" else {})}

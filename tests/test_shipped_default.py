@@ -281,7 +281,7 @@ def test_calibrating_the_shipped_default_on_its_full_path(truss, tmp_path, capsy
     nearest box twin) on held-out views lie inside the 90 % ellipsoid; eval then reports that share."""
     from hybridpose.cli import main
     from hybridpose.datasets import render_random_dataset
-    from hybridpose.regressors.evaluate import evaluate_checkpoint
+    from hybridpose.training.evaluate import evaluate_checkpoint
     from hybridpose.regressors.checkpoints import load_checkpoint
 
     data = tmp_path / "calib"
@@ -328,7 +328,7 @@ def test_a_known_sun_turns_the_crop_to_the_light_the_default_was_trained_with(re
 def test_shipped_8bit_models_belong_to_the_shipped_checkpoints():
     """engine='onnxruntime-int8' works out of the box only while each .int8.onnx was made from the .pt
     beside it: a retrained default must be quantized again (hybridpose quantize, weights/README.md)."""
-    from hybridpose.regressors.quantize import file_sha256, int8_path, read_record
+    from hybridpose.training.quantize import file_sha256, int8_path, read_record
 
     for name in ("default", "edge_on_expert"):
         ck = shipped_checkpoint(name)

@@ -10,7 +10,7 @@ from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera, Pose
 from hybridpose.regressors import models
 from hybridpose.regressors.losses import normalize_quat
-from hybridpose.regressors.train import run_summary, train, TrainConfig
+from hybridpose.training.train import run_summary, train, TrainConfig
 from hybridpose.regressors.checkpoints import load_checkpoint
 
 
@@ -70,7 +70,7 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
 def test_checkpoints_every_n_epochs_hold_the_best_until_written(data, tmp_path, tiny, monkeypatch):
     """checkpoint_every=2: last.pt at epochs 2, 4 and the last; a better best.pt found in between is kept in host
     memory and written with it — the same files as writing every epoch (the runs are identical otherwise)."""
-    import hybridpose.regressors.train as train_mod
+    import hybridpose.training.train as train_mod
 
     writes = []
     real = train_mod.save_checkpoint
@@ -117,7 +117,7 @@ def test_loader_workers_start_after_this_process_used_opencv_threads(data, tmp_p
         from torch import nn
         from hybridpose.regressors import models
         from hybridpose.regressors.losses import normalize_quat
-        from hybridpose.regressors.train import TrainConfig, train
+        from hybridpose.training.train import TrainConfig, train
 
         class Tiny(nn.Module):
             def __init__(self, **_):
@@ -152,7 +152,7 @@ def test_loader_workers_start_after_this_process_used_opencv_threads(data, tmp_p
 
 def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):
     """A run resumed by a version whose rows carry a new column still writes its CSV (blank where absent)."""
-    from hybridpose.regressors.train import _write_metrics
+    from hybridpose.training.train import _write_metrics
 
     _write_metrics(tmp_path, [{"epoch": 0, "val_loss": 2.0}, {"epoch": 1, "val_loss": 1.5, "train_images": 16}])
     assert (tmp_path / "metrics.csv").read_text().splitlines() == ["epoch,val_loss,train_images", "0,2.0,", "1,1.5,16"]
@@ -176,7 +176,7 @@ def test_early_stop(data, tmp_path, tiny):
 def test_time_limit_stops_cleanly_and_amp_trains(data, tmp_path, tiny, caplog):
     cfg = TrainConfig(model="tiny", data=str(data), out=str(tmp_path / "tl"), epochs=5, batch=4, lr=1e-2,
                       image_size=32, patience=0, amp=True, time_limit_min=1e-6)
-    with caplog.at_level("INFO", logger="hybridpose.regressors.train"):
+    with caplog.at_level("INFO", logger="hybridpose.training.train"):
         best = train(cfg, progress=False)
     assert "time limit: stopping after epoch 0 of 5" in caplog.text
     assert best["epochs_run"] == 1 and best["stopped"].startswith("time limit after epoch 0 of 5")
@@ -220,13 +220,13 @@ def test_vgg16_one_step_on_cpu(data, tmp_path):
 
 @pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 def test_ddp_two_cpu_processes_with_gloo(data, tmp_path):
-    """`torchrun --nproc_per_node 2 -m hybridpose.regressors.train`: both ranks train, rank 0 writes."""
+    """`torchrun --nproc_per_node 2 -m hybridpose.training.train`: both ranks train, rank 0 writes."""
     import subprocess
     import sys
 
     out = tmp_path / "ddp"
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29517",
-           "-m", "hybridpose.regressors.train", "--model", "default", "--data", str(data), "--out", str(out),
+           "-m", "hybridpose.training.train", "--model", "default", "--data", str(data), "--out", str(out),
            "--epochs", "2", "--batch", "4", "--image-size", "64", "--max-batches", "2", "--device", "cpu"]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -258,7 +258,7 @@ def test_init_from_copies_matching_weights_and_adds_new_layers(data, tmp_path):
 def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path, caplog):
     """`keypoints` (width 48) from a `default` (width 32) checkpoint: Net2WiderNet, not a fresh start."""
     from hybridpose.regressors.keypoint_net import widen_state_dict
-    from hybridpose.regressors.train import WIDEN_NOISE
+    from hybridpose.training.train import WIDEN_NOISE
 
     base = TrainConfig(model="default", data=str(data), out=str(tmp_path / "a"), epochs=1, batch=4, lr=1e-3,
                        image_size=64, patience=0, twin_loss=False, max_batches=2)
@@ -274,7 +274,7 @@ def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path, caplog):
         torch.testing.assert_close(got[k], v)
     torch.testing.assert_close(got["stem.0.weight"][:32], src["stem.0.weight"])
     assert {k for k in got if k.startswith("twin_head")} == {"twin_head.weight", "twin_head.bias"}
-    with caplog.at_level("WARNING", logger="hybridpose.regressors.train"):
+    with caplog.at_level("WARNING", logger="hybridpose.training.train"):
         train(TrainConfig(**{**wide.__dict__, "out": str(tmp_path / "c"), "image_size": 96}), progress=False)
     assert "trained on 64 px crops, this run uses 96 px (--image-size 64 keeps its scale)" in caplog.text
 
@@ -282,7 +282,7 @@ def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path, caplog):
 def test_twin_weight_scales_the_twin_cross_entropy(data, tmp_path):
     """loss(w) = keypoint loss + w · CE(twin logits, best labelling); checked against the two terms."""
     from hybridpose.regressors.keypoint_net import KeypointNet, keypoint_loss
-    from hybridpose.regressors.train_steps import batch_loss
+    from hybridpose.training.train_steps import batch_loss
 
     torch.manual_seed(0)
     net = KeypointNet(torch.rand(6, 3).numpy(), width=8, image_size=64, twin_classes=3).eval()
@@ -300,7 +300,7 @@ def test_twin_weight_scales_the_twin_cross_entropy(data, tmp_path):
 def test_cli_options_reach_the_config():
     import argparse
 
-    from hybridpose.regressors.train import TWIN_CE_WEIGHT, add_train_arguments, config_from_args
+    from hybridpose.training.train import TWIN_CE_WEIGHT, add_train_arguments, config_from_args
 
     p = argparse.ArgumentParser()
     add_train_arguments(p)
@@ -324,7 +324,7 @@ def test_validation_errors_of_a_symmetric_part_go_to_the_nearest_equivalent_pose
 
     from hybridpose.objects import ObjectModel
     from hybridpose.regressors.losses import quat_geodesic_angle
-    from hybridpose.regressors.train_steps import nearest_twin
+    from hybridpose.training.train_steps import nearest_twin
 
     box = ObjectModel("box", trimesh.creation.box(extents=(0.2, 0.12, 0.08)))
     truth = Pose.from_rotvec_t([0.3, -0.2, 0.1], [0.05, 0.0, 0.8])

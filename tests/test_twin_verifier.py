@@ -9,7 +9,7 @@ import torch
 from hybridpose.datasets import render_random_dataset
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.geometry import Camera, Pose
-from hybridpose.regressors.train_verifier import build_pairs, load_pairs, noisy_pose, train_verifier
+from hybridpose.training.train_verifier import build_pairs, load_pairs, noisy_pose, train_verifier
 from hybridpose.regressors.twin_verifier import (STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifier, TwinVerifierNet,
                                                  strip_affine, verifier_inputs)
 from hybridpose.regressors.verify import box_half_turns
@@ -174,7 +174,7 @@ def test_pairs_do_not_depend_on_the_number_of_workers(views, truss, tmp_path):
 
 
 def test_schedule_warms_up_then_decays():
-    from hybridpose.regressors.train_verifier import schedule_lr
+    from hybridpose.training.train_verifier import schedule_lr
 
     lrs = [schedule_lr(1.0, s, 100) for s in range(100)]
     assert lrs[0] == pytest.approx(0.1) and lrs[9] == pytest.approx(1.0)
@@ -197,7 +197,7 @@ def test_pairs_from_the_regressors_own_estimates(views, truss, tmp_path):
     """--estimates-from: the candidates are the shipped regressor's box twins of its own pose of each
     view; the label is the twin nearest the truth, and views with no twin near it are left out."""
     from hybridpose.regressors.checkpoints import shipped_checkpoint
-    from hybridpose.regressors.train_verifier import LABEL_MAX_DEG
+    from hybridpose.training.train_verifier import LABEL_MAX_DEG
 
     pairs = build_pairs([views], tmp_path / "est", truss, seed=2, progress=False, chunk=4,
                         estimates_from=shipped_checkpoint("default"))
@@ -282,7 +282,7 @@ def test_mirror_pairs_hold_the_twins_and_their_edge_on_mirrors(edge_on_views, vi
 
 
 def test_estimator_folders_give_each_estimator_its_own_pairs():
-    from hybridpose.regressors.train_verifier import estimator_folders
+    from hybridpose.training.train_verifier import estimator_folders
 
     assert estimator_folders(None) == [(None, "pairs")] and estimator_folders([]) == [(None, "pairs")]
     assert estimator_folders("a.pt") == [("a.pt", "pairs")]

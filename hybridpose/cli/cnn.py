@@ -10,7 +10,7 @@ from .common import progress
 
 
 def cmd_train(args) -> int:
-    from ..regressors.train import add_train_arguments, run
+    from ..training.train import add_train_arguments, run
 
     p = argparse.ArgumentParser(prog="hybridpose train", description="train a CNN pose regressor on a rendered "
                                 "dataset (checkpoints, --resume)")
@@ -22,7 +22,7 @@ def cmd_train(args) -> int:
 
 def cmd_train_verifier(args) -> int:
     from ..datasets.bop import dataset_object
-    from ..regressors.train_verifier import (
+    from ..training.train_verifier import (
         build_pairs,
         check_estimators,
         estimator_folders,
@@ -49,7 +49,7 @@ def cmd_train_verifier(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from ..regressors.checkpoints import checkpoint_or_shipped
-    from ..regressors.evaluate import calibrate_checkpoint
+    from ..training.evaluate import calibrate_checkpoint
 
     cal = calibrate_checkpoint(checkpoint_or_shipped(args.checkpoint), args.data, args.out, limit=args.limit, progress=progress("calibrate"),
                                coverage=args.coverage, by_quality=not args.single_scale)
@@ -70,7 +70,7 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_quantize(args) -> int:
-    from ..regressors.quantize import quantize_checkpoint
+    from ..training.quantize import quantize_checkpoint
 
     rec = quantize_checkpoint(args.checkpoint, args.data, args.out, crops=args.crops, progress=progress("quantize"))
     print(f"quantize: {rec['checkpoint']} calibrated on {rec['crops']} crops of {args.data} → {rec['path']} "
@@ -80,7 +80,7 @@ def cmd_quantize(args) -> int:
 
 def cmd_eval(args) -> int:
     from ..regressors.checkpoints import checkpoint_or_shipped
-    from ..regressors.evaluate import evaluate_checkpoint
+    from ..training.evaluate import evaluate_checkpoint
 
     s = evaluate_checkpoint(checkpoint_or_shipped(args.checkpoint), args.data, args.out, limit=args.limit, progress=progress("eval"),
                             timing_images=args.timing_images,
@@ -105,7 +105,7 @@ def cmd_eval(args) -> int:
 
 def cmd_compare(args) -> int:
     from ..io import atomic_write_json
-    from ..regressors.compare import compare_reports, comparison_markdown
+    from ..training.compare import compare_reports, comparison_markdown
 
     if len(args.reports) % 2:
         raise ValueError("reports: expected pairs, A B [A2 B2 ...] (model A's and model B's report on each test "

@@ -10,7 +10,7 @@ regressors' default) runs keypoint networks on ONNX Runtime on the CPU, and on t
 is missing, the export fails (the reason logged) or on a GPU. ``engine="onnxruntime"`` asks for it (an
 error where it cannot run); ``engine="torch"`` for torch.
 ``"onnxruntime-int8"`` runs the 8-bit model ``hybridpose quantize`` made
-(:mod:`hybridpose.regressors.quantize`).
+(:mod:`hybridpose.training.quantize`).
 
 ``"auto"`` runs that 8-bit model where one made from this very checkpoint
 lies beside it (the shipped ``default`` and its edge-on expert; a stale one is skipped with a warning):
@@ -125,7 +125,7 @@ class OnnxModule:
 class OnnxRuntimeEngine:
     """The same network exported to ONNX and run by ONNX Runtime's CPU provider (:class:`OnnxModule`);
     same call as :class:`TorchEngine`. ``model``: an ONNX model of it to run instead (bytes; the 8-bit one
-    of :mod:`hybridpose.regressors.quantize`, whose ``name`` is then given). Raises RuntimeError as
+    of :mod:`hybridpose.training.quantize`, whose ``name`` is then given). Raises RuntimeError as
     :class:`OnnxModule` does."""
 
     def __init__(self, net: nn.Module, image_size: int, model: bytes | None = None, name: str = "onnxruntime") -> None:

@@ -1,6 +1,6 @@
 """The 8-bit model file of a keypoint checkpoint: where it lives, the record it carries, whether it
 still belongs to its checkpoint. Read by the inference engines; written by
-:mod:`hybridpose.regressors.quantize` (the job that makes it imports the regressor, so the format
+:mod:`hybridpose.training.quantize` (the job that makes it imports the regressor, so the format
 lives apart and the engines never import the job).
 """
 from __future__ import annotations

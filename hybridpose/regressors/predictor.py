@@ -75,7 +75,7 @@ SUN_TURN_BEYOND_DEG = 60.0
 
 def trained_light_azimuth_deg(lighting: dict | None) -> float | None:
     """The image azimuth (°, :func:`~hybridpose.objects.light_azimuth_deg`) of a training set's sun
-    (``{"sun_direction_cam", "sun_cone_deg"}`` as :func:`~hybridpose.regressors.train_data.dataset_info`
+    (``{"sun_direction_cam", "sun_cone_deg"}`` as :func:`~hybridpose.training.train_data.dataset_info`
     records it), or None when the set had light from every side (its sun cone holds the optical axis)
     or no record."""
     if not lighting or lighting.get("sun_direction_cam") is None:
@@ -105,7 +105,7 @@ def sun_turn_deg(sun_direction_cam, trained_azimuth_deg: float | None, beyond_de
 
 
 class CheckpointRegressor(PoseRegressor):
-    """A trained network from :func:`hybridpose.regressors.train.train` as a regressor backend.
+    """A trained network from :func:`hybridpose.training.train.train` as a regressor backend.
 
     Keypoint models' ``Measurement.quality`` (0..1) = PnP inlier share × exp(−RMS reprojection error
     / 2 % of the crop side) × the twin head's probability of the twin returned (no last factor

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import atomic_write_bytes
-from .int8_file import META_KEY, file_sha256, int8_path, load_int8, read_record, stale_int8  # noqa: F401 (the format's names, used here and re-exported)
+from ..regressors.int8_file import META_KEY, file_sha256, int8_path, load_int8, read_record, stale_int8  # noqa: F401 (the format's names, used here and re-exported)
 
 # left in float: the heatmap logits (a soft-argmax of 8-bit logits moves keypoints by up to a cell), the
 # twin logits (one small matrix product, ≈ 0 of the time) and the first convolution (the image itself; on
@@ -67,7 +67,7 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
     """
     from ..core import Frame
     from ..datasets.bop import BopScene, find_scenes
-    from .predictor import CheckpointRegressor
+    from ..regressors.predictor import CheckpointRegressor
 
     try:
         from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType,
@@ -78,8 +78,8 @@ def quantize_checkpoint(checkpoint, data, out=None, crops: int = 300, progress=N
     if int(crops) < 1:
         raise ValueError(f"crops: expected at least 1 calibration crop, got {crops}")
     checkpoint = Path(checkpoint)
-    from .models import available_models, model_kind
-    from .checkpoints import load_checkpoint
+    from ..regressors.models import available_models, model_kind
+    from ..regressors.checkpoints import load_checkpoint
 
     model = load_checkpoint(checkpoint).get("config", {}).get("model")
     if model in available_models() and model_kind(model) != "keypoints":

@@ -7,7 +7,7 @@ import torch
 
 from ..core import Frame
 from ..io import write_image
-from .predictor import CheckpointRegressor
+from ..regressors.predictor import CheckpointRegressor
 
 
 def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
@@ -21,7 +21,7 @@ def gradcam(reg: CheckpointRegressor, frame: Frame) -> np.ndarray:
     import cv2
 
     from ..geometry.crops import crop_box, crop_image
-    from .detection import CROP_MARGIN, detect_bright_object
+    from ..regressors.detection import CROP_MARGIN, detect_bright_object
 
     net = reg.net
     # direct models: the last module of the VGG features (its final max-pool), not the features

@@ -36,10 +36,10 @@ from ..datasets.labels import read_labels
 from ..geometry import Pose, load_camera
 from ..metrics import rotation_error_deg
 from ..io import atomic_write_json, atomic_write_with, read_json
-from .checkpoints import save_checkpoint
-from .twin_verifier import (CHECKPOINT_FORMAT, STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifierNet,
+from ..regressors.checkpoints import save_checkpoint
+from ..regressors.twin_verifier import (CHECKPOINT_FORMAT, STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifierNet,
                             verifier_inputs)
-from .verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror
+from ..regressors.verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror
 
 log = logging.getLogger(__name__)
 
@@ -193,7 +193,7 @@ def _estimator(checkpoint: str):
     """The keypoint regressor giving the candidates, loaded once per process (one torch thread: the
     pair cutting runs one process per core)."""
     if checkpoint not in _ESTIMATORS:
-        from .predictor import CheckpointRegressor
+        from ..regressors.predictor import CheckpointRegressor
 
         reg = CheckpointRegressor(checkpoint, threads=1, check_twins=False, refine_edges=False, verifier=None)
         reg.require_twin_head()
@@ -332,7 +332,7 @@ def train_verifier(pairs, out, obj, epochs: int = 4, batch: int = 64, lr: float 
     val, train = np.sort(perm[:n_val]), perm[n_val:]
     net = TwinVerifierNet(width)
     if init_from is not None:
-        from .twin_verifier import TwinVerifier
+        from ..regressors.twin_verifier import TwinVerifier
 
         start_net = TwinVerifier(init_from, obj, engine="torch").net
         if start_net.width != width:

@@ -27,14 +27,14 @@ from ..machine import cpu_label, describe_cpu
 from ..metrics import add_recall, nearest_equivalent, rotation_error_deg
 from ..metrics import pose_errors as metric_errors
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
-from .calibration import COVERAGE as COVARIANCE_COVERAGE
-from .calibration import MIN_BAND_POSES, nees, quality_scale
-from .engines import call_ms, keypoint_engine
-from .keypoint_passes import image_batch
-from .calibration import uncalibrated_record
+from ..regressors.calibration import COVERAGE as COVARIANCE_COVERAGE
+from ..regressors.calibration import MIN_BAND_POSES, nees, quality_scale
+from ..regressors.engines import call_ms, keypoint_engine
+from ..regressors.keypoint_passes import image_batch
+from ..regressors.calibration import uncalibrated_record
 from .gradcam import write_gradcam_sheet
-from .options import KeypointOptions
-from .predictor import CheckpointRegressor
+from ..regressors.options import KeypointOptions
+from ..regressors.predictor import CheckpointRegressor
 
 log = logging.getLogger(__name__)
 
@@ -248,7 +248,7 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     with a ``full_path`` entry: data, poses used, factor, share inside before). Writes atomically;
     ``out`` may be ``checkpoint`` itself.
     """
-    from .checkpoints import load_checkpoint, save_checkpoint
+    from ..regressors.checkpoints import load_checkpoint, save_checkpoint
 
     if not 0.5 <= coverage < 1.0:
         raise ValueError(f"coverage: expected a probability in [0.5, 1), got {coverage}")

@@ -15,7 +15,7 @@ from ..datasets.torch_dataset import PoseDataset, split_indices
 if TYPE_CHECKING:  # the config lives with the training loop, which imports this module
     from .train import TrainConfig
 
-log = logging.getLogger("hybridpose.regressors.train")
+log = logging.getLogger("hybridpose.training.train")
 
 
 class _Paired(Dataset):

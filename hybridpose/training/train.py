@@ -2,7 +2,7 @@
 checkpoints every epoch, ``--resume``, early stop on validation, metrics to CSV/JSON. What the run
 learns from lives in :mod:`.train_data`, one batch's loss and the validation pass in :mod:`.train_steps`.
 
-``python -m hybridpose.regressors.train --model vgg19 --data data/truss_random --out runs/vgg19``
+``python -m hybridpose.training.train --model vgg19 --data data/truss_random --out runs/vgg19``
 (the ``hybridpose train`` command calls :func:`train`).
 """
 from __future__ import annotations
@@ -26,16 +26,16 @@ from torch.utils.data import DataLoader
 from ..datasets.bop import dataset_object
 from ..datasets.torch_dataset import single_threaded_worker
 from ..io import atomic_write_json, atomic_write_text
-from .checkpoints import RESUME_ONLY_KEYS, load_checkpoint, save_checkpoint
-from .losses import DEFAULT_BETA
-from .calibration import calibrate
-from .keypoint_net import widen_state_dict
-from .verify import box_half_turns
-from .models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
+from ..regressors.checkpoints import RESUME_ONLY_KEYS, load_checkpoint, save_checkpoint
+from ..regressors.losses import DEFAULT_BETA
+from ..regressors.calibration import calibrate
+from ..regressors.keypoint_net import widen_state_dict
+from ..regressors.verify import box_half_turns
+from ..regressors.models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
 from .train_data import dataset_info, make_augment, make_datasets
 from .train_steps import batch_loss, evaluate, forward
-from .unlabelled import symmetry_gauge
-from .vgg import VGG_INITS, load_imagenet_weights
+from ..regressors.unlabelled import symmetry_gauge
+from ..regressors.vgg import VGG_INITS, load_imagenet_weights
 
 log = logging.getLogger(__name__)
 
@@ -542,7 +542,7 @@ def run_summary(best: dict, out) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m hybridpose.regressors.train")
+    p = argparse.ArgumentParser(prog="python -m hybridpose.training.train")
     add_train_arguments(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")

@@ -59,10 +59,11 @@ from .contracts import check_backend
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status
 from .fusion.base import nearest_equivalent_measurement
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
-from .geometry import Camera, Pose, rotvec_to_matrix
+from .geometry import Camera, Pose
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
+from .starts import confirmed_start
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -324,62 +325,16 @@ class HybridEstimator:
         return self._estimate(Status.LOST, ())
 
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
-        """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing,
-        the fit does not reach ``start_quality`` (the model's edges do not match the image) or it left
-        the CNN pose's uncertainty (``disagreement_chi2``, both covariances: it found something else).
+        """The start the CNN measurement ``m`` gives in ``frame`` (:func:`~hybridpose.starts.confirmed_start`)."""
 
-        With ``depth_search``, where the fit from ``m`` falls short, the fits from ``m`` slid along its
-        viewing ray (:meth:`_starts`, nearest first) are tried: the first one to reach
-        ``start_quality`` and beat the fit from ``m`` by ``switch_quality_margin`` is taken (every
-        extra try is another chance for a wrong pose to pass the threshold: the image must decide)."""
-        if m.pose is None:
-            return None
-        starts = self._starts(m.pose) if depth_search else [m.pose]
-        bar = self.config.start_quality
-        for i, start in enumerate(starts):
+        def fit(start: Pose) -> Measurement | None:
             try:
                 self._timed(timings, "tracker", self.tracker.init, frame, start)
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
-                fit = None
-            else:
-                fit = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
-            found = fit is not None and not fit.lost
-            if (found and fit.quality >= bar
-                    and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= self.config.disagreement_chi2):
-                return self._best_turned(frame, m, start, fit, timings)
-            if i == 0:  # a slid start must beat the fit from the CNN pose itself
-                bar = max(bar, (fit.quality if found else 0.0) + self.config.switch_quality_margin)
-        return None
+                return None
+            return self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
 
-    def _best_turned(self, frame: Frame, m: Measurement, start: Pose, fit: Measurement, timings: dict) -> Measurement:
-        """``fit`` (the tracker's fit from ``start``, a start accepted for the CNN measurement ``m``), or,
-        where it scores below ``start_sure_quality``, the best of the fits from ``start`` turned by
-        ±``start_turn_deg`` about each camera axis through the object's origin that beats it by
-        ``switch_quality_margin`` and stays within ``m``'s uncertainty (``disagreement_chi2``)."""
-        deg = self.config.start_turn_deg
-        if deg <= 0 or fit.quality >= self.config.start_sure_quality:
-            return fit
-        best, bar = fit, fit.quality + self.config.switch_quality_margin
-        for axis in np.eye(3):
-            for sign in (-1.0, 1.0):
-                turned = Pose(rotvec_to_matrix(sign * np.radians(deg) * axis) @ start.R, start.t)
-                try:
-                    self._timed(timings, "tracker", self.tracker.init, frame, turned)
-                except ValueError:
-                    continue
-                other = self._track_from(frame, turned, timings, self._cnn_search_px(), from_cnn=True)
-                if (not other.lost and other.quality >= bar and other.quality > best.quality
-                        and _mahalanobis2(m.pose, m.covariance, other.pose, other.covariance) <= self.config.disagreement_chi2):
-                    best = other
-        return best
-
-    def _starts(self, pose: Pose) -> list[Pose]:
-        """``pose``, then ``pose`` with its distance scaled by 1 ± k·``start_depth_step`` (k = 1, 2, …,
-        up to ``start_depth_span``), nearest first."""
-        step, span = self.config.start_depth_step, self.config.start_depth_span
-        k_max = int(span / step + 1e-9) if step > 0 else 0
-        factors = [1.0] + [1.0 + sign * k * step for k in range(1, k_max + 1) for sign in (-1, 1)]
-        return [pose if f == 1.0 else Pose(pose.R, pose.t * f) for f in factors]
+        return confirmed_start(m, fit, self.config, depth_search)
 
     @staticmethod
     def _tracker_twist(previous: Measurement | None, m: Measurement) -> np.ndarray | None:

@@ -10,16 +10,11 @@ it there. Every stage resumes: run the same command again after a stop. Two look
 - ``"space"``, a part in orbit: black space and the sun alone, as the shipped truss network saw; the
   part is found as the sunlit pixels (``detection="bright"``).
 
-Layout of ``out``::
-
-    fit.json          the plan (views, epochs, minutes per stage) and what is done
-    data/train/       rendered training views (BOP)      data/calib/, data/test/   held-out views
-                      (half calibrate the covariance, the other half measure the model)
-    run/              the training run (last.pt, best.pt, metrics.csv)
-    best.pt           the exported checkpoint, its covariance calibrated on data/calib
-                      (``--regressor out/best.pt``)
-    eval/             the held-out evaluation (report.md, plots)
-    report.md         what was made, how long it took, how accurate it is
+Layout of ``out``: ``fit.json`` (the plan and what is done), ``data/train/`` (training views, BOP),
+``data/calib/`` and ``data/test/`` (held-out views: half calibrate the covariance, half measure the
+model), ``run/`` (the training run), ``best.pt`` (the exported checkpoint, its covariance calibrated:
+``--regressor out/best.pt``), ``eval/`` (the held-out evaluation) and ``report.md`` (what was made, how
+long it took, how accurate it is).
 """
 from __future__ import annotations
 

@@ -885,3 +885,15 @@ def test_a_track_whose_prediction_runs_on_when_the_motion_turns_is_found_where_i
     assert run(estimator(retry_after=25), 22)[21].status == "lost"
     with pytest.raises(ValueError, match="retry_after"):
         HybridConfig(retry_after=-1)
+
+
+def test_slid_starts_go_along_the_viewing_ray_nearest_first():
+    from hybridpose.starts import slid_starts
+
+    pose = Pose.from_rotvec_t([0.1, 0.2, 0.3], [0.05, -0.02, 0.8])
+    starts = slid_starts(pose, 0.03, 0.12)
+    assert starts[0] is pose and len(starts) == 9
+    scales = [s.t[2] / pose.t[2] for s in starts]
+    assert np.allclose(scales, [1, 0.97, 1.03, 0.94, 1.06, 0.91, 1.09, 0.88, 1.12])
+    assert all(np.allclose(np.cross(s.t, pose.t), 0) and np.allclose(s.R, pose.R) for s in starts)
+    assert slid_starts(pose, 0.0, 0.12) == [pose]

@@ -324,3 +324,12 @@ def shows_own_facet(ids, uv, own, scale):
                 if f == own[s, 0] or f == own[s, 1]:
                     out[s] = True
     return out
+
+
+def solve_lines(R, t, points_m, normals, targets, K, scale_cap_px, steps):
+    """:func:`gauss_newton_lines`, failed (``ok`` False) where its normal equations are singular:
+    matches that fix no pose (a handful on one short edge, from a CNN start far off)."""
+    try:
+        return gauss_newton_lines(R, t, points_m, normals, targets, K, scale_cap_px, steps)
+    except np.linalg.LinAlgError:
+        return R, t, False

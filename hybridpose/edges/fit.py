@@ -20,7 +20,6 @@ its rim a single line: the quality collapses.
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -103,16 +102,6 @@ def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_con
     does, was tried and dropped: under a fixed sun, crease edges of a tumbling truss flip sign.)
     """
     return _search(gray, samples.uv, samples.normals, search_px, min_contrast)
-
-
-def _gauss_newton(R, t, points, normals, targets, K, scale_cap_px, steps):
-    """:func:`~hybridpose.edges._kernels.gauss_newton_lines`, failed (``ok`` False) where its normal
-    equations are singular: matches that leave a direction unseen (all on one short edge, a part
-    seen edge-on) fix no pose — a CNN start far off found such a handful and stopped the run."""
-    try:
-        return _kernels.gauss_newton_lines(R, t, points, normals, targets, K, scale_cap_px, steps)
-    except np.linalg.LinAlgError:
-        return R, t, False
 
 
 def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: int, min_contrast: float = 4.0,
@@ -228,7 +217,7 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
         n, X, m = normals[valid], points[valid], target[valid]
         # MAD scale capped by the search range: when an occluder's edges outnumber the model's the
         # MAD would grow and let them in
-        R, t, ok = _gauss_newton(R, t, X, n, m, K, max(1.0, rng_px / 4), inner)
+        R, t, ok = _kernels.solve_lines(R, t, X, n, m, K, max(1.0, rng_px / 4), inner)
         if not ok:
             return None
         if np.linalg.norm(t - start.t) > max_step_m:
@@ -250,8 +239,8 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
             if valid_p.sum() < 6:
                 break
             target = uv + offset[:, None] * normals
-            R2, t2, ok = _gauss_newton(R, t, points[valid_p], normals[valid_p], target[valid_p], K,
-                                       max(1.0, rng_px / 4), inner)
+            R2, t2, ok = _kernels.solve_lines(R, t, points[valid_p], normals[valid_p], target[valid_p], K,
+                                              max(1.0, rng_px / 4), inner)
             if not ok:
                 break
             R, t = R2, t2

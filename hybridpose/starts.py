@@ -1,0 +1,73 @@
+"""How a CNN answer becomes the start of a track: the tracker fits the image from the CNN pose (or from
+it slid along its viewing ray, or turned a few degrees) and the start is the fit the image and the
+CNN's uncertainty both accept. Every start of :class:`~hybridpose.estimator.HybridEstimator` (init and
+reinit) goes through :func:`confirmed_start`; the thresholds are :class:`~hybridpose.hybrid_config.HybridConfig`
+fields.
+
+``fit(start)`` is the caller's: the tracker started at ``start`` (a pose) and its fit of the frame from
+there, or None where the tracker refuses that start (nothing of the model matches the image).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .core import Measurement
+from .fusion.base import pose_mahalanobis2
+from .geometry import Pose, rotvec_to_matrix
+from .hybrid_config import HybridConfig
+
+Fit = Callable[[Pose], "Measurement | None"]
+
+
+def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search: bool = False) -> Measurement | None:
+    """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing,
+    the fit does not reach ``start_quality`` (the model's edges do not match the image) or it left
+    the CNN pose's uncertainty (``disagreement_chi2``, both covariances: it found something else).
+
+    With ``depth_search``, where the fit from ``m`` falls short, the fits from ``m`` slid along its
+    viewing ray (:func:`slid_starts`, nearest first) are tried: the first one to reach
+    ``start_quality`` and beat the fit from ``m`` by ``switch_quality_margin`` is taken (every extra
+    try is another chance for a wrong pose to pass the threshold: the image must decide). The taken
+    fit goes through :func:`best_turned`."""
+    if m.pose is None:
+        return None
+    starts = slid_starts(m.pose, config.start_depth_step, config.start_depth_span) if depth_search else [m.pose]
+    bar = config.start_quality
+    for i, start in enumerate(starts):
+        result = fit(start)
+        found = result is not None and not result.lost
+        if (found and result.quality >= bar
+                and pose_mahalanobis2(m.pose, m.covariance, result.pose, result.covariance) <= config.disagreement_chi2):
+            return best_turned(m, start, result, fit, config)
+        if i == 0:  # a slid start must beat the fit from the CNN pose itself
+            bar = max(bar, (result.quality if found else 0.0) + config.switch_quality_margin)
+    return None
+
+
+def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, config: HybridConfig) -> Measurement:
+    """``first`` (the tracker's fit from ``start``, a start accepted for the CNN measurement ``m``), or,
+    where it scores below ``start_sure_quality``, the best of the fits from ``start`` turned by
+    ±``start_turn_deg`` about each camera axis through the object's origin that beats it by
+    ``switch_quality_margin`` and stays within ``m``'s uncertainty (``disagreement_chi2``): a local
+    minimum of the object's edges may lie a few degrees from the truth."""
+    deg = config.start_turn_deg
+    if deg <= 0 or first.quality >= config.start_sure_quality:
+        return first
+    best, bar = first, first.quality + config.switch_quality_margin
+    for axis in np.eye(3):
+        for sign in (-1.0, 1.0):
+            other = fit(Pose(rotvec_to_matrix(sign * np.radians(deg) * axis) @ start.R, start.t))
+            if (other is not None and not other.lost and other.quality >= bar and other.quality > best.quality
+                    and pose_mahalanobis2(m.pose, m.covariance, other.pose, other.covariance) <= config.disagreement_chi2):
+                best = other
+    return best
+
+
+def slid_starts(pose: Pose, step: float, span: float) -> list[Pose]:
+    """``pose``, then ``pose`` with its distance scaled by 1 ± k·``step`` (k = 1, 2, …, up to
+    ``span``), nearest first: a CNN pose's largest error is its depth."""
+    k_max = int(span / step + 1e-9) if step > 0 else 0
+    factors = [1.0] + [1.0 + sign * k * step for k in range(1, k_max + 1) for sign in (-1, 1)]
+    return [pose if f == 1.0 else Pose(pose.R, pose.t * f) for f in factors]

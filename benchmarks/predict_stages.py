@@ -25,17 +25,17 @@ import torch
 
 from _common import environment, publish, test_views
 from hybridpose.machine import cpu_label
-from hybridpose.regressors import engines, keypoint_passes, predictor, twin_verifier
-from hybridpose.training.evaluate import network_call_ms
-from hybridpose.regressors.predictor import CheckpointRegressor
+from hybridpose.regressors import engines, keypoint_passes, network_detection, predictor, twin_verifier
 from hybridpose.regressors.checkpoints import shipped_checkpoint
+from hybridpose.regressors.predictor import CheckpointRegressor
+from hybridpose.training.evaluate import network_call_ms
 from hybridpose.edges import fit as edge_fit
 
 # (owner, attribute, stage): where predict looks each stage up when it runs (module globals are read at
 # call time, fit_edges is imported inside the methods that use it)
 ENGINE_CALLS = ((engines.TorchEngine, "__call__"), (engines.OnnxRuntimeEngine, "__call__"))
 STAGES = (*((owner, attr, "network") for owner, attr in ENGINE_CALLS), (keypoint_passes, "solve_pnp", "PnP"),
-          (edge_fit, "fit_edges", "edge fits"), (predictor, "detect_bright_object", "detection"),
+          (edge_fit, "fit_edges", "edge fits"), (network_detection, "detect_bright_object", "detection"),
           (predictor, "detect_dim_object", "detection"),
           (twin_verifier.TwinVerifier, "probabilities", "verifier"),
           (twin_verifier.TwinVerifier, "probabilities_of_sets", "verifier"))

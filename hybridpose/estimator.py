@@ -96,6 +96,27 @@ class CnnCheck:
         return not track.lost and track.quality >= self.fit.quality + margin
 
 
+def crop_box(obj: ObjectModel | None, pose: Pose | None, camera: Camera,
+             margin: float) -> tuple[int, int, int, int] | None:
+    """Box (x, y, w, h) px of ``obj``'s projection at ``pose``, grown by ``margin`` (a share of its
+    size) on each side: where a CNN check looks. None (the CNN then takes the whole image) without an
+    object or pose, where it does not overlap the image, or where it reaches behind the camera (a
+    prediction coasting ever closer: the object would overflow the view)."""
+    if obj is None or pose is None:
+        return None
+    box = camera.image_box(obj.bbox_corners, pose)
+    if box is None:
+        return None
+    x0, y0, x1, y1 = box
+    x0, x1 = x0 - margin * (x1 - x0), x1 + margin * (x1 - x0)
+    y0, y1 = y0 - margin * (y1 - y0), y1 + margin * (y1 - y0)
+    x0, y0 = max(x0, 0.0), max(y0, 0.0)
+    x1, y1 = min(x1, camera.width - 1.0), min(y1, camera.height - 1.0)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0))
+
+
 class HybridEstimator:
     """Track a known object in a monocular sequence with no initial pose.
 
@@ -273,7 +294,8 @@ class HybridEstimator:
         """The CNN on a crop around the fused pose, and the tracker's fit from its answer, held against
         the fused pose and the track's measurement ``m`` (None where the CNN found nothing)."""
         fused = self.fusion.estimate
-        c = self._cnn(frame, self._roi(fused.pose, frame.camera), timings, near=fused.pose)
+        roi = crop_box(self.object, fused.pose, frame.camera, self.config.check_roi_margin)
+        c = self._cnn(frame, roi, timings, near=fused.pose)
         if c.pose is None:
             return None
         chi2 = self.config.disagreement_chi2
@@ -455,26 +477,6 @@ class HybridEstimator:
 
     def _estimate(self, status: str, sources: tuple[str, ...]) -> Estimate:
         return replace(self.fusion.estimate, status=status, sources=sources)
-
-    def _roi(self, pose: Pose, camera: Camera) -> tuple[int, int, int, int] | None:
-        """Box (x, y, w, h) px of the object's projection at ``pose``, grown by ``check_roi_margin``;
-        None (the CNN then takes the whole image) when it does not overlap the image or the box reaches
-        behind the camera (a prediction coasting ever closer: the object would overflow the view)."""
-        obj = self.object
-        if obj is None or pose is None:
-            return None
-        box = camera.image_box(obj.bbox_corners, pose)
-        if box is None:
-            return None
-        x0, y0, x1, y1 = box
-        m = self.config.check_roi_margin
-        x0, x1 = x0 - m * (x1 - x0), x1 + m * (x1 - x0)
-        y0, y1 = y0 - m * (y1 - y0), y1 + m * (y1 - y0)
-        x0, y0 = max(x0, 0.0), max(y0, 0.0)
-        x1, y1 = min(x1, camera.width - 1.0), min(y1, camera.height - 1.0)
-        if x1 - x0 < 2 or y1 - y0 < 2:
-            return None
-        return int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0))
 
     @staticmethod
     def _timed(timings: dict, key: str, fn, *args):

@@ -264,7 +264,7 @@ def test_a_checkpoints_recommended_policy_is_the_default_row_and_named(tmp_path)
 
 def test_tracker_options_reach_the_tracker_and_name_the_run():
     from hybridpose.bench.command import BenchRequest, plan
-    from hybridpose.bench.runner import RunSpec, _backends
+    from hybridpose.bench.runner import RunSpec, spec_backends
 
     specs, _, _ = plan(BenchRequest(out="o", suite="smoke", modes=("tracker", "cnn", "hybrid"),
                                     tracker_options=("max_samples=123", "explain=false")))
@@ -272,7 +272,7 @@ def test_tracker_options_reach_the_tracker_and_name_the_run():
     assert labels == ["cnn (default)", "hybrid (edges+default+isam2; explain=False, max_samples=123)",
                       "tracker (edges; explain=False, max_samples=123)"]
     tracker_spec = next(s for s in specs if s.mode == "tracker")
-    _, tracker = _backends(tracker_spec)
+    _, tracker = spec_backends(tracker_spec)
     assert tracker.max_samples == 123 and tracker.explain is False
     # the options make other rows; the run without them keeps the key it had before options existed
     assert tracker_spec.key != RunSpec("tracker").key
@@ -345,16 +345,16 @@ def test_the_results_page_block_is_replaced_appended_or_made(smoke, tmp_path):
 
 
 def test_the_edge_distance_of_a_pose_reaching_behind_the_camera_is_infinite():
-    from hybridpose.bench.modes import _edge_distance_px
+    from hybridpose.bench.modes import mean_edge_shift_px
     from hybridpose.geometry import Camera, Pose
 
     cam = Camera.default()
     pts = np.array([[-0.19, 0.0, 0.0], [0.19, 0.0, 0.0], [0.0, 0.1, 0.0]])
     truth = Pose.from_rotvec_t([0.2, 0.1, 0.0], [0.0, 0.0, 0.6])
-    assert _edge_distance_px(cam, pts, truth, truth) == pytest.approx(0.0)
+    assert mean_edge_shift_px(cam, pts, truth, truth) == pytest.approx(0.0)
     nudged = Pose(truth.R, truth.t + [0.001, 0.0, 0.0])  # 1 mm at 0.6 m: 1 px at fx 600
-    assert _edge_distance_px(cam, pts, nudged, truth) == pytest.approx(1.0, rel=0.05)
+    assert mean_edge_shift_px(cam, pts, nudged, truth) == pytest.approx(1.0, rel=0.05)
     end_on = Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1])  # one end behind the camera
-    assert _edge_distance_px(cam, pts, end_on, truth) == float("inf")
+    assert mean_edge_shift_px(cam, pts, end_on, truth) == float("inf")
     grazing = Pose(np.eye(3), [0.19, 0.0, 1e-7])  # one point a hair in front of the camera plane
-    assert _edge_distance_px(cam, pts, grazing, truth) == float("inf")
+    assert mean_edge_shift_px(cam, pts, grazing, truth) == float("inf")

@@ -1,4 +1,4 @@
-"""The moving-edge fit's compiled kernels (hybridpose/edges/_kernels.py) against independent
+"""The moving-edge fit's compiled kernels (hybridpose/edges/kernels.py) against independent
 oracles: cv2.projectPoints, NumPy's linear algebra, geometry.se3_exp / line_jacobian, MuJoCo's depth buffer."""
 
 import cv2
@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from hybridpose.geometry import Camera, Pose, line_jacobian, se3_exp
 from hybridpose.geometry.se3 import se3_exp_one
-from hybridpose.edges import _kernels as ek
+from hybridpose.edges import kernels as ek
 from hybridpose.edges import ModelView
 
 
@@ -130,9 +130,9 @@ def test_solve6_matches_numpy(rng):
         A = rng.normal(size=(6, 6))
         H = A @ A.T + 1e-3 * np.eye(6)
         g = rng.normal(size=6)
-        np.testing.assert_allclose(ek._solve6(H, g), np.linalg.solve(H, g), rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(ek.solve_spd6(H, g), np.linalg.solve(H, g), rtol=1e-8, atol=1e-10)
     H = np.diag([1.0, 2, 3, 4, 5, -1])  # not positive definite: solved by LU as NumPy would
-    np.testing.assert_allclose(ek._solve6(H, np.ones(6)), np.linalg.solve(H, np.ones(6)))
+    np.testing.assert_allclose(ek.solve_spd6(H, np.ones(6)), np.linalg.solve(H, np.ones(6)))
 
 
 def _line_problem(rng, pose, n=300):

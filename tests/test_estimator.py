@@ -446,6 +446,9 @@ class DeeplyCoveredTracker(EdgesOnlyAtTheTruth):
         self.covered_frames, self.covered = set(covered), False
 
     def track(self, frame, prior=None, lost_quality=None, covered_lost_quality=None, **options):
+        if "search_px" not in options:  # a frame-to-frame fit (fits from a CNN pose search further)
+            self.asked = getattr(self, "asked", {})
+            self.asked[frame.index] = (lost_quality, covered_lost_quality)
         m = super().track(frame, prior)
         self.covered = frame.index in self.covered_frames
         if m.lost:
@@ -477,23 +480,24 @@ def test_a_track_the_tracker_sees_covered_is_kept_down_to_the_covered_threshold(
     assert run(est, 3)[2].status == "lost"
     # elsewhere the tracker's own threshold (a track sliding off at 0.45 uncovered is let go), and
     # never more than its own where covered
-    est = HybridEstimator(DeeplyCoveredTracker(covered=()), OracleRegressor(), registry.create("fusion", "ukf"),
+    tracker = DeeplyCoveredTracker(covered=())
+    est = HybridEstimator(tracker, OracleRegressor(), registry.create("fusion", "ukf"),
                           replace(config, keep_covered_quality=0.7))
-    for k in range(3):
-        est.step(frame(k))
-    assert est._keep_quality() == (None, None)  # young
-    for k in range(3, 11):
-        est.step(frame(k))
-    assert est._keep_quality() == (None, 0.5)
+    run(est, 12)
+    assert tracker.asked[3] == (None, None)  # young
+    assert tracker.asked[11] == (None, 0.5)
     with pytest.raises(ValueError, match="keep_covered_quality"):
         HybridConfig(keep_covered_quality=-0.1)
 
 
 def test_a_check_crop_at_a_pose_reaching_behind_the_camera_is_the_whole_image(truss):
-    est = HybridEstimator(ScriptedTracker(object=truss), OracleRegressor(), registry.create("fusion", "ukf"))
-    assert est._roi(Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM) is not None
+    from hybridpose.estimator import crop_box
+
+    x, y, w, h = crop_box(truss, Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM, 0.15)
+    assert 0 <= x and 0 <= y and x + w <= CAM.width and y + h <= CAM.height and w > 2 and h > 2
     # the truss (0.38 m long) end-on, centred 0.1 m in front of the camera, reaches behind it
-    assert est._roi(Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1]), CAM) is None
+    assert crop_box(truss, Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1]), CAM, 0.15) is None
+    assert crop_box(None, Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM, 0.15) is None
 
 
 def test_loss_then_reacquisition_by_two_agreeing_cnn_answers():

@@ -68,21 +68,21 @@ def test_projection_jacobian_matches_central_differences(rng, camera):
 
 
 def test_drop_worst_fit_leaves_out_the_outliers_and_hands_hard_cases_to_ransac(truss, rng, camera):
-    from hybridpose.regressors.keypoint_pnp import _drop_worst_fit
+    from hybridpose.regressors.keypoint_pnp import drop_worst_fit
 
     pose = _pose(rng)
     uv = camera.project(truss.keypoints, pose) + rng.normal(0, 0.3, (len(truss.keypoints), 2))
     pts3 = np.ascontiguousarray(truss.keypoints, dtype=np.float64).reshape(-1, 1, 3)
-    clean = _drop_worst_fit(pts3, uv.reshape(-1, 1, 2), camera.K, 3.0, 5)
+    clean = drop_worst_fit(pts3, uv.reshape(-1, 1, 2), camera.K, 3.0, 5)
     assert clean is not None and clean[0].all(), "no outlier: one fit on all points"
     off = uv.copy()
     off[[1, 4, 9]] += [[60.0, -45.0], [-50.0, 30.0], [35.0, 55.0]]
-    kept, rvec, tvec = _drop_worst_fit(pts3, off.reshape(-1, 1, 2), camera.K, 3.0, 5)
+    kept, rvec, tvec = drop_worst_fit(pts3, off.reshape(-1, 1, 2), camera.K, 3.0, 5)
     assert not kept[[1, 4, 9]].any() and kept.sum() == len(uv) - 3
     assert np.linalg.norm(np.ravel(tvec) - pose.t) < 0.01
     scrambled = uv.copy()
     scrambled[: len(uv) // 2 + 1] = rng.uniform(0, 640, (len(uv) // 2 + 1, 2))
-    assert _drop_worst_fit(pts3, scrambled.reshape(-1, 1, 2), camera.K, 3.0, 5) is None, "most points off: RANSAC's job"
+    assert drop_worst_fit(pts3, scrambled.reshape(-1, 1, 2), camera.K, 3.0, 5) is None, "most points off: RANSAC's job"
 
 
 def test_line_jacobian_is_the_projection_jacobian_along_the_normals(rng, camera):
@@ -1013,7 +1013,7 @@ def test_folding_batch_norm_keeps_the_outputs(truss):
 
 def test_components_in_the_masks_box_are_the_full_frames(rng):
     """Labelling only the box around a mask's pixels must find what labelling the frame finds."""
-    from hybridpose.regressors.detection import _components
+    from hybridpose.regressors.detection import mask_components
 
     for _ in range(20):
         mask = np.zeros((120, 160), np.uint8)
@@ -1021,14 +1021,14 @@ def test_components_in_the_masks_box_are_the_full_frames(rng):
             x, y = rng.integers(0, 150), rng.integers(0, 110)
             mask[y:y + rng.integers(1, 15), x:x + rng.integers(1, 15)] = 1
         include = (int(rng.integers(0, 100)), int(rng.integers(0, 80)), 30, 20)
-        labels, stats, (x, y, w, h) = _components(mask, include=include)
+        labels, stats, (x, y, w, h) = mask_components(mask, include=include)
         n, ref_labels, ref_stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         assert x <= include[0] and y <= include[1] and x + w >= include[0] + 30 and y + h >= include[1] + 20
         assert len(stats) == n
         order = np.lexsort(stats[1:, :4].T[::-1]), np.lexsort(ref_stats[1:, :4].T[::-1])
         np.testing.assert_array_equal(stats[1:][order[0]], ref_stats[1:][order[1]])
         assert np.array_equal(labels > 0, ref_labels[y:y + h, x:x + w] > 0)
-    assert _components(np.zeros((10, 10), np.uint8)) is None
+    assert mask_components(np.zeros((10, 10), np.uint8)) is None
 
 
 def test_edge_on_mirror_mirrors_the_sight_and_keeps_what_the_image_shows(truss, camera, rng):

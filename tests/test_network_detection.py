@@ -1,7 +1,6 @@
 """Detection by the network without a prior (``detection="network"``): the tiles it looks at, the
 proposals it makes (one per place, the whole frame's first) and the estimate the regressor keeps
 (the one PnP fits best)."""
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -9,9 +8,7 @@ import pytest
 from hybridpose.geometry import Camera, Pose
 from hybridpose.regressors.keypoint_passes import KeypointEstimate, pnp_quality
 from hybridpose.regressors.keypoint_pnp import PnPResult
-from hybridpose.regressors.network_detection import FINE_TILE_SIDE, box_iou, network_boxes, tile_boxes
-from hybridpose.regressors.options import KeypointOptions
-from hybridpose.regressors.predictor import CheckpointRegressor
+from hybridpose.regressors.network_detection import FINE_TILE_SIDE, box_iou, find_object, network_boxes, tile_boxes
 
 CORNERS = np.array([[x, y, z] for x in (-0.09, 0.09) for y in (-0.055, 0.055) for z in (-0.035, 0.035)])
 
@@ -100,13 +97,13 @@ def test_the_regressor_keeps_the_estimate_pnp_fits_best():
             return estimates[i]
 
         passes.estimate_in = estimate_in
-        box, est = CheckpointRegressor._detect(SimpleNamespace(detection="network", passes=passes, options=KeypointOptions()), image, cam, 0.0)
+        box, est = find_object(passes, image, cam, 0.0)
         assert est is estimates[expect] and pnp_quality(est) == max(pnp_quality(e) for e in estimates.values())
         np.testing.assert_allclose(box[:2], cam.project(CORNERS, poses[expect]).min(0), atol=1e-6)
     # proposals but no estimate: the first proposal's box, no estimate (the dim fallback may follow)
     passes = FakePasses({0: _result(poses[0])})
     passes.estimate_in = lambda *a: None
-    box, est = CheckpointRegressor._detect(SimpleNamespace(detection="network", passes=passes, options=KeypointOptions()), image, cam, 0.0)
+    box, est = find_object(passes, image, cam, 0.0)
     assert est is None and box == network_boxes(passes, image, cam)[0]
 
 
@@ -134,8 +131,7 @@ def test_fine_tiles_look_again_where_no_estimate_fits_well():
             return KeypointEstimate(_result(clutter if left else part, clutter_kept if left else part_kept, 0.2), [0], None, 128)
 
         passes.solve_boxes, passes.estimate_in = solve_boxes, estimate_in
-        me = SimpleNamespace(detection="network", passes=passes, options=KeypointOptions(fine_tiles=fine_tiles))
-        return CheckpointRegressor._detect(me, image, cam, 0.0)[1], passes.calls
+        return find_object(passes, image, cam, 0.0, fine_tiles=fine_tiles)[1], passes.calls
 
     # a poor fit from the coarse look: the fine tiles find the part and their well-fitting estimate wins
     est, calls = run(True, 0.5, 1.0)

@@ -246,7 +246,7 @@ def test_an_edge_fit_whose_normal_equations_are_singular_fails_instead_of_stoppi
     the Gauss–Newton solve is singular. That is a failed fit (None), not an exception out of
     ``predict`` or ``track`` that ends the user's run."""
     from hybridpose.edges import ModelView, fit_edges
-    from hybridpose.edges import _kernels
+    from hybridpose.edges import kernels
     from hybridpose.objects import load_object
 
     cube, camera = load_object("cube"), Camera.default()
@@ -260,5 +260,5 @@ def test_an_edge_fit_whose_normal_equations_are_singular_fails_instead_of_stoppi
     def singular(*args):
         raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
 
-    monkeypatch.setattr(_kernels, "gauss_newton_lines", singular)
+    monkeypatch.setattr(kernels, "gauss_newton_lines", singular)
     assert fit_edges(view, frame, pose) is None

@@ -152,9 +152,9 @@ def test_loader_workers_start_after_this_process_used_opencv_threads(data, tmp_p
 
 def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):
     """A run resumed by a version whose rows carry a new column still writes its CSV (blank where absent)."""
-    from hybridpose.training.train import _write_metrics
+    from hybridpose.training.train import write_metrics
 
-    _write_metrics(tmp_path, [{"epoch": 0, "val_loss": 2.0}, {"epoch": 1, "val_loss": 1.5, "train_images": 16}])
+    write_metrics(tmp_path, [{"epoch": 0, "val_loss": 2.0}, {"epoch": 1, "val_loss": 1.5, "train_images": 16}])
     assert (tmp_path / "metrics.csv").read_text().splitlines() == ["epoch,val_loss,train_images", "0,2.0,", "1,1.5,16"]
     assert json.loads((tmp_path / "history.json").read_text())[1]["train_images"] == 16
 

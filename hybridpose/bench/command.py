@@ -259,20 +259,20 @@ def user_scenes(root) -> dict[str, Path]:
 
 def _check_regressor(specs: list[RunSpec]) -> None:
     """Load each regressor once here: one trained for another object is refused now, not in a worker."""
-    from .runner import _backends
+    from .runner import spec_backends
 
     for spec in {RunSpec("cnn", regressor=s.regressor, object=s.object, scale=s.scale) for s in specs if s.mode != "tracker"}:
-        _backends(spec)
+        spec_backends(spec)
 
 
 def _check_trackers(specs: list[RunSpec]) -> None:
     """Build each tracker with its options once here: a value it refuses is an error now, not in a worker."""
-    from .runner import _backends
+    from .runner import spec_backends
 
     for spec in {RunSpec("tracker", tracker=s.tracker, object=s.object, scale=s.scale, tracker_options=s.tracker_options)
                  for s in specs if s.mode != "cnn" and s.tracker_options}:
         try:
-            _backends(spec)
+            spec_backends(spec)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"--tracker-option: {spec.tracker}: {exc}") from exc
 
@@ -348,9 +348,9 @@ def write_video(out: Path, scene_dir: Path, spec: RunSpec) -> Path:
     """The hybrid's overlay of one sequence (``tracking.run_hybrid_on_frames``)."""
     from ..tracking import run_hybrid_on_frames
     from .modes import load_sequence
-    from .runner import _backends
+    from .runner import spec_backends
 
-    _, estimator = _backends(spec)
+    _, estimator = spec_backends(spec)
     res = run_hybrid_on_frames((s.frame for s in load_sequence(scene_dir, sun=spec.sun)), estimator, out)
     return res.video
 

@@ -157,7 +157,7 @@ def trusted_errors_deg(seq: list[SequenceFrame], records: list[FrameRecord], sym
 ADD_AUC_MAX_M = 0.1  # the ADD(-S) AUC's largest threshold (PoseCNN / YCB-Video)
 
 
-def _edge_distance_px(cam, edge_pts: np.ndarray, pose, truth) -> float:
+def mean_edge_shift_px(cam, edge_pts: np.ndarray, pose, truth) -> float:
     """Mean image distance (px) of the model's edge points at ``pose`` from where they are at
     ``truth``; inf where ``pose`` puts one of them at or behind the camera (a grossly wrong pose)."""
     at_pose = pose @ edge_pts
@@ -222,7 +222,7 @@ def sequence_stats(seq: list[SequenceFrame], records: list[FrameRecord], obj=Non
                 in_basin += int(err <= BASIN_DEG and pct[-1] <= BASIN_PCT)
                 speed.append(errors["speed"])
                 if edge_pts is not None:
-                    edge_px.append(_edge_distance_px(s.frame.camera, edge_pts, r.pose, truth))
+                    edge_px.append(mean_edge_shift_px(s.frame.camera, edge_pts, r.pose, truth))
                 if r.covariance is not None:
                     xi = r.pose.local(truth)
                     try:

@@ -111,7 +111,7 @@ WARMUP_FRAMES = 10
 _warmed: set = set()
 
 
-def _backends(spec: RunSpec):
+def spec_backends(spec: RunSpec):
     """The object, tracker, regressor and estimator a spec needs, built once per process (a CNN takes
     seconds to load); the regressor is shared by every spec that names it."""
     from ..estimator import HybridEstimator
@@ -143,7 +143,7 @@ def run_sequence(name: str, scene_dir: str, specs: list[RunSpec], per_frame: boo
     with_sun = load_sequence(scene_dir)
     rows = []
     for spec in specs:
-        obj, runner = _backends(spec)
+        obj, runner = spec_backends(spec)
         seq = with_sun if spec.sun else without_sun(with_sun)
         run = {"tracker": run_tracker, "cnn": run_cnn}.get(spec.mode, run_hybrid)
         if WARMUP_FRAMES > 0 and spec.key not in _warmed:

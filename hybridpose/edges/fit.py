@@ -28,7 +28,7 @@ import numpy as np
 
 from ..core import Frame, covariance_from_information
 from ..geometry import Pose, line_jacobian
-from . import _kernels
+from . import kernels
 from .image import to_gray
 from .model_view import EdgeSamples, ModelView, thin
 from .shadows import sunlit_agreement
@@ -108,11 +108,11 @@ def _search(gray: np.ndarray, uv: np.ndarray, normals: np.ndarray, search_px: in
             limits: np.ndarray | None = None):
     if len(uv) == 0:  # nothing of the model in view: OpenCV refuses an empty map
         return np.zeros(0, np.float32), np.zeros(0, bool), np.zeros(0, np.float32)
-    map_u, map_v = _kernels.search_maps(uv, normals, int(search_px))
+    map_u, map_v = kernels.search_maps(uv, normals, int(search_px))
     profiles = cv2.remap(gray, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     if limits is None:
         limits = np.full(len(uv), np.float32(search_px))
-    return _kernels.strongest_steps(profiles, int(search_px), float(min_contrast), limits)
+    return kernels.strongest_steps(profiles, int(search_px), float(min_contrast), limits)
 
 
 # the strip around the object where a dark background is looked for (px beyond the projected samples'
@@ -180,7 +180,7 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
 
     ``search_px`` halves at each outer iteration (coarse to fine, never below 4); each outer
     iteration searches the edges from the current pose and runs ``inner`` Gauss–Newton steps on
-    them (compiled: :mod:`hybridpose.edges._kernels`). Quality =
+    them (compiled: :mod:`hybridpose.edges.kernels`). Quality =
     inliers / (matched samples + samples whose lit search line shows no edge) × min(1, inliers /
     MIN_SUPPORT). None when fewer than 6 samples are visible or matched, or
     when the pose moves more than ``max_step_m`` (default: the object's diameter) from ``start``.
@@ -203,7 +203,7 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     R, t = start.R, start.t
     rng_px = search_px
     for _ in range(outer):
-        keep, uv, normals = _kernels.project_samples(points, directions, R, t, K, cam.width, cam.height,
+        keep, uv, normals = kernels.project_samples(points, directions, R, t, K, cam.width, cam.height,
                                                           2.0, True)
         if not keep.all():
             points, directions, uv, normals = points[keep], directions[keep], uv[keep], normals[keep]
@@ -217,7 +217,7 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
         n, X, m = normals[valid], points[valid], target[valid]
         # MAD scale capped by the search range: when an occluder's edges outnumber the model's the
         # MAD would grow and let them in
-        R, t, ok = _kernels.solve_lines(R, t, X, n, m, K, max(1.0, rng_px / 4), inner)
+        R, t, ok = kernels.solve_lines(R, t, X, n, m, K, max(1.0, rng_px / 4), inner)
         if not ok:
             return None
         if np.linalg.norm(t - start.t) > max_step_m:
@@ -226,25 +226,25 @@ def fit_edges(view: ModelView, frame: Frame, start: Pose, gray: np.ndarray | Non
     if polish > 0:
         # polish: the same fit with each sample's search stopped halfway to the next model edge, then
         # the full search again at the polished pose for the matches the quality is judged on
-        keep, uv, normals = _kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, True)
+        keep, uv, normals = kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, True)
         if keep.sum() < 6:
             return None
         points, directions, uv, normals, visible = points[keep], directions[keep], uv[keep], normals[keep], visible[keep]
-        reach = 0.5 * _kernels.edge_clearance(uv, normals, _half_stretch(view, Pose(R, t), cam, normals),
+        reach = 0.5 * kernels.edge_clearance(uv, normals, _half_stretch(view, Pose(R, t), cam, normals),
                                               view.edge_of[visible], cam.width, cam.height, 2 * rng_px + 2)
         limits = np.minimum(reach, np.float32(rng_px)).astype(np.float32)
         for _ in range(int(polish)):
-            _, uv, normals = _kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, False)
+            _, uv, normals = kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, False)
             offset, valid_p, _ = _search(gray, uv, normals, rng_px, limits=limits)
             if valid_p.sum() < 6:
                 break
             target = uv + offset[:, None] * normals
-            R2, t2, ok = _kernels.solve_lines(R, t, points[valid_p], normals[valid_p], target[valid_p], K,
+            R2, t2, ok = kernels.solve_lines(R, t, points[valid_p], normals[valid_p], target[valid_p], K,
                                               max(1.0, rng_px / 4), inner)
             if not ok:
                 break
             R, t = R2, t2
-        keep, uv, normals = _kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, True)
+        keep, uv, normals = kernels.project_samples(points, directions, R, t, K, cam.width, cam.height, 2.0, True)
         if keep.sum() < 6:
             return None
         offset, valid, brightness = _search(gray, uv[keep], normals[keep], rng_px)
@@ -365,7 +365,7 @@ def explained_edge_share(view: ModelView, frame: Frame, pose: Pose, gray: np.nda
         k = 2 * SILHOUETTE_SLACK_PX + 1
         edges &= cv2.dilate(inside, np.ones((k, k), np.uint8)) > 0
     model = np.zeros(edges.shape, np.uint8)
-    _kernels.draw_segments(model, np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64), x0, y0)
+    kernels.draw_segments(model, np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64), x0, y0)
     k = 2 * EXPLAIN_TOLERANCE_PX + 1
     near = cv2.dilate(model, np.ones((k, k), np.uint8)) > 0
     faces = _faces(ids, cam, (x0, y0, x1, y1), model.shape)

@@ -19,7 +19,7 @@ from ..geometry import Camera, Pose
 from ..geometry.raster import zbuffer_front_faces
 from ..objects import ObjectModel
 from ..objects.base import SHARP_EDGE_ANGLE_DEG, boundary_edges
-from . import _kernels
+from . import kernels
 
 DEFAULT_STEP_M = 0.005
 ID_SCALE = 0.5  # facet-id image resolution relative to the frame
@@ -194,13 +194,13 @@ class ModelView:
                       max_samples: int | None = None, ids: np.ndarray | None = None) -> np.ndarray:
         """Indices (S,) into :attr:`points` of the samples :meth:`visible_samples` returns; ``ids``: the
         :meth:`facet_ids` of ``pose`` where the caller has them (rendered here otherwise)."""
-        idx, uv, facing = _kernels.facing_samples(
+        idx, uv, facing = kernels.facing_samples(
             self.points, self._normal_dot_point, self.face_normals, self.faces, pose.R, pose.t, camera.K,
             camera.width, camera.height, float(margin_px))
         if len(idx):
             own = self.facet_of[self.faces[idx]] * facing                 # (S, 2): 0 where back-facing
             ids = self.facet_ids(pose, camera) if ids is None else ids
-            idx = idx[_kernels.shows_own_facet(ids, uv, own, ID_SCALE)]
+            idx = idx[kernels.shows_own_facet(ids, uv, own, ID_SCALE)]
         return thin(idx, max_samples)
 
     def sun_shows(self, index: np.ndarray, pose: Pose, sun_direction_cam, dark_background: bool = True) -> np.ndarray:
@@ -217,7 +217,7 @@ class ModelView:
         normals = self.face_normals[self.faces[index]]                           # (S, 2, 3) object frame
         towards_sun = pose.R.T @ -np.asarray(sun_direction_cam, dtype=np.float64)
         lit = normals @ towards_sun > SUNLIT_COSINE                               # (S, 2)
-        # turned to the camera as in the visibility test (_kernels.facing_samples): n · (p + Rᵀt) < 0
+        # turned to the camera as in the visibility test (kernels.facing_samples): n · (p + Rᵀt) < 0
         facing = self._normal_dot_point[index] + normals @ (pose.R.T @ pose.t) < 0
         crease = facing[:, 0] & facing[:, 1] & (self.faces[index, 0] != self.faces[index, 1])
         outline_lit = np.where(facing[:, 0], lit[:, 0], lit[:, 1]) | (not dark_background)
@@ -236,7 +236,7 @@ class ModelView:
         visibility once per frame and re-project as the pose moves); with ``margin_px`` those that
         left the image are dropped. The image normal is perpendicular to the projected edge."""
         index = np.asarray(index, dtype=np.int64)
-        keep, uv, normals = _kernels.project_samples(
+        keep, uv, normals = kernels.project_samples(
             self.points[index], self.directions[index], pose.R, pose.t, camera.K, camera.width, camera.height,
             0.0 if margin_px is None else float(margin_px), margin_px is not None)
         if margin_px is not None and not keep.all():

@@ -40,7 +40,7 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     # at half resolution (4× fewer pixels to label; a 1.2 m-away beam is still 3–4 px wide)
     gray = _half_gray(image)
     bright = (gray > threshold).astype(np.uint8)
-    found = _components(bright)
+    found = mask_components(bright)
     if found is None:
         return None
     labels, stats, (bx, by, bw, bh) = found
@@ -54,7 +54,7 @@ def detect_bright_object(image: np.ndarray, threshold: int = DETECT_THRESHOLD, m
     seeds = is_kept[labels]                                    # (bh, bw): the bright mask's box
     dim = _dim_mask(gray)
     dim[by:by + bh, bx:bx + bw] |= seeds
-    dim_labels, dim_stats, (dx, dy, _, _) = _components(dim, include=(bx, by, bw, bh))
+    dim_labels, dim_stats, (dx, dy, _, _) = mask_components(dim, include=(bx, by, bw, bh))
     seed_labels = dim_labels[by - dy:by - dy + bh, bx - dx:bx - dx + bw][seeds]
     box, grown = _union_box(stats[keep]), _union_box(dim_stats[np.unique(seed_labels)])
     # only a box that grows a lot is a fragment's: growing every box over its dim, shadowed
@@ -72,7 +72,7 @@ def detect_dim_object(image: np.ndarray, min_area_px: int = DETECT_DIM_MIN_AREA_
     so noise alone finds nothing. The predictor falls back to it only where the bright detection
     found nothing or its box gave no plausible pose.
     """
-    found = _components(_dim_mask(_half_gray(image)))
+    found = mask_components(_dim_mask(_half_gray(image)))
     if found is None:
         return None
     _, stats, _ = found
@@ -117,7 +117,7 @@ def _dim_mask(gray: np.ndarray) -> np.ndarray:
     return (smooth > dim_threshold).astype(np.uint8)
 
 
-def _components(mask: np.ndarray, include=None):
+def mask_components(mask: np.ndarray, include=None):
     """8-connected components of a uint8 ``mask``, labelled within the box around its non-zero
     pixels only (the same components; on a space image that box is a fifth of the frame on average,
     and labelling is most of the detection's cost), grown to hold the box ``include`` (x, y, w, h)

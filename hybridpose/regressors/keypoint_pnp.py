@@ -44,7 +44,7 @@ def _project(pose: Pose, points_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     return p[:, :2] / p[:, 2:3]
 
 
-def _drop_worst_fit(pts3, pts2, K, threshold_px, min_inliers, max_drop: int | None = None):
+def drop_worst_fit(pts3, pts2, K, threshold_px, min_inliers, max_drop: int | None = None):
     """SQPnP on all points; while some point reprojects beyond ``threshold_px``, the worst one is
     left out and the rest fitted again. ``(kept (N,) bool, rvec, tvec)`` once every kept point is
     within the threshold, None when that would need dropping more than ``max_drop`` points
@@ -91,7 +91,7 @@ def solve_pnp(points_2d: np.ndarray, points_m: np.ndarray, K: np.ndarray, thresh
         min_inliers: fewer inliers → None.
         outliers: ``"drop-worst"`` (default): leave the worst point out and fit again while any
             is beyond ``threshold_px``, RANSAC only when more than half would go
-            (:func:`_drop_worst_fit`); ``"ransac"``: RANSAC (100 SQPnP minimal solves) whenever the
+            (:func:`drop_worst_fit`); ``"ransac"``: RANSAC (100 SQPnP minimal solves) whenever the
             fit on all points leaves one beyond ``threshold_px`` (the older path);
             ``"drop-worst-only"``: drop-worst with no RANSAC after it (None where more than half
             would go: a fit no majority of the points agrees with).
@@ -105,7 +105,7 @@ def solve_pnp(points_2d: np.ndarray, points_m: np.ndarray, K: np.ndarray, thresh
     K = np.asarray(K, dtype=np.float64)
     if len(pts2) < max(4, min_inliers) or pts2.reshape(-1, 2).std(0).max() < MIN_SPREAD_PX:
         return None  # too few or collapsed points: no pose to find (and SQPnP would assert)
-    inl = _drop_worst_fit(pts3, pts2, K, threshold_px, min_inliers, max_drop=0 if outliers == "ransac" else None)
+    inl = drop_worst_fit(pts3, pts2, K, threshold_px, min_inliers, max_drop=0 if outliers == "ransac" else None)
     if inl is None:
         if outliers == "drop-worst-only":
             return None

@@ -15,7 +15,9 @@ import math
 import numpy as np
 
 from ..geometry import Camera
+from .detection import detect_bright_object
 from .keypoint_net import HEATMAP_STRIDE
+from .keypoint_passes import pnp_quality
 
 # tiles: squares this share of the frame's long side, overlapping by at least half a tile (640 × 480:
 # two 480-px squares). Box tuning sequences, CNN-only in a tracker's basin with the frame alone 71 %;
@@ -131,3 +133,26 @@ def fine_boxes(passes, image: np.ndarray, cam: Camera, coarse: list[tuple]) -> l
     ``cam``) that are not already among the ``coarse`` proposals (``SAME_BOX_IOU``)."""
     return [b for b in network_boxes(passes, image, cam, tile_side=FINE_TILE_SIDE, whole_frame=False)
             if all(box_iou(b, c) <= SAME_BOX_IOU for c in coarse)]
+
+
+def find_object(passes, image: np.ndarray, cam: Camera, sun_turn: float, network: bool = True,
+                fine_tiles: bool = True) -> tuple:
+    """(box (x, y, w, h) px where the object is, its estimate or None) with no prior; (None, None)
+    where nothing is found. With the network's proposals (``network``: :func:`network_boxes`) the
+    estimate PnP fits best (``passes.estimate_in``), the first proposal's box where none gives an
+    estimate; with ``fine_tiles``, where none reaches PnP quality ``FINE_BELOW``, finer tiles'
+    proposals too (:func:`fine_boxes`), their estimates from ``FINE_ACCEPT``. Without proposals, the
+    sunlit pixels (:func:`~.detection.detect_bright_object`)."""
+    proposals = network_boxes(passes, image, cam) if network else []
+    if not proposals:
+        seen = detect_bright_object(image)
+        return seen, None if seen is None else passes.estimate_in(image, cam, seen, sun_turn)
+    found = [(box, passes.estimate_in(image, cam, box, sun_turn)) for box in proposals]
+    found = [(box, est) for box, est in found if est is not None]
+    if fine_tiles and (not found or max(pnp_quality(est) for _, est in found) < FINE_BELOW):
+        fine = [(box, passes.estimate_in(image, cam, box, sun_turn))
+                for box in fine_boxes(passes, image, cam, proposals)]
+        found += [(box, est) for box, est in fine if est is not None and pnp_quality(est) >= FINE_ACCEPT]
+    if not found:
+        return proposals[0], None
+    return max(found, key=lambda box_est: pnp_quality(box_est[1]))  # the first of equals: the whole frame's

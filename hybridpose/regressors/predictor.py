@@ -31,11 +31,11 @@ from ..registry import register
 from .base import PoseRegressor, check_roi
 from .checkpoints import WEIGHTS_DIR, load_checkpoint, shipped_checkpoint
 from .calibration import SIGMA_FLOOR_PX, UNCALIBRATED_SCALE, pnp_covariance, quality_factor, uncalibrated_record
-from .detection import detect_bright_object, detect_dim_object
+from .detection import detect_dim_object
 from .direct import bounded_image, direct_pose
 from .engines import ENGINES, keypoint_engine
 from .keypoint_passes import KeypointEstimate, KeypointPasses, image_batch, pnp_quality
-from .network_detection import FINE_ACCEPT, FINE_BELOW, fine_boxes, network_boxes
+from .network_detection import find_object
 from .options import KeypointOptions
 from .twin_choice import TwinChoice, twin_starts
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
@@ -420,7 +420,8 @@ class CheckpointRegressor(PoseRegressor):
         if roi is not None:
             seen, est = roi, self.passes.estimate_in(image, cam, roi, sun_turn)
         else:
-            seen, est = self._detect(image, cam, sun_turn)
+            seen, est = find_object(self.passes, image, cam, sun_turn, self.detection == "network",
+                                    self.options.fine_tiles)
         if est is None and roi is None and self.options.dim_fallback:
             # nothing bright, or its box gave no plausible pose: the faintly lit object, if any
             dim = detect_dim_object(image)
@@ -436,27 +437,6 @@ class CheckpointRegressor(PoseRegressor):
         if other is None:
             return [est]
         return [other] if self.options.expert_rule == "replace" else [est, other]
-
-    def _detect(self, image: np.ndarray, cam: Camera, sun_turn: float) -> tuple:
-        """(box (x, y, w, h) px where the object is, its estimate or None) without a prior
-        (``detection``); (None, None) where nothing is found. With the network's several proposals
-        (:func:`~.network_detection.network_boxes`) the estimate PnP fits best, the first proposal's
-        box where none gives an estimate; with ``fine_tiles``, where none reaches PnP quality
-        ``FINE_BELOW``, finer tiles' proposals too (:func:`~.network_detection.fine_boxes`), their
-        estimates from ``FINE_ACCEPT``."""
-        proposals = network_boxes(self.passes, image, cam) if self.detection == "network" else []
-        if not proposals:
-            seen = detect_bright_object(image)
-            return seen, None if seen is None else self.passes.estimate_in(image, cam, seen, sun_turn)
-        found = [(box, self.passes.estimate_in(image, cam, box, sun_turn)) for box in proposals]
-        found = [(box, est) for box, est in found if est is not None]
-        if self.options.fine_tiles and (not found or max(pnp_quality(est) for _, est in found) < FINE_BELOW):
-            fine = [(box, self.passes.estimate_in(image, cam, box, sun_turn))
-                    for box in fine_boxes(self.passes, image, cam, proposals)]
-            found += [(box, est) for box, est in fine if est is not None and pnp_quality(est) >= FINE_ACCEPT]
-        if not found:
-            return proposals[0], None
-        return max(found, key=lambda box_est: pnp_quality(box_est[1]))  # the first of equals: the whole frame's
 
     def twin_candidates(self, frame: Frame, roi=None, sun_direction_cam=None):
         """The box twins the twin choice weighs, before any edge fit: (poses T_cam_obj, head

@@ -241,7 +241,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
                             persistent_workers=cfg.workers > 0)
 
     if cfg.init_from:
-        _init_from(model, cfg.init_from)
+        load_matching_weights(model, cfg.init_from)
     if cfg.imagenet_weights:
         load_imagenet_weights(model, cfg.imagenet_weights)
     elif obj is None and not cfg.init_from:
@@ -355,7 +355,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         if written:  # before the time limit is judged: the writes are part of an epoch's time
             _write_checkpoints(out, best_payload, payload)
             best_payload = None
-        _write_metrics(out, history)
+        write_metrics(out, history)
         elapsed_min = (time.perf_counter() - run_start) / 60
         if cfg.time_limit_min and epoch + 1 < cfg.epochs and elapsed_min * (epoch + 2 - start_epoch) / (epoch + 1 - start_epoch) > cfg.time_limit_min:
             log.info("time limit: stopping after epoch %d of %d (%.1f of %.1f min used)",
@@ -396,7 +396,7 @@ def channels_last(model: torch.nn.Module) -> torch.nn.Module:
 OBJECT_BUFFERS = ("keypoints_m",)  # what a network holds of its object, never copied by --init-from
 
 
-def _init_from(model, path) -> None:
+def load_matching_weights(model, path) -> None:
     """Copy the weights of ``path`` whose names and shapes match ``model``'s; log what was left out."""
     src = load_checkpoint(path)
     if "model" not in src:
@@ -448,7 +448,9 @@ def _calibrate_checkpoint(path: Path, model, val_loader, device, twins=()) -> No
     log.info("calibrated %s: %s", path, {k: v for k, v in ck["calibration"].items() if k != "covariance"})
 
 
-def _write_metrics(out: Path, history: list[dict]) -> None:
+def write_metrics(out: Path, history: list[dict]) -> None:
+    """``out/metrics.csv`` and ``out/history.json``: one row per epoch of ``history`` (a dict of numbers
+    each), each written atomically."""
     buf = io.StringIO()
     # the union of the rows' columns: a run resumed across versions may add one
     w = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for row in history for k in row)), restval="",

@@ -189,7 +189,7 @@ def strongest_steps(profiles, search_px, min_contrast, limits):
 
 
 @numba.njit(cache=True, nogil=True)
-def _solve6(H, g):
+def solve_spd6(H, g):
     """``H⁻¹ g`` for a symmetric positive definite (6, 6) ``H``, by Cholesky (no pivoting needed)."""
     L = np.zeros((6, 6))
     for i in range(6):
@@ -256,7 +256,7 @@ def gauss_newton_lines(R, t, points_m, normals, targets, K, scale_cap_px, steps)
             H[i, i] += 1e-9
             for k in range(i):
                 H[k, i] = H[i, k]
-        delta = -_solve6(H, g)
+        delta = -solve_spd6(H, g)
         dR, dt = se3_exp_one(delta)
         t = R @ dt + t
         R = R @ dR

@@ -101,7 +101,7 @@ PAIRED_HEADER = ("mean rot ° without → with | Δ mean ° (95 % CI) | > {gross
 
 
 def paired_cells(c: dict) -> str:
-    """The Markdown cells of one :func:`hybridpose.training.evaluate.paired_comparison` (A without, B
+    """The Markdown cells of one :func:`hybridpose.training.compare.paired_comparison` (A without, B
     with), in the order of ``PAIRED_HEADER``."""
     d = c["rot_mean_diff_deg"]
     return (f"{c['a']['rot_mean_deg']:.2f} → {c['b']['rot_mean_deg']:.2f} | "

@@ -27,7 +27,8 @@ from _common import PAIRED_HEADER, environment, paired_cells, publish, test_view
 from hybridpose.machine import cpu_label
 from hybridpose.metrics import rotation_error_deg, translation_error_m
 from hybridpose.training.compare import paired_comparison
-from hybridpose.training.evaluate import FAILED_ROT_DEG, GROSS_ERROR_DEG, network_call_ms
+from hybridpose.training.eval_report import GROSS_ERROR_DEG
+from hybridpose.training.evaluate import FAILED_ROT_DEG, network_call_ms
 from hybridpose.regressors.predictor import CheckpointRegressor
 from hybridpose.regressors.checkpoints import shipped_checkpoint
 from hybridpose.training.quantize import int8_path

@@ -27,7 +27,7 @@ import numpy as np
 
 from _common import environment, publish, set_names, weights_tag
 from hybridpose.machine import cpu_label
-from hybridpose.training.evaluate import GROSS_ERROR_DEG, PAPER
+from hybridpose.training.eval_report import GROSS_ERROR_DEG, PAPER
 from hybridpose.regressors.checkpoints import shipped_checkpoint
 
 PAPER_BEST = "Parallel VGG-19"

@@ -24,7 +24,8 @@ from pathlib import Path
 
 from _common import BENCH_DIR, environment, update_results_md, write_json
 from hybridpose.machine import cpu_label
-from hybridpose.training.evaluate import PAPER, covariance_lines, evaluate_checkpoint, quality_table
+from hybridpose.training.eval_report import PAPER, covariance_lines, quality_table
+from hybridpose.training.evaluate import evaluate_checkpoint
 from hybridpose.regressors.checkpoints import shipped_checkpoint, WEIGHTS_DIR
 
 

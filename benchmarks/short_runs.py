@@ -32,7 +32,8 @@ from _common import environment, update_results_md, write_json
 from hybridpose.machine import cpu_label
 from hybridpose.datasets.bop import BopScene, find_scenes
 from hybridpose.io import atomic_write_json
-from hybridpose.training.evaluate import GROSS_ERROR_DEG, PAPER, evaluate_checkpoint
+from hybridpose.training.eval_report import GROSS_ERROR_DEG, PAPER
+from hybridpose.training.evaluate import evaluate_checkpoint
 from hybridpose.regressors.models import available_models, model_kind
 from hybridpose.training.train import add_train_arguments, config_from_args, train
 

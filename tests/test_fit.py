@@ -384,7 +384,7 @@ def test_a_start_from_another_objects_network_keeps_this_objects_keypoints(truss
     """--init-from copies the features, never the 3D keypoints the network's PnP uses."""
     from hybridpose.regressors.checkpoints import shipped_checkpoint
     from hybridpose.regressors.models import build_model
-    from hybridpose.training.train import load_matching_weights
+    from hybridpose.training.checkpoint_io import load_matching_weights
 
     other = 0.5 * truss.keypoints  # as many keypoints as the shipped truss network has, elsewhere
     net = build_model("default", keypoints_m=other, image_size=128)

@@ -474,7 +474,8 @@ def test_covariance_check_counts_errors_inside_the_ellipsoid():
     from scipy.stats import chi2
 
     from hybridpose.core import Measurement
-    from hybridpose.training.evaluate import covariance_check, covariance_lines, covariance_nees, over_confident
+    from hybridpose.training.eval_report import covariance_lines, over_confident
+    from hybridpose.training.evaluate import covariance_check, covariance_nees
 
     truth = Pose.from_rotvec_t([0.1, 0.2, -0.3], [0.05, 0.0, 0.8])
     half_turn = Pose.from_rotvec_t([0.0, 0.0, np.pi], [0.0, 0.0, 0.0])
@@ -514,7 +515,7 @@ def test_calibrate_refuses_bad_coverage_and_too_few_poses(tiny_checkpoint, tmp_p
 
 
 def test_accuracy_by_quality_keeps_what_a_gate_would_trust():
-    from hybridpose.training.evaluate import accuracy_by_quality, quality_table
+    from hybridpose.training.eval_report import accuracy_by_quality, quality_table
 
     rows = [{"quality": q, "rot_deg": r, "trans_m": t} for q, r, t in
             [(0.9, 1.0, 0.01), (0.6, 3.0, 0.03), (0.4, 170.0, 0.2), (0.0, 180.0, 1.0)]]  # the last: a failure
@@ -655,7 +656,7 @@ def test_twin_scores_weigh_head_against_edges():
 def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
     from scipy.spatial.transform import Rotation
 
-    from hybridpose.training.evaluate import view_elevation_deg
+    from hybridpose.objects import view_elevation_deg
 
     assert int(np.argmin(truss.extents)) == 2  # the truss is flat in its z
     face_on = Pose(np.eye(3), np.array([0.0, 0.0, 0.8]) - truss.center)      # looking along object z
@@ -719,7 +720,7 @@ def test_sun_phase_angle_and_light_azimuth(truss):
     from scipy.spatial.transform import Rotation
 
     from hybridpose.objects import light_azimuth_deg, sun_phase_angle_deg
-    from hybridpose.training.evaluate import error_in_bins
+    from hybridpose.training.eval_report import error_in_bins
 
     R = Rotation.from_euler("xyz", [20, -35, 60], degrees=True).as_matrix()
     on_axis = Pose(R, np.array([0.0, 0.0, 0.9]) - R @ truss.center)  # box centre on the optical axis

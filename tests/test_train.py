@@ -70,11 +70,11 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
 def test_checkpoints_every_n_epochs_hold_the_best_until_written(data, tmp_path, tiny, monkeypatch):
     """checkpoint_every=2: last.pt at epochs 2, 4 and the last; a better best.pt found in between is kept in host
     memory and written with it — the same files as writing every epoch (the runs are identical otherwise)."""
-    import hybridpose.training.train as train_mod
+    import hybridpose.training.checkpoint_io as checkpoint_io
 
     writes = []
-    real = train_mod.save_checkpoint
-    monkeypatch.setattr(train_mod, "save_checkpoint", lambda path, payload: writes.append((path.name, payload["epoch"]))
+    real = checkpoint_io.save_checkpoint
+    monkeypatch.setattr(checkpoint_io, "save_checkpoint", lambda path, payload: writes.append((path.name, payload["epoch"]))
                         or real(path, payload))
     base = dict(model="tiny", data=str(data), epochs=5, batch=4, lr=1e-2, image_size=32, patience=0, augment=False)
     train(TrainConfig(**base, out=str(tmp_path / "every"), checkpoint_every=1), progress=False)
@@ -152,7 +152,7 @@ def test_loader_workers_start_after_this_process_used_opencv_threads(data, tmp_p
 
 def test_metrics_of_a_run_resumed_across_versions_keep_every_column(tmp_path):
     """A run resumed by a version whose rows carry a new column still writes its CSV (blank where absent)."""
-    from hybridpose.training.train import write_metrics
+    from hybridpose.training.checkpoint_io import write_metrics
 
     write_metrics(tmp_path, [{"epoch": 0, "val_loss": 2.0}, {"epoch": 1, "val_loss": 1.5, "train_images": 16}])
     assert (tmp_path / "metrics.csv").read_text().splitlines() == ["epoch,val_loss,train_images", "0,2.0,", "1,1.5,16"]
@@ -258,7 +258,7 @@ def test_init_from_copies_matching_weights_and_adds_new_layers(data, tmp_path):
 def test_init_from_a_narrower_keypoint_net_widens_it(data, tmp_path, caplog):
     """`keypoints` (width 48) from a `default` (width 32) checkpoint: Net2WiderNet, not a fresh start."""
     from hybridpose.regressors.keypoint_net import widen_state_dict
-    from hybridpose.training.train import WIDEN_NOISE
+    from hybridpose.training.checkpoint_io import WIDEN_NOISE
 
     base = TrainConfig(model="default", data=str(data), out=str(tmp_path / "a"), epochs=1, batch=4, lr=1e-3,
                        image_size=64, patience=0, twin_loss=False, max_batches=2)

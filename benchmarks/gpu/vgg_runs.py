@@ -24,7 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import BENCH_DIR, update_results_md, write_json  # noqa: E402
-from hybridpose.training.evaluate import PAPER  # noqa: E402
+from hybridpose.training.eval_report import PAPER  # noqa: E402
 
 MODELS = ("vgg16", "vgg19", "branched-vgg19", "parallel-vgg19")
 PAPER_NAMES = {"vgg16": "VGG-16", "vgg19": "VGG-19", "branched-vgg19": "Branched VGG-19", "parallel-vgg19": "Parallel VGG-19"}

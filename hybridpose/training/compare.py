@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .evaluate import GROSS_ERROR_DEG
+from .eval_report import GROSS_ERROR_DEG
 
 
 def compare_reports(report_a, report_b, gross_deg: float = GROSS_ERROR_DEG, resamples: int = 2000,

@@ -8,8 +8,6 @@ learns from lives in :mod:`.train_data`, one batch's loss and the validation pas
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import json
 import logging
 import math
@@ -25,25 +23,20 @@ from torch.utils.data import DataLoader
 
 from ..datasets.bop import dataset_object
 from ..datasets.torch_dataset import single_threaded_worker
-from ..io import atomic_write_json, atomic_write_text
-from ..regressors.checkpoints import RESUME_ONLY_KEYS, load_checkpoint, save_checkpoint
+from ..regressors.checkpoints import RESUME_ONLY_KEYS, load_checkpoint
 from ..regressors.losses import DEFAULT_BETA
-from ..regressors.calibration import calibrate
-from ..regressors.keypoint_net import widen_state_dict
 from ..regressors.verify import box_half_turns
 from ..regressors.models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
 from .train_data import dataset_info, make_augment, make_datasets
-from .train_steps import batch_loss, evaluate, forward
+from .checkpoint_io import (calibrate_best, kw_for_checkpoint, load_matching_weights, snapshot, write_checkpoints,
+                            write_metrics)
+from .train_steps import batch_loss, evaluate
 from ..regressors.unlabelled import symmetry_gauge
 from ..regressors.vgg import VGG_INITS, load_imagenet_weights
 
 log = logging.getLogger(__name__)
 
 TWIN_CE_WEIGHT = 0.1  # the twin head's cross-entropy beside the keypoint loss (shipped default.pt)
-# noise on the copied channels when --init-from widens a narrower keypoint net: enough to let the
-# copies drift apart, small enough to keep the start's keypoints within ≈ 0.1 px on real crops
-WIDEN_NOISE = 0.002
-
 
 SCHEDULES = ("constant", "cosine")
 
@@ -144,27 +137,6 @@ class TrainConfig:
             raise ValueError(f"full_view: expected a share of the training crops in [0, 1], got {self.full_view}")
         if self.time_limit_min is not None and not self.time_limit_min > 0:
             raise ValueError(f"time_limit_min: expected a positive number of minutes, got {self.time_limit_min}")
-
-
-def kw_for_checkpoint(kw: dict) -> dict:
-    """The :func:`build_model` arguments, as plain lists (a checkpoint rebuilds its own network)."""
-    return {k: (np.asarray(v).tolist() if k == "keypoints_m" else v) for k, v in kw.items()}
-
-
-def _snapshot(payload: dict) -> dict:
-    """``payload`` with its model weights copied to host memory and its history list copied: what
-    training goes on to change in place."""
-    out = dict(payload)
-    out["model"] = {k: v.detach().to("cpu", copy=True) for k, v in payload["model"].items()}
-    out["history"] = list(payload["history"])
-    return out
-
-
-def _write_checkpoints(out: Path, best_payload: dict | None, payload: dict) -> None:
-    """Write the pending ``best.pt`` (where there is one), then ``last.pt``."""
-    if best_payload is not None:
-        save_checkpoint(out / "best.pt", best_payload)
-    save_checkpoint(out / "last.pt", payload)
 
 
 def _distributed(device: torch.device) -> tuple[int, int, torch.device]:
@@ -343,7 +315,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
             # 1.6 GB -> 0.55 GB), and a run writes it every improving epoch.
             best_payload = {k: v for k, v in payload.items() if k not in RESUME_ONLY_KEYS}
             if cfg.checkpoint_every > 1:  # held until the next write: later steps must not change it
-                best_payload = _snapshot(best_payload)
+                best_payload = snapshot(best_payload)
         if bar:
             bar.update(1)
             bar.set_postfix(val_loss=f"{row['val_loss']:.3f}", rot=f"{row['rot_mean_deg']:.1f}°", t=f"{row['trans_mean_m']:.3f}m")
@@ -353,7 +325,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
             stopped = f"early stop after epoch {epoch}: no validation improvement for {stale} epochs (--patience)"
         written = stop or epoch + 1 == cfg.epochs or (epoch + 1) % cfg.checkpoint_every == 0
         if written:  # before the time limit is judged: the writes are part of an epoch's time
-            _write_checkpoints(out, best_payload, payload)
+            write_checkpoints(out, best_payload, payload)
             best_payload = None
         write_metrics(out, history)
         elapsed_min = (time.perf_counter() - run_start) / 60
@@ -364,7 +336,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
                        "min used (--time-limit; --resume continues)")
             stop = True
             if not written:
-                _write_checkpoints(out, best_payload, payload)
+                write_checkpoints(out, best_payload, payload)
         if world > 1:
             _stop_signal(stop)
         if stop:
@@ -374,7 +346,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
     best_path = out / "best.pt"
     if main_process and best_path.exists():
         # a symmetric object's errors count to its nearest equivalent pose (no image tells them apart)
-        _calibrate_checkpoint(best_path, model, val_loader, device, twins or (obj.symmetries if obj is not None else ()))
+        calibrate_best(best_path, model, val_loader, device, twins or (obj.symmetries if obj is not None else ()))
     if world > 1:
         import torch.distributed as dist
 
@@ -393,39 +365,6 @@ def channels_last(model: torch.nn.Module) -> torch.nn.Module:
     return model.to(memory_format=torch.channels_last)
 
 
-OBJECT_BUFFERS = ("keypoints_m",)  # what a network holds of its object, never copied by --init-from
-
-
-def load_matching_weights(model, path) -> None:
-    """Copy the weights of ``path`` whose names and shapes match ``model``'s; log what was left out."""
-    src = load_checkpoint(path)
-    if "model" not in src:
-        raise ValueError(f"{path}: not a hybridpose checkpoint (no 'model')")
-    own = model.state_dict()
-    weights = src["model"]
-    if getattr(model, "kind", None) == "keypoints" and "stem.0.weight" in weights:
-        width, own_width = weights["stem.0.weight"].shape[0], own["stem.0.weight"].shape[0]
-        if width < own_width:   # e.g. the wider `keypoints` net from the shipped `default`: keep what it learned
-            common = [k for k in weights if k in own]   # a head only one of them has stays fresh
-            weights = widen_state_dict({k: weights[k] for k in common}, {k: own[k] for k in common},
-                                       noise=WIDEN_NOISE, seed=0)
-            log.info("widened %s from width %d to %d (Net2WiderNet)", path, width, own_width)
-    src_size = (src.get("build") or {}).get("image_size")
-    if src_size and getattr(model, "image_size", src_size) != src_size:
-        # the keypoint nets are fully convolutional, so this runs, but every feature sees a new scale
-        # (one epoch 128 → 160 px cost the default network of the time 2.8° mean)
-        log.warning("%s was trained on %d px crops, this run uses %d px (--image-size %d keeps its scale)",
-                    path, src_size, model.image_size, src_size)
-    # the object's own keypoints stay: a start from another object's checkpoint (of as many keypoints)
-    # would otherwise carry its 3D points into every PnP
-    take = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape and k not in OBJECT_BUFFERS}
-    if not take:
-        raise ValueError(f"{path}: no weight matches the {type(model).__name__} being trained")
-    model.load_state_dict(take, strict=False)
-    fresh = sorted(set(own) - set(take))
-    log.info("initialised %d tensors from %s; new: %s", len(take), path, ", ".join(fresh) or "none")
-
-
 def _stop_signal(stop: bool | None) -> bool:
     """Rank 0 broadcasts its early-stop decision after validating; the other ranks receive it."""
     import torch.distributed as dist
@@ -433,32 +372,6 @@ def _stop_signal(stop: bool | None) -> bool:
     box = [stop]
     dist.broadcast_object_list(box, src=0)
     return bool(box[0])
-
-
-def _calibrate_checkpoint(path: Path, model, val_loader, device, twins=()) -> None:
-    """Store the held-out covariance calibration (see calibration.py) in the best checkpoint."""
-    ck = load_checkpoint(path)
-    model.load_state_dict(ck["model"])
-    try:
-        ck["calibration"] = calibrate(model, val_loader, lambda m, b: forward(m, b, device), twins, device)
-    except ValueError as exc:
-        log.warning("%s: not calibrated (%s); its covariances will be conservative defaults", path, exc)
-        return
-    save_checkpoint(path, ck)
-    log.info("calibrated %s: %s", path, {k: v for k, v in ck["calibration"].items() if k != "covariance"})
-
-
-def write_metrics(out: Path, history: list[dict]) -> None:
-    """``out/metrics.csv`` and ``out/history.json``: one row per epoch of ``history`` (a dict of numbers
-    each), each written atomically."""
-    buf = io.StringIO()
-    # the union of the rows' columns: a run resumed across versions may add one
-    w = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for row in history for k in row)), restval="",
-                       lineterminator="\n")
-    w.writeheader()
-    w.writerows(history)
-    atomic_write_text(out / "metrics.csv", buf.getvalue())
-    atomic_write_json(out / "history.json", history)
 
 
 def add_train_arguments(p: argparse.ArgumentParser) -> None:

@@ -44,7 +44,7 @@ FIT_LR = 1e-3
 REFIT_LR = 5e-5
 # the hybrid policy a new part's network recommends: its covariance, calibrated to cover its gross errors,
 # let two answers 65° apart agree and restart a lost track at a wrong pose; within 20° they agree only
-# near the truth (a box's own-object sequences 2.36° → 0.38° mean; docs/decisions.md)
+# near the truth (docs/decisions.md)
 NEW_PART_POLICY = {"reacquire_deg": 20.0}
 LOOKS = ("random", "space")
 SUN_CONE_DEG = 85.0  # each view's sun within this of the look's centre direction
@@ -220,11 +220,11 @@ def keep_start_sun(start, checkpoint) -> bool:
     the re-fit's own light came from every side (its cone holds the optical axis, so its record asks
     for no crop turn) while the start's came from one side: the start's features learnt that side, and
     a fine-tune at ``REFIT_LR`` keeps them, so its crops still want the light turned there
-    (:func:`~hybridpose.regressors.predictor.sun_turn_deg`). A truss re-fit on views lit around the axis
+    (:func:`~hybridpose.regressors.sun_turn.sun_turn_deg`). A truss re-fit on views lit around the axis
     measured 5.19° mean on such views with its start's record, 6.31° with its own. Returns whether it
     changed ``checkpoint``."""
     from .regressors.checkpoints import load_checkpoint, save_checkpoint
-    from .regressors.predictor import trained_light_azimuth_deg
+    from .regressors.sun_turn import trained_light_azimuth_deg
 
     start_light = (load_checkpoint(start).get("dataset") or {}).get("lighting")
     payload = load_checkpoint(checkpoint)

@@ -58,10 +58,10 @@ class HybridConfig:
             while lost (both covariances, plus the motion possible in between).
         reacquire_deg: two consecutive CNN answers further apart than this in rotation (°) never agree,
             whatever the covariances say: a regressor whose covariance covers its gross errors (a
-            part's fit) lets two answers 65° apart agree. 20 for a fitted plain box: its own-object
-            sequences 2.36° → 0.38° mean; on the truss, whose edges reject wrong poses, recoveries
-            come a frame later. None (default): the Mahalanobis test alone; a part's fitted checkpoint
-            recommends 20 (:func:`recommended_config`).
+            part's fit) lets two answers 65° apart agree. None (default): the Mahalanobis test alone
+            (on the truss, whose edges reject wrong poses, 20 only delays recoveries by a frame); a
+            part's fitted checkpoint recommends 20 (:func:`recommended_config`; evidence in
+            ``docs/decisions.md``).
         lost_check_period: frames between CNN answers while lost (1: every frame). Under a long
             occlusion the CNN finds nothing frame after frame; asking it less often is most of the
             hybrid's saving over CNN-only, at up to that many frames' delay in recovering.

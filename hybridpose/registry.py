@@ -6,6 +6,7 @@ Roles: ``object``, ``trajectory``, ``tracker``, ``regressor``, ``fusion``. A pac
 from __future__ import annotations
 
 import importlib
+import inspect
 import logging
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -54,17 +55,45 @@ def register(role: str, name: str, baseline: bool = False) -> Callable:
     return deco
 
 
+def unregister(role: str, name: str) -> None:
+    """Remove the backend ``name`` of ``role`` (to register another factory under its name); KeyError
+    naming it where none is registered."""
+    _check_role(role)
+    _load(role)
+    if name not in _factories[role]:
+        raise KeyError(f"{role} {name!r} is not registered (registered: {', '.join(sorted(_factories[role]))})")
+    del _factories[role][name]
+    _baselines[role].discard(name)
+
+
+def rescan(role: str) -> list[str]:
+    """Read the entry points of ``role`` again (a plugin installed after its first use, in a running
+    notebook); the names already registered keep their factories. Returns the names it added."""
+    _check_role(role)
+    _load(role)
+    return _load_plugins(role)
+
+
 def _load(role: str) -> None:
     if role in _loaded:
         return
     _loaded.add(role)
     for module in _BUILTIN_MODULES[role]:
         importlib.import_module(module)
+    _load_plugins(role)
+
+
+def _load_plugins(role: str) -> list[str]:
+    added = []
     for ep in entry_points(group=f"hybridpose.{role}"):
+        if ep.name in _factories[role]:
+            continue
         try:
-            _factories[role].setdefault(ep.name, ep.load())
+            _factories[role][ep.name] = ep.load()
+            added.append(ep.name)
         except Exception:  # noqa: BLE001 — a broken plugin must not break the built-ins
             log.exception("could not load %s plugin %r from %s", role, ep.name, ep.value)
+    return added
 
 
 def available(role: str, baselines: bool = False) -> list[str]:
@@ -108,3 +137,42 @@ def create_regressor(name: str, **kwargs) -> Any:
     from .regressors.predictor import CheckpointRegressor
 
     return CheckpointRegressor(name, **kwargs)
+
+
+def names(text: str) -> tuple[str, ...]:
+    """``"a, b,,c"`` → ``("a", "b", "c")``."""
+    return tuple(n.strip() for n in text.split(",") if n.strip())
+
+
+def backend_options(items, factory, flag: str) -> dict:
+    """``["explain=false", "lost_quality=0.4"]`` → keyword arguments of the backend ``factory`` (a
+    callable or a dataclass of options), each value read as the type of that parameter's default
+    (true/false, a number, a word, a comma list where the default is a tuple, ``none`` where the
+    default is None); ValueError naming ``flag`` and
+    the parameters it takes otherwise (the backend checks the values it is given)."""
+    params = {k: p for k, p in inspect.signature(factory).parameters.items()
+              if k not in ("self", "object") and p.default is not inspect.Parameter.empty}
+    options = {}
+    for item in items or ():
+        key, _, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if key not in params or not value:
+            raise ValueError(f"{flag}: expected NAME=VALUE with a name among {', '.join(params) or 'none'}, got {item!r}")
+        default = params[key].default
+        if value.lower() == "none" and (default is None or "None" in str(params[key].annotation)):
+            options[key] = None
+        elif isinstance(default, str):
+            options[key] = value
+        elif isinstance(default, tuple):
+            options[key] = names(value)  # a comma list: modalities=texture,region
+        elif isinstance(default, bool):
+            if value.lower() not in ("true", "false", "1", "0"):
+                raise ValueError(f"{flag}: {key}: expected true or false, got {value!r}")
+            options[key] = value.lower() in ("true", "1")
+        else:
+            try:
+                number = float(value)
+            except ValueError:
+                raise ValueError(f"{flag}: {key}: expected a number, got {value!r}") from None
+            options[key] = int(number) if isinstance(default, int) and number.is_integer() else number
+    return options

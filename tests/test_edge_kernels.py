@@ -191,7 +191,7 @@ def depth_oracle(view: ModelView, pose, camera, depth: np.ndarray, margin_px: fl
     the camera, inside the image by ``margin_px``: (index (S,) into ``view.points``, uv (S, 2) px,
     seen (S,) bool: a pixel near it shows its depth, covered (S,) bool: every such pixel shows
     something nearer)."""
-    cand, uv, _ = ek.facing_samples(view.points, view._normal_dot_point, view.face_normals, view.faces,
+    cand, uv, _ = ek.facing_samples(view.points, view.normal_dot_point, view.face_normals, view.faces,
                                     pose.R, pose.t, camera.K, camera.width, camera.height, float(margin_px))
     z = (view.points[cand] @ pose.R.T + pose.t)[:, 2]
     seen, covered = np.zeros(len(cand), bool), np.zeros(len(cand), bool)

@@ -55,9 +55,9 @@ def test_onnxruntime_sessions_follow_torchs_thread_count(truss):
             engine(torch.rand(1, 3, 64, 64))
     finally:
         torch.set_num_threads(before)
-    assert sorted(engine.onnx._sessions) == [1, 2]
+    assert sorted(engine.onnx.sessions) == [1, 2]
     # no spinning threads: a regressor's several sessions would fight over the cores (2 threads took 2x 1 thread's time)
-    for session in engine.onnx._sessions.values():
+    for session in engine.onnx.sessions.values():
         assert session.get_session_options().get_session_config_entry("session.intra_op.allow_spinning") == "0"
 
 

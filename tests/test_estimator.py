@@ -615,12 +615,15 @@ def test_plugin_backends_from_entry_points(monkeypatch, truss):
     plugins = {"hybridpose.tracker": [ep("scripted", lambda object: ScriptedTracker())],
                "hybridpose.regressor": [ep("oracle", lambda object: OracleRegressor())]}
     for role in ("tracker", "regressor"):
-        registry.available(role)  # built-ins (and real plugins) first, so the patched tables start from them
-        monkeypatch.setattr(registry, "_loaded", set(registry._loaded) - {role})
-        monkeypatch.setitem(registry._factories, role, dict(registry._factories[role]))
+        registry.available(role)  # built-ins (and real plugins) first
     monkeypatch.setattr(registry, "entry_points", lambda group: plugins.get(group, []))
-    est = HybridEstimator.from_names(object=truss, tracker="scripted", regressor="oracle", fusion="ukf")
-    out = run(est, 5)
+    try:
+        assert registry.rescan("tracker") == ["scripted"] and registry.rescan("regressor") == ["oracle"]
+        est = HybridEstimator.from_names(object=truss, tracker="scripted", regressor="oracle", fusion="ukf")
+        out = run(est, 5)
+    finally:
+        registry.unregister("tracker", "scripted")
+        registry.unregister("regressor", "oracle")
     assert out[0].status == "init" and rotation_error_deg(out[-1].pose, truth(4)) < 0.3
 
 

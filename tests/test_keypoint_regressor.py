@@ -670,8 +670,8 @@ def test_view_elevation_is_zero_edge_on_and_ninety_face_on(truss):
 
 
 def test_sun_turn_aligns_the_light_with_the_training_sun(tiny_checkpoint, truss):
-    from hybridpose.regressors.predictor import (SUN_TURN_BEYOND_DEG, CheckpointRegressor, sun_turn_deg,
-                                                 trained_light_azimuth_deg)
+    from hybridpose.regressors.predictor import CheckpointRegressor
+    from hybridpose.regressors.sun_turn import SUN_TURN_BEYOND_DEG, sun_turn_deg, trained_light_azimuth_deg
     from hybridpose.regressors.checkpoints import load_checkpoint
 
     # the training data's sun is recorded (the tiny set: the default sun, no cone)

@@ -20,9 +20,14 @@ def test_entry_point_plugins_are_loaded(monkeypatch):
 
     registry.available("fusion")  # the built-ins first: their modules register once, at import
     monkeypatch.setattr(registry, "entry_points", lambda group: [EP()] if group == "hybridpose.fusion" else [])
-    monkeypatch.setattr(registry, "_loaded", set(registry._loaded) - {"fusion"})
-    monkeypatch.setitem(registry._factories, "fusion", {})
-    assert registry.create("fusion", "my-object") == "plugin!"
+    try:
+        assert registry.rescan("fusion") == ["my-object"] and registry.rescan("fusion") == []
+        assert registry.create("fusion", "my-object") == "plugin!" and "my-object" in registry.available("fusion")
+    finally:
+        registry.unregister("fusion", "my-object")
+    assert "my-object" not in registry.available("fusion")
+    with pytest.raises(KeyError, match="my-object"):
+        registry.unregister("fusion", "my-object")
 
 
 def test_register_refuses_a_different_factory_under_a_taken_name():
@@ -32,7 +37,7 @@ def test_register_refuses_a_different_factory_under_a_taken_name():
 
     with pytest.raises(ValueError, match="already registered"):
         registry.register("fusion", "test-dup")(lambda: 2)
-    registry._factories["fusion"].pop("test-dup")
+    registry.unregister("fusion", "test-dup")
 
 
 def test_frame_and_measurement_validate():

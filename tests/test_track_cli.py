@@ -319,7 +319,7 @@ def test_hybrid_options_reach_the_policy(clip, tmp_path, capsys, monkeypatch):
 
 
 def test_backend_options_read_values_as_the_defaults_types():
-    from hybridpose.cli.common import backend_options
+    from hybridpose.registry import backend_options
     from hybridpose.registry import get
 
     opts = backend_options(["explain=0", "search_px=12", "lost_quality=0.45", "covariance_scale=2"], get("tracker", "edges"), "-o")
@@ -339,7 +339,7 @@ def test_backend_options_read_values_as_the_defaults_types():
 
 
 def test_regressor_options_are_keypoint_options(tmp_path, capsys):
-    from hybridpose.cli.common import backend_options
+    from hybridpose.registry import backend_options
     from hybridpose.regressors.options import KeypointOptions
 
     opts = backend_options(["fine_tiles=true", "turns=off", "passes=2", "max_depth_m=none"], KeypointOptions, "-r")

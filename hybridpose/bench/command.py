@@ -176,8 +176,7 @@ def tracker_options(tracker: str, items) -> tuple:
     """``["max_samples=800"]`` → the sorted ``((name, value), ...)`` keyword arguments of the tracker
     registered as ``tracker``; ValueError naming ``--tracker-option`` and what it takes otherwise (the
     values themselves are checked by :func:`bench` building each tracker once before any long work)."""
-    from ..cli.common import backend_options
-    from ..registry import get
+    from ..registry import backend_options, get
 
     factory = get("tracker", tracker)
     try:

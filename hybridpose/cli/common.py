@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import inspect
 
 from ..geometry import Camera, load_camera
 
@@ -64,41 +63,3 @@ def sun_dir(text: str) -> tuple[float, float, float]:
     if len(vals) != 3:
         raise argparse.ArgumentTypeError(f"expected three comma-separated numbers x,y,z, got {text!r}")
     return vals
-
-
-def names(text: str) -> tuple[str, ...]:
-    return tuple(n.strip() for n in text.split(",") if n.strip())
-
-
-def backend_options(items, factory, flag: str) -> dict:
-    """``["explain=false", "lost_quality=0.4"]`` → keyword arguments of the backend ``factory`` (a
-    callable or a dataclass of options), each value read as the type of that parameter's default
-    (true/false, a number, a word, a comma list where the default is a tuple, ``none`` where the
-    default is None); ValueError naming ``flag`` and
-    the parameters it takes otherwise (the backend checks the values it is given)."""
-    params = {k: p for k, p in inspect.signature(factory).parameters.items()
-              if k not in ("self", "object") and p.default is not inspect.Parameter.empty}
-    options = {}
-    for item in items or ():
-        key, _, value = item.partition("=")
-        key, value = key.strip(), value.strip()
-        if key not in params or not value:
-            raise ValueError(f"{flag}: expected NAME=VALUE with a name among {', '.join(params) or 'none'}, got {item!r}")
-        default = params[key].default
-        if value.lower() == "none" and (default is None or "None" in str(params[key].annotation)):
-            options[key] = None
-        elif isinstance(default, str):
-            options[key] = value
-        elif isinstance(default, tuple):
-            options[key] = names(value)  # a comma list: modalities=texture,region
-        elif isinstance(default, bool):
-            if value.lower() not in ("true", "false", "1", "0"):
-                raise ValueError(f"{flag}: {key}: expected true or false, got {value!r}")
-            options[key] = value.lower() in ("true", "1")
-        else:
-            try:
-                number = float(value)
-            except ValueError:
-                raise ValueError(f"{flag}: {key}: expected a number, got {value!r}") from None
-            options[key] = int(number) if isinstance(default, int) and number.is_integer() else number
-    return options

@@ -9,7 +9,8 @@ import numpy as np
 
 from ..geometry import Camera
 from ..hybrid_config import DEFAULT_FUSION
-from .common import backend_options, close_bars, counter, float_pair, names, progress
+from ..registry import backend_options, names
+from .common import close_bars, counter, float_pair, progress
 from .data import verify_dataset
 
 

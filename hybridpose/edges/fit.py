@@ -97,9 +97,9 @@ def search_edges(gray: np.ndarray, samples: EdgeSamples, search_px: int, min_con
     """Strongest intensity step along each sample's normal within ``±search_px``.
 
     Returns (offset (S,) px along the normal, sub-pixel; valid (S,) bool: step ≥ ``min_contrast``
-    grey levels per pixel; mean intensity (S,) along the search line). A mild Gaussian preference for nearer steps breaks ties as RAPID's
-    nearest-maximum rule would. (Keeping each sample's contrast sign from frame to frame, as ViSP
-    does, was tried and dropped: under a fixed sun, crease edges of a tumbling truss flip sign.)
+    grey levels per pixel; mean intensity (S,) along the search line). A mild Gaussian preference for
+    nearer steps breaks ties as RAPID's nearest-maximum rule would. No sign is kept from frame to frame,
+    as ViSP does: under a fixed sun, crease edges of a tumbling truss flip sign.
     """
     return _search(gray, samples.uv, samples.normals, search_px, min_contrast)
 

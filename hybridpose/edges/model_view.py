@@ -98,7 +98,8 @@ class ModelView:
         self.edge_of = e_idx                                      # (P,) the sharp edge each sample lies on
         self.faces = faces[e_idx]                                 # (P, 2) adjacent triangles
         self.face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
-        self._normal_dot_point = np.einsum("pkj,pj->pk", self.face_normals[self.faces], self.points)  # (P, 2)
+        # (P, 2) n·p for each sample's two faces: a face turns to the camera where n·p + n·(Rᵀt) < 0
+        self.normal_dot_point = np.einsum("pkj,pj->pk", self.face_normals[self.faces], self.points)
         self.triangles = verts[np.asarray(mesh.faces)]            # (F, 3, 3)
         # coplanar triangles form one facet: a pixel showing any of them shows "that face"
         facet_of = np.arange(len(mesh.faces)) + len(mesh.facets)
@@ -195,7 +196,7 @@ class ModelView:
         """Indices (S,) into :attr:`points` of the samples :meth:`visible_samples` returns; ``ids``: the
         :meth:`facet_ids` of ``pose`` where the caller has them (rendered here otherwise)."""
         idx, uv, facing = kernels.facing_samples(
-            self.points, self._normal_dot_point, self.face_normals, self.faces, pose.R, pose.t, camera.K,
+            self.points, self.normal_dot_point, self.face_normals, self.faces, pose.R, pose.t, camera.K,
             camera.width, camera.height, float(margin_px))
         if len(idx):
             own = self.facet_of[self.faces[idx]] * facing                 # (S, 2): 0 where back-facing
@@ -211,14 +212,13 @@ class ModelView:
         ``dark_background`` False (the Earth behind), always: a face in shadow stands out against it.
 
         An edge the sun cannot show pulls its search onto whatever lit edge lies within reach (the
-        neighbouring beam): left out, fits from a pose 1° off on the tuning sequences' clear frames
-        came 0.175° → 0.115° mean, 0.19° → 0.13° p90, lost 21 → 9 of 523 (``docs/decisions.md``)."""
+        neighbouring beam), so it is left out (evidence in ``docs/decisions.md``)."""
         index = np.asarray(index, dtype=np.int64)
         normals = self.face_normals[self.faces[index]]                           # (S, 2, 3) object frame
         towards_sun = pose.R.T @ -np.asarray(sun_direction_cam, dtype=np.float64)
         lit = normals @ towards_sun > SUNLIT_COSINE                               # (S, 2)
         # turned to the camera as in the visibility test (kernels.facing_samples): n · (p + Rᵀt) < 0
-        facing = self._normal_dot_point[index] + normals @ (pose.R.T @ pose.t) < 0
+        facing = self.normal_dot_point[index] + normals @ (pose.R.T @ pose.t) < 0
         crease = facing[:, 0] & facing[:, 1] & (self.faces[index, 0] != self.faces[index, 1])
         outline_lit = np.where(facing[:, 0], lit[:, 0], lit[:, 1]) | (not dark_background)
         return np.where(crease, lit[:, 0] | lit[:, 1], outline_lit)
@@ -228,7 +228,7 @@ class ModelView:
         to the camera and one turned away (the outline of a closed polyhedral mesh)."""
         index = np.asarray(index, dtype=np.int64)
         normals = self.face_normals[self.faces[index]]                                   # (S, 2, 3)
-        facing = self._normal_dot_point[index] + normals @ (pose.R.T @ pose.t) < 0         # (S, 2)
+        facing = self.normal_dot_point[index] + normals @ (pose.R.T @ pose.t) < 0         # (S, 2)
         return index[facing[:, 0] != facing[:, 1]]
 
     def samples_at(self, pose: Pose, camera: Camera, index: np.ndarray, margin_px: float | None = None) -> EdgeSamples:

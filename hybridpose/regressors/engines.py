@@ -100,6 +100,11 @@ class OnnxModule:
             raise RuntimeError(f"engine={name!r}: exporting the network to ONNX failed ({exc})") from exc
         return buffer.getvalue()
 
+    @property
+    def sessions(self) -> dict:
+        """The sessions made so far, by intra-op thread count (a copy)."""
+        return dict(self._sessions)
+
     def session(self, threads: int):
         """The ONNX Runtime session running on ``threads`` intra-op threads (made on first use)."""
         if threads not in self._sessions:

@@ -27,10 +27,8 @@ TILE_SIDE = 0.75
 # fine_tiles (an option, off by default): where no estimate from those proposals reaches PnP quality
 # FINE_BELOW, the network looks again at finer tiles (FINE_TILE_SIDE of the long side: twelve 256-px
 # squares on 640 × 480), and an estimate found only there counts from quality FINE_ACCEPT: a part
-# 20–35 px across in the whole frame's pass (ViSP's 84-mm cube at 0.5 m) is 50–70 px in these. Box
-# tuning sequences: CNN-only in a tracker's basin 87.0 → 87.6 %, hybrid 6.94° → 5.88° mean, silent
-# failures 66 → 62, the CNN's call without a roi 37 → 81 ms; accepting from 0.6 instead: 86.9 %,
-# 8.29°, 123 (fine tiles find clutter that PnP fits well); 320-px tiles: 87.1 %, 6.94°, 66.
+# 20–35 px across in the whole frame's pass (ViSP's 84-mm cube at 0.5 m) is 50–70 px in these. Off by
+# default: it doubles the CNN's call without a roi for a small gain (docs/decisions.md).
 FINE_TILE_SIDE = 0.4
 FINE_BELOW = 0.6
 FINE_ACCEPT = 0.7

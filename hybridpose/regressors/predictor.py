@@ -17,7 +17,6 @@ detected object, else around its own translation estimate).
 from __future__ import annotations
 
 import logging
-import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,7 +28,8 @@ from ..geometry import Camera, Pose, as_unit_direction
 from ..objects import view_elevation_deg
 from ..registry import register
 from .base import PoseRegressor, check_roi
-from .checkpoints import WEIGHTS_DIR, load_checkpoint, shipped_checkpoint
+from .checkpoints import WEIGHTS_DIR, shipped_checkpoint
+from .checkpoint_checks import check_camera, check_object, regressor_checkpoint
 from .calibration import SIGMA_FLOOR_PX, UNCALIBRATED_SCALE, pnp_covariance, quality_factor, uncalibrated_record
 from .detection import detect_dim_object
 from .direct import bounded_image, direct_pose
@@ -37,71 +37,20 @@ from .engines import ENGINES, keypoint_engine
 from .keypoint_passes import KeypointEstimate, KeypointPasses, image_batch, pnp_quality
 from .network_detection import find_object
 from .options import KeypointOptions
+from .sun_turn import sun_turn_deg, trained_light_azimuth_deg
 from .twin_choice import TwinChoice, twin_starts
 from .models import available_models, build_model, fold_batch_norm, model_kind, torch_device
 
 log = logging.getLogger(__name__)
 
 
-FOV_TOLERANCE = 0.02  # direct models: relative focal (per image size) difference still accepted
-# Keypoint models crop a virtual camera around the object, so another field of view changes only the
-# perspective inside the crop. Measured with the shipped checkpoint (150 in-view renders per camera,
-# 640×480, distances scaled with the focal): fine from 0.5× to 2.7× the trained focal per image size
-# (docs/decisions.md); outside that range a warning says it was not measured.
-KEYPOINT_FOCAL_RANGE = (0.5, 2.7)
 # Depth gate (max_depth_m="auto"): an end-on truss near the camera and the truss lying across the view far
-# away fill the same small box, and PnP on those keypoints can land on the far one (18.4 m for a truss at
-# 1.19 m on seed 155): size_ratio cannot tell them apart. A keypoint network sees scale-normalised crops
-# and still works somewhat beyond the depths it was trained on, so only a pose deeper than this factor
-# times the far end of the training depths (recorded in the checkpoint) is refused. An option, off by
-# default: on fresh sets it changed nothing under the 40° cone and, under side- and back-light,
-# cut the mean translation error 0.22 → 0.14 m but lost 28 more views (one of them within 30°), +0.84°
-# mean rotation as a lost view counts 180° (docs/decisions.md)
+# away fill the same small box, and PnP can land on the far one; a keypoint network still works somewhat
+# beyond its training depths, so only poses deeper than this factor times their far end are refused. Off by
+# default: it trades translation outliers for lost views (docs/decisions.md, "No depth gate by default").
 DEPTH_BEYOND_TRAINED = 3.0
-# Sun turn: a network trained with the sun on one side of its images (the shipped default: within 40°
-# of (0.6, 0.4, 0.7), light from the upper left) errs three times as often when the light crosses the
-# image from elsewhere. Where the caller knows the sun (sun sensor, or ephemeris and attitude), the
-# crop is turned in-plane so that the light crosses it as in training, when the light's image azimuth
-# is more than SUN_TURN_BEYOND_DEG from the training sun's (nearer, the training data had such light
-# and a turn only resamples the crop). Chosen among full / beyond 45° / beyond 60° / the excess beyond
-# 30–60° on 800 tuning views (docs/decisions.md).
-SUN_TURN_BEYOND_DEG = 60.0
-# expert_rule "pooled-unsure" (the default): pooled only where a twin head is unsure (below
-# VERIFIER_SURE, TWIN_SURE without a verifier), the quality rule elsewhere: where both heads are sure the pooled
-# rule's verifier batch is the cost that put it over 20 ms, and it changes little there. Shipped on a test written
-# before its 8000 fresh views were rendered (commit 16da16f): 10.69° → 10.27° mean (CI −0.69…−0.15; 40° cone 5.46° → 4.78°), 24.1 →
-# 23.6 ms a view; seed 100 3.30° → 3.05° at 17.9 ms (docs/decisions.md)
-
-
-def trained_light_azimuth_deg(lighting: dict | None) -> float | None:
-    """The image azimuth (°, :func:`~hybridpose.objects.light_azimuth_deg`) of a training set's sun
-    (``{"sun_direction_cam", "sun_cone_deg"}`` as :func:`~hybridpose.training.train_data.dataset_info`
-    records it), or None when the set had light from every side (its sun cone holds the optical axis)
-    or no record."""
-    if not lighting or lighting.get("sun_direction_cam") is None:
-        return None
-    from ..objects import light_azimuth_deg
-
-    d = np.asarray(lighting["sun_direction_cam"], dtype=np.float64)
-    d = d / np.linalg.norm(d)
-    if np.degrees(np.arccos(np.clip(d[2], -1.0, 1.0))) <= float(lighting.get("sun_cone_deg", 0.0)):
-        return None
-    return light_azimuth_deg(d)
-
-
-def sun_turn_deg(sun_direction_cam, trained_azimuth_deg: float | None, beyond_deg: float = SUN_TURN_BEYOND_DEG) -> float:
-    """In-plane crop turn (°, OpenCV's sense: counter-clockwise on screen) that makes light travelling
-    along ``sun_direction_cam`` cross the crop at ``trained_azimuth_deg``, when the two azimuths differ
-    by more than ``beyond_deg`` (else 0, as without a sun or a training azimuth)."""
-    if sun_direction_cam is None or trained_azimuth_deg is None:
-        return 0.0
-    from ..objects import light_azimuth_deg
-
-    # turning the crop by a (counter-clockwise) moves every direction in it, the light's too, by -a in
-    # light_azimuth_deg's clockwise sense
-    delta = (light_azimuth_deg(sun_direction_cam) - trained_azimuth_deg + 180.0) % 360.0 - 180.0
-    return float(delta) if abs(delta) > beyond_deg else 0.0
-
+# expert_rule "pooled-unsure" (the default) pools the twins only where a twin head is unsure: where both are
+# sure, pooling's verifier batch costs ≈ 1 ms a view and changes little (docs/decisions.md).
 
 
 class CheckpointRegressor(PoseRegressor):
@@ -149,16 +98,8 @@ class CheckpointRegressor(PoseRegressor):
                             f"{', '.join(KeypointOptions.names())})")
         opts = replace(options or KeypointOptions(), **overrides)
         self.path = Path(checkpoint)
-        ck = load_checkpoint(self.path)
-        for key in ("config", "model", "build"):
-            if key not in ck:
-                raise ValueError(f"{self.path}: not a hybridpose regressor checkpoint (no {key!r})")
-        self.model_name = ck["config"]["model"]
-        if self.model_name not in available_models():
-            raise ValueError(f"{self.path}: checkpoint is for unknown model {self.model_name!r}")
-        if expect_model is not None and expect_model != self.model_name:
-            raise ValueError(f"{self.path}: checkpoint holds a {self.model_name!r} model, not {expect_model!r}")
-        self.name = self.model_name
+        ck = regressor_checkpoint(self.path, expect_model)
+        self.name = self.model_name = ck["config"]["model"]
         self.kind = model_kind(self.model_name)
         # built without weights (the meta device), then given the checkpoint's tensors: initialising a
         # parallel VGG-19's 200 M weights only to overwrite them took 6 of the 8 s of its load here
@@ -202,7 +143,7 @@ class CheckpointRegressor(PoseRegressor):
         if self.calibration is None:
             log.warning("%s: no covariance calibration stored; covariances are inflated ×%g", self.path, UNCALIBRATED_SCALE)
         if object is not None:
-            self._check_object(object)
+            check_object(self.dataset, self.path, object)
         self.twin_check = None
         if (opts.check_twins or opts.refine_edges) and self.kind == "keypoints":
             from ..objects import load_builtin
@@ -323,39 +264,6 @@ class CheckpointRegressor(PoseRegressor):
         return "torch" if self.engine.name == "torch" else "auto"
 
     # --- checks ----------------------------------------------------------------------------------
-    def _check_object(self, obj) -> None:
-        d = self.dataset.get("diameter_m")
-        if d is not None and abs(obj.diameter - d) > 0.01 * d:
-            raise ValueError(
-                f"object: {self.path} was trained on {self.dataset.get('object')!r} (diameter {d:.3f} m), "
-                f"not on {obj.name!r} (diameter {obj.diameter:.3f} m); fit one for your object "
-                "(hybridpose fit MESH --out DIR) and pass its best.pt"
-            )
-
-    def _check_camera(self, camera: Camera) -> None:
-        """Direct models learned one field of view (another one: ValueError); keypoint models normalise
-        it away with the crop (outside ``KEYPOINT_FOCAL_RANGE`` of the trained one: a warning)."""
-        cam = self.dataset.get("camera")
-        if not cam:
-            return
-        if self.kind == "keypoints":
-            ratio = (camera.fx / camera.width) / (cam["fx"] / cam["width"])
-            low, high = KEYPOINT_FOCAL_RANGE
-            if not low <= ratio <= high:
-                warnings.warn(
-                    f"frame.camera: fx/width = {camera.fx / camera.width:.3f} is {ratio:.2f}× what {self.path} was "
-                    f"trained at ({cam['fx'] / cam['width']:.3f}); keypoint models were measured from {low}× to "
-                    f"{high}× only — check the accuracy on your camera (render data with --camera, hybridpose eval)",
-                    UserWarning, stacklevel=3)
-            return
-        for f, n, key in ((camera.fx, camera.width, "fx"), (camera.fy, camera.height, "fy")):
-            trained = cam[key] / cam["width" if key == "fx" else "height"]
-            if abs(f / n - trained) > FOV_TOLERANCE * trained:
-                raise ValueError(
-                    f"frame.camera: {self.path} was trained for {key}/size = {trained:.4f}, the frame's camera has "
-                    f"{f / n:.4f}; a direct regressor only works at its training field of view (render data with --camera)"
-                )
-
     # --- inference -------------------------------------------------------------------------------
     def tensor(self, *images: np.ndarray) -> torch.Tensor:
         """B (H, W, 3) uint8 RGB images of one size as the network's input: (B, 3, H, W) float in [0, 1]
@@ -392,7 +300,7 @@ class CheckpointRegressor(PoseRegressor):
             raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         roi = check_roi(roi, frame)
         sun_turn = self._sun_turn(frame, sun_direction_cam)
-        self._check_camera(frame.camera)
+        check_camera(self.dataset, self.kind, self.path, frame.camera)
         with torch.no_grad():
             if self.kind == "keypoints":
                 return self._predict_keypoints(frame, roi, sun_turn)

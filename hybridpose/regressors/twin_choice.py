@@ -39,13 +39,10 @@ VERIFIER_SURE = 0.95
 VERIFIER_EDGE_WEIGHT = TWIN_EDGE_WEIGHT
 # Edge-on mirror check (mirror_verifier): the returned pose is replaced by one of its box twins or of
 # its edge-on mirror's only where the mirror verifier believes that one with at least this probability
-# (chosen on test seeds 128–131 for the mirror verifier that was tried; lower ones broke more views than
-# they fixed, and even this one did not pay on fresh sets, so none is shipped: docs/decisions.md)
+# (lower ones broke more views than they fixed; no mirror verifier is shipped: docs/decisions.md)
 MIRROR_SWITCH_P = 0.95
 # expert_rule "pooled": the weight of log q_pnp (each estimate's PnP quality) added to the twin score
-# when the twins of both estimates are pooled (chosen on test seeds 128–141, where 0–2 measured alike:
-# 4.56° → 4.23° mean; with the first expert it did not pay on fresh seeds 146–149, 4.55° → 4.58°; with
-# today's it did, but cost ≈ 1 ms more). Used by
+# when the twins of both estimates are pooled (0–2 measure alike; docs/decisions.md). Used by
 # "pooled" and "pooled-unsure" (below)
 POOLED_PNP_WEIGHT = 1.0
 

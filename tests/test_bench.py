@@ -162,10 +162,10 @@ def test_the_untimed_warm_up_changes_no_result(smoke, monkeypatch):
 
     scene = sorted((smoke / "cache").glob("*/test/000000"))[0]
     specs = [runner.RunSpec("tracker"), runner.RunSpec("cnn"), runner.RunSpec("hybrid")]
-    monkeypatch.setattr(runner, "_warmed", set())
+    runner.forget_warm_up()
     warmed = runner.run_sequence("s", str(scene), specs)
     monkeypatch.setattr(runner, "WARMUP_FRAMES", 0)
-    monkeypatch.setattr(runner, "_warmed", set())
+    runner.forget_warm_up()
     cold = runner.run_sequence("s", str(scene), specs)
     for a, b in zip(warmed, cold):
         assert untimed(a) == untimed(b)
@@ -210,7 +210,7 @@ def test_sequences_are_chosen_by_name_patterns():
 
 
 def test_tracker_targets_name_the_worst_kind_of_sequence():
-    from hybridpose.bench.report import tracker_targets
+    from hybridpose.bench.report import TRACKER_TARGETS, tracker_target_checks, tracker_targets
 
     def row(seq, rot_median, trans_median, silent=0, ms=2.0):
         return {"label": "tracker (edges)", "sequence": seq, "rot_mean_deg": rot_median, "rot_median_deg": rot_median,
@@ -221,12 +221,19 @@ def test_tracker_targets_name_the_worst_kind_of_sequence():
 
     rows = [row("tumble_none_s500", 0.1, 0.05), row("tumble_none_s501", 0.15, 0.08),
             row("approach_none_s500", 0.3, 0.2, silent=3), row("approach_none_s501", 0.25, 0.06)]
-    text = tracker_targets(rows, ["cnn (default)", "tracker (edges)"])
-    assert "MISSED: median rotation" in text and "worst 0.28° (approach_none)" in text
-    assert "worst 0.13 % (approach_none)" in text
-    assert "met: p90 over sequences" in text and "MISSED: silent failures ≤ 0.5 % of frames — 1.25 %" in text
-    assert "met: false alarms on clear frames ≤ 2 % — 1.0 %" in text and "met: ≤ 5 ms per frame — 2.0 ms" in text
-    assert tracker_targets(rows, ["cnn (default)"]) == ""
+    name, checks = tracker_target_checks(rows, ["cnn (default)", "tracker (edges)"])
+    by_key = {c.key: c for c in checks}
+    assert name == "tracker (edges)" and set(by_key) == set(TRACKER_TARGETS)
+    # the per-kind targets give the worst kind's median of sequence medians, and name the kind
+    assert by_key["rot_median_deg"].kind == "approach_none" and by_key["rot_median_deg"].value == pytest.approx(0.275)
+    assert by_key["trans_median_pct"].kind == "approach_none" and by_key["trans_median_pct"].value == pytest.approx(0.13)
+    assert not by_key["rot_median_deg"].met and not by_key["trans_median_pct"].met
+    assert by_key["silent_pct"].value == pytest.approx(100 * 3 / 240) and not by_key["silent_pct"].met
+    assert by_key["seq_rot_median_p90_deg"].met and by_key["false_alarm_pct"].met and by_key["ms_per_frame"].met
+    # the text has a line per check, met or missed
+    lines = tracker_targets(rows, ["cnn (default)", "tracker (edges)"]).splitlines()[1:]
+    assert [line.startswith("- met") for line in lines] == [c.met for c in checks]
+    assert tracker_target_checks(rows, ["cnn (default)"]) == (None, []) and tracker_targets(rows, ["cnn (default)"]) == ""
 
 
 def test_config_fields_are_parsed_by_their_type():

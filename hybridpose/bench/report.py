@@ -1,6 +1,7 @@
 """What a benchmark run reports: markdown tables, the hybrid's ratios and targets, plots."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -137,13 +138,31 @@ def targets(summary: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def tracker_targets(rows: list[dict], runs: list[str]) -> str:
-    """One line per tracker target for the first tracker-only run of ``runs``: met, or missed by how
-    much; the per-kind figures name the worst kind of sequence."""
+@dataclass(frozen=True)
+class TargetCheck:
+    """One tracker target against a run: ``key`` (of :data:`TRACKER_TARGETS`), what it asks, the run's
+    ``value`` and the ``limit`` (the same unit), the kind of sequence that gave the value where it is
+    the worst kind's (else None), and whether it is ``met``."""
+
+    key: str
+    what: str
+    value: float
+    limit: float
+    unit: str
+    kind: str | None = None
+
+    @property
+    def met(self) -> bool:
+        return bool(np.isfinite(self.value) and self.value <= self.limit)
+
+
+def tracker_target_checks(rows: list[dict], runs: list[str]) -> tuple[str | None, list[TargetCheck]]:
+    """(the first tracker-only run of ``runs``, its checks against :data:`TRACKER_TARGETS`); the
+    per-kind figures are the worst kind's. (None, []) without a tracker-only run."""
     name = next((r for r in runs if r.startswith("tracker ")), None)
     own = [r for r in rows if r["label"] == name]
     if not own:
-        return ""
+        return None, []
     s = summarise(own)[name]
     kinds = summarise(own, group=lambda r: kind_of(r["sequence"]))
 
@@ -154,23 +173,35 @@ def tracker_targets(rows: list[dict], runs: list[str]) -> str:
 
     rot, rot_kind = worst("seq_rot_median_median_deg")
     trans, trans_kind = worst("seq_trans_median_median_pct")
-    silent_pct = 100.0 * s["silent_failures"] / max(s["frames"], 1)
     T = TRACKER_TARGETS
-    checks = [
-        ("median rotation ≤ 0.2° on every kind of sequence", rot, T["rot_median_deg"], f"worst {rot:.2f}° ({rot_kind})"),
-        ("median translation ≤ 0.1 % of distance on every kind", trans, T["trans_median_pct"],
-         f"worst {trans:.2f} % ({trans_kind})"),
-        ("p90 over sequences of each sequence's median rotation ≤ 1°", s["seq_rot_median_p90_deg"],
-         T["seq_rot_median_p90_deg"], "{:.2f}°"),
-        ("silent failures ≤ 0.5 % of frames", silent_pct, T["silent_pct"], "{:.2f} %"),
-        ("false alarms on clear frames ≤ 2 %", s["false_alarm_pct"], T["false_alarm_pct"], "{:.1f} %"),
-        ("≤ 5 ms per frame", s["ms_per_frame"], T["ms_per_frame"], "{:.1f} ms"),
+    return name, [
+        TargetCheck("rot_median_deg", "median rotation ≤ 0.2° on every kind of sequence", rot, T["rot_median_deg"],
+                    "°", rot_kind),
+        TargetCheck("trans_median_pct", "median translation ≤ 0.1 % of distance on every kind", trans,
+                    T["trans_median_pct"], " %", trans_kind),
+        TargetCheck("seq_rot_median_p90_deg", "p90 over sequences of each sequence's median rotation ≤ 1°",
+                    s["seq_rot_median_p90_deg"], T["seq_rot_median_p90_deg"], "°"),
+        TargetCheck("silent_pct", "silent failures ≤ 0.5 % of frames", 100.0 * s["silent_failures"] / max(s["frames"], 1),
+                    T["silent_pct"], " %"),
+        TargetCheck("false_alarm_pct", "false alarms on clear frames ≤ 2 %", s["false_alarm_pct"], T["false_alarm_pct"],
+                    " %"),
+        TargetCheck("ms_per_frame", "≤ 5 ms per frame", s["ms_per_frame"], T["ms_per_frame"], " ms"),
     ]
+
+
+def tracker_targets(rows: list[dict], runs: list[str]) -> str:
+    """One line per tracker target (:func:`tracker_target_checks`) for the first tracker-only run of
+    ``runs``: met, or missed by how much; "" without one."""
+    name, checks = tracker_target_checks(rows, runs)
+    if name is None:
+        return ""
+    digits = {"°": 2, " %": 2, " ms": 1}
     lines = [f"Targets for `{name}` (from the true first pose; medians over each sequence's half-visible frames "
              "with a trusted pose, then over the sequences of a kind):"]
-    for what, value, limit, shown in checks:
-        text = shown.format(value) if "{" in shown else shown
-        lines.append(f"- {'met' if np.isfinite(value) and value <= limit else 'MISSED'}: {what} — {text}")
+    for c in checks:
+        shown = f"{c.value:.{1 if c.key == 'false_alarm_pct' else digits[c.unit]}f}{c.unit}"
+        shown = f"worst {shown} ({c.kind})" if c.kind is not None else shown
+        lines.append(f"- {'met' if c.met else 'MISSED'}: {c.what} — {shown}")
     return "\n".join(lines)
 
 

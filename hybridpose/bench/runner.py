@@ -111,6 +111,11 @@ WARMUP_FRAMES = 10
 _warmed: set = set()
 
 
+def forget_warm_up() -> None:
+    """Make the next :func:`run_sequence` of this process warm every backend up again."""
+    _warmed.clear()
+
+
 def spec_backends(spec: RunSpec):
     """The object, tracker, regressor and estimator a spec needs, built once per process (a CNN takes
     seconds to load); the regressor is shared by every spec that names it."""

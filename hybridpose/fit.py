@@ -32,10 +32,10 @@ from .objects import ObjectModel
 MIN_BUDGET_MIN = 5.0  # below this nothing usable can be trained on a CPU
 RENDER_SHARE = 0.25   # of the budget: training and test views
 TRAIN_SHARE = 0.60    # the training run; the rest: calibration, evaluation, margins
-MAX_TRAIN_VIEWS = 40_000
+MAX_TRAIN_VIEWS = 40_000  # training views rendered at most: beyond, a budget goes to epochs
 TEST_VIEWS = (60, 300)  # held-out views: at least, at most (half calibrate the covariance, half evaluate)
-IMAGE_SIZE = 128
-TRAIN_BATCH = 32
+IMAGE_SIZE = 128  # the shipped keypoint network's crop side: a part's fit starts from its weights
+TRAIN_BATCH = 32  # images a training step (also how a fit times one, to plan its budget)
 # a new object's keypoint heads start afresh even from the shipped features: the from-scratch rate
 # (1.5e-4 left a 40-minute box fit at 127° on its validation views after 3 epochs)
 FIT_LR = 1e-3

@@ -15,7 +15,7 @@ import os
 import sys
 
 ENV_VAR = "HYBRIDPOSE_THREADS"
-DEFAULT_THREADS = 1
+DEFAULT_THREADS = 1  # intra-op threads a process unless HYBRIDPOSE_THREADS says otherwise
 
 
 def default_threads() -> int:

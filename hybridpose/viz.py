@@ -7,7 +7,7 @@ import numpy as np
 from .geometry import Camera, Pose
 from .objects import ObjectModel
 
-_MIN_Z_M = 1e-3
+_MIN_Z_M = 1e-3  # model points nearer the camera plane are not drawn
 
 
 def _draw_segments(img: np.ndarray, seg_cam: np.ndarray, camera: Camera, color, thickness: int) -> None:

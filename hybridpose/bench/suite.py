@@ -34,11 +34,11 @@ TUNING_SEEDS = tuple(range(900, 920))
 REPORT_SEEDS = tuple(range(500, 520))
 # seeds a caller may add to the tuning split (``--seeds``); the report split never takes one of them
 TUNING_SEED_RANGE = range(900, 1000)
-SMOKE_SEEDS = (950,)
+SMOKE_SEEDS = (950,)  # one tuning seed: the smoke suite checks the plumbing, not accuracy
 # the edge-on kind draws its seeds from these pools, keeping those whose first view is near edge-on
 EDGE_ON_POOLS = {"report": range(2000, 3000), "tuning": range(5000, 6000), "smoke": range(7000, 7100)}
-EDGE_ON_BELOW_DEG = 15.0
-FAST_RATE_DEG_S = 60.0
+EDGE_ON_BELOW_DEG = 15.0  # view elevation (°) below which a first view counts as edge-on
+FAST_RATE_DEG_S = 60.0  # tumble rate (°/s) of the fast kind: about 4° a frame at 15 fps
 # the realistic suite: kind → (built-in part, HandheldSpec options); its seeds are its own
 REALISTIC_KINDS = {
     "printed-cube-photo": ("cube", {"printed": True, "background": "photo"}),
@@ -47,7 +47,7 @@ REALISTIC_KINDS = {
 }
 REALISTIC_SEEDS = {"report": tuple(range(1, 11)), "tuning": tuple(range(101, 121))}
 REALISTIC_TUNING_RANGE = range(100, 200)
-REALISTIC_FRAMES = 90
+REALISTIC_FRAMES = 90  # frames a hand-held sequence: the hand's pass and a stretch after it
 SUITES = ("standard", "occlusion", "smoke", "realistic")
 SPLITS = ("report", "tuning")
 

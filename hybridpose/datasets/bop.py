@@ -23,9 +23,9 @@ import numpy as np
 from ..geometry import Camera, Pose
 from ..io import atomic_write_bytes, atomic_write_json, read_image, read_json, write_image
 
-MM_PER_M = 1000.0
+MM_PER_M = 1000.0  # BOP files hold millimetres
 DEPTH_SCALE_MM = 0.1  # one depth unit = 0.1 mm → uint16 holds up to 6.5 m
-OBJ_ID = 1
+OBJ_ID = 1  # one object per scene: BOP's obj_id of it
 
 
 def pose_to_bop(pose: Pose) -> dict:

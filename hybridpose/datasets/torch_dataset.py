@@ -18,9 +18,9 @@ from ..geometry.crops import MIN_CROP_PX, crop_affine, crop_box, crop_image
 from ..io import atomic_write_json, read_json
 from .bop import BopScene, find_scenes
 
-JITTER_MARGIN = (1.1, 1.8)
-JITTER_SHIFT = 0.12
-FULL_VIEW_PROB = 0.0
+JITTER_MARGIN = (1.1, 1.8)  # crop side / object box side, drawn per sample: a detector's loose or tight box
+JITTER_SHIFT = 0.12  # crop centre shifted by up to this share of its side (a detector's error)
+FULL_VIEW_PROB = 0.0  # share of whole-frame samples (a fit's option: the network then detects too)
 
 
 def split_indices(n: int, val_fraction: float = 0.2, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -277,26 +277,26 @@ GOOD_FIT = 0.7  # a fit this good from the first proposal is kept without trying
 # image edges (Canny, grey-level thresholds) near the projected model that its visible edges must
 # explain, and how near (px): see explained_edge_share
 CANNY_LOW, CANNY_HIGH = 20, 60
-EXPLAIN_TOLERANCE_PX = 2
-EXPLAIN_MARGIN_PX = 10
+EXPLAIN_TOLERANCE_PX = 2  # an image edge within this of a model edge is explained by it
+EXPLAIN_MARGIN_PX = 10  # image edges counted within this of the object's box
 # a background whose ring around the object holds more edge pixels than this is cluttered: the explained
 # share then counts only the edges within SILHOUETTE_SLACK_PX of the object's projected outline
 CLUTTER_RING_PX = 12
-CLUTTER_EDGE_DENSITY = 0.05
-SILHOUETTE_SLACK_PX = 3
+CLUTTER_EDGE_DENSITY = 0.05  # edge pixels per ring pixel
+SILHOUETTE_SLACK_PX = 3  # the outline's own blur and a pose's residual error
 # a textured surface (print, paint, labels) puts edges inside the model's faces that no model edge
 # explains at any pose. The faces' inside — visible faces, at least TEXTURE_CLEAR_PX from every visible
 # model edge — holding more edge pixels than TEXTURE_EDGE_DENSITY is texture, and is left out of the
 # count. Edge density there: the truss at its true pose 0.001 median, 0.02 p99; at poses 4° / 1 cm
 # off 0.05 median, 0.16 p99 (real beams crossing the faces); ViSP's textured cube (real video) 0.19–0.22.
 TEXTURE_CLEAR_PX = 4
-TEXTURE_EDGE_DENSITY = 0.15
+TEXTURE_EDGE_DENSITY = 0.15  # see above: renders of plain faces ≤ 0.16 at p99, ViSP's cube 0.19–0.22
 # …and only where the band just outside the faces (TEXTURE_BAND_PX wide) holds TEXTURE_CONTRAST times
 # fewer: edges that carry on beyond the outline are the background's, not the object's texture. The
 # cube: 4.1–12× (10th percentile 7×); a CNN start 83° off lying over a chip on a circuit-board photo
 # (the box's tuning sequences): 3×, which at 2× passed as texture and was tracked for 11 frames
 TEXTURE_BAND_PX = 8
-TEXTURE_CONTRAST = 4.0
+TEXTURE_CONTRAST = 4.0  # see above: 2× passed the box's background clutter as a print
 
 
 def printed_faces(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None,

@@ -22,8 +22,8 @@ import numpy as np
 from ..geometry.camera import line_rows
 from ..geometry.se3 import se3_exp_one
 
-TUKEY_C = 4.685
-MAD_TO_SIGMA = 1.4826
+TUKEY_C = 4.685  # Tukey's biweight constant: 95 % efficiency under Gaussian noise
+MAD_TO_SIGMA = 1.4826  # median absolute deviation → standard deviation of a Gaussian
 
 
 @numba.njit(cache=True, nogil=True)

@@ -21,7 +21,7 @@ from ..objects import ObjectModel
 from ..objects.base import SHARP_EDGE_ANGLE_DEG, boundary_edges
 from . import kernels
 
-DEFAULT_STEP_M = 0.005
+DEFAULT_STEP_M = 0.005  # edge samples every 5 mm along the model's sharp edges
 ID_SCALE = 0.5  # facet-id image resolution relative to the frame
 # a face whose normal makes a smaller cosine with the direction towards the sun is in shadow (grazing
 # light leaves it too dark to make an edge)

@@ -31,7 +31,7 @@ MIN_SILHOUETTE_PX = 20  # silhouettes smaller than this (at the raster's scale) 
 # arm's body stays; a beam of the truss that a wrong pose leaves out does not), grown by
 # OCCLUDER_EDGE_PX (frame pixels) to take in its outline
 OCCLUDER_WIDTH_SHARE = 0.12
-OCCLUDER_EDGE_PX = 3
+OCCLUDER_EDGE_PX = 3  # an occluder's outline drawn this wide (its blur and the pose's error)
 
 
 def occluder_mask(lit: np.ndarray, off: np.ndarray, diagonal_px: float, edge_px: float = OCCLUDER_EDGE_PX) -> np.ndarray:

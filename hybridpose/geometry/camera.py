@@ -13,7 +13,7 @@ import numpy as np
 from .checks import as_array, as_points3d
 from .pose import Pose
 
-_MIN_DEPTH_M = 1e-6
+_MIN_DEPTH_M = 1e-6  # points nearer the camera plane project to infinity: refused
 
 
 def parse_size(size) -> tuple[int, int]:

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-ROTATION_ATOL = 1e-5
-QUAT_NORM_ATOL = 1e-4
-ORTHONORMAL_ROUNDING = 1e-13
+ROTATION_ATOL = 1e-5  # ‖RᵀR − I‖ accepted as a rotation (values read from float32 files)
+QUAT_NORM_ATOL = 1e-4  # |‖q‖ − 1| accepted as a unit quaternion (a float32 quaternion from a file)
+ORTHONORMAL_ROUNDING = 1e-13  # a rotation this close is kept as given, not re-orthonormalised
 
 
 def _describe(x: np.ndarray) -> str:

@@ -19,7 +19,7 @@ import numpy as np
 from .pose import Pose
 
 MIN_DEPTH_M = 1e-3  # triangles with a vertex closer to (or behind) the camera plane are not drawn
-SUBPIXEL_BITS = 4
+SUBPIXEL_BITS = 4  # 1/16-px vertex positions (cv2.fillConvexPoly's shift)
 
 
 def front_faces_far_first(triangles: np.ndarray, normals: np.ndarray, pose: Pose):

@@ -13,7 +13,7 @@ import numpy as np
 
 from .checks import as_unit_quat
 
-_SMALL = 1e-8
+_SMALL = 1e-8  # below this angle (rad) the series expansions replace sin θ / θ
 
 
 def skew(v: np.ndarray) -> np.ndarray:

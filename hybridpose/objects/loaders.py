@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 # A rigid object that a monocular camera tracks at arm's reach is centimetres to metres across;
 # outside these bounds the file is almost surely in other units.
 MAX_PLAUSIBLE_DIAMETER_M = 5.0
-MIN_PLAUSIBLE_DIAMETER_M = 0.005
+MIN_PLAUSIBLE_DIAMETER_M = 0.005  # smaller: the file is in other units (see above)
 
 
 def load_builtin(name) -> ObjectModel | None:

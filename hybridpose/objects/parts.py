@@ -9,8 +9,8 @@ import trimesh
 from ..registry import register
 from .base import ObjectModel
 
-CUBE_EDGE_M = 0.085
-BOX_EXTENTS_M = (0.18, 0.11, 0.07)
+CUBE_EDGE_M = 0.085  # the hand-held scenes' printed cube
+BOX_EXTENTS_M = (0.18, 0.11, 0.07)  # a plain box of a tea box's proportions
 
 
 @register("object", "cube")

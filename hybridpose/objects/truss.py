@@ -17,7 +17,7 @@ import trimesh
 from ..registry import register
 from .base import ObjectModel
 
-LENGTH_M, HEIGHT_M = 0.38, 0.20
+LENGTH_M, HEIGHT_M = 0.38, 0.20  # the paper's truss module, as modelled for the renders
 CHORD_M = 0.025  # square chord section
 CHORD_Y_M = HEIGHT_M / 2 - CHORD_M / 2
 

@@ -33,7 +33,7 @@ COVERAGE = 0.9
 # 0.5–0.95) and not adopted (docs/decisions.md)
 QUALITY_EDGES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 MIN_BAND_POSES = 50  # a band with fewer poses is merged into the next one up
-SIGMA_FLOOR_PX = 0.5
+SIGMA_FLOOR_PX = 0.5  # a keypoint's spread is never taken below half a pixel (heatmap cells are 4 px)
 PNP_THRESHOLD = 0.03  # RANSAC inlier threshold, fraction of the crop side
 
 

@@ -12,8 +12,8 @@ import numpy as np
 
 from ..geometry.crops import crop_box
 
-CROP_MARGIN = 1.2
-DETECT_THRESHOLD = 12
+CROP_MARGIN = 1.2  # crop side / detected box side
+DETECT_THRESHOLD = 12  # grey levels: a pixel this bright over black space is the object's
 DETECT_DIM_THRESHOLD = 3  # grey levels, after smoothing: the dim rest of an object a glint was found on
 DETECT_GROW_RATIO = 2.0   # …used only when it makes the box this much larger (diagonal)
 DETECT_DIM_SIGMAS = 6.0   # …and only above this many σ of the smoothed sensor noise

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-HEATMAP_STRIDE = 4
+HEATMAP_STRIDE = 4  # heatmap cell = 4 crop pixels (32 × 32 cells on a 128-px crop)
 # the unlabelled head's bias at start: every cell at probability 0.1 (CenterNet's prior), so the focal
 # loss on a map that is almost all background starts small and stable
 PRIOR_BIAS = -2.19

@@ -41,7 +41,7 @@ SIZE_RATIO_MAX = 3.0
 # of the views) rather than 0.9 (≤ 10: 36 %) since PnP drops the worst keypoint: 3 ms less per view,
 # and on 5000 fresh views 94 vs 97 > 30° off, 4.64° vs 4.76° mean (a test written before those views were rendered).
 TURNS_DEG = (20.0, -20.0, 40.0, -40.0)
-TURNS_BELOW_INLIERS = 0.8
+TURNS_BELOW_INLIERS = 0.8  # turned passes run where PnP keeps fewer than this share of keypoints
 
 
 def size_ratio(pose: Pose, points_m: np.ndarray, camera: Camera, box) -> float:

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..geometry import Pose, projection_jacobian
 
-MIN_SPREAD_PX = 1.0
+MIN_SPREAD_PX = 1.0  # a keypoint's spread floor (crop px): a sharp heatmap is not a perfect one
 
 
 @dataclass(frozen=True)

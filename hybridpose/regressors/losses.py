@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import torch
 
-DEFAULT_BETA = 10.0
-_EPS = 1e-7
+DEFAULT_BETA = 10.0  # the paper's β: rotation (rad) weighed against translation (m)
+_EPS = 1e-7  # keeps arccos' gradient finite at |⟨q, q̂⟩| = 1
 
 
 def normalize_quat(q: torch.Tensor) -> torch.Tensor:

@@ -30,8 +30,8 @@ TILE_SIDE = 0.75
 # 20–35 px across in the whole frame's pass (ViSP's 84-mm cube at 0.5 m) is 50–70 px in these. Off by
 # default: it doubles the CNN's call without a roi for a small gain (docs/decisions.md).
 FINE_TILE_SIDE = 0.4
-FINE_BELOW = 0.6
-FINE_ACCEPT = 0.7
+FINE_BELOW = 0.6  # see above: the whole frame's best PnP quality below which fine tiles run
+FINE_ACCEPT = 0.7  # see above: 0.6 let fine tiles find clutter that PnP fits well
 # proposals whose boxes overlap more than this (intersection over union) are one proposal
 SAME_BOX_IOU = 0.7
 # a whole-frame pass of an unlabelled network whose detections PnP cannot use (a part a few cells across)
@@ -40,7 +40,7 @@ SAME_BOX_IOU = 0.7
 # Where PnP has a pose, its projection boxes the part better (tuning sequences over photos: CNN-only
 # within a tracker's basin 38 vs 17 % of the frames; the procedural views favoured the linked box)
 CLUSTER_LINK = 0.2  # procedural calibration views, whole path > 10° off: 0.12 / 0.2 / 0.3 → 47 / 27 / 30 %
-MIN_BOX_CELLS = 4
+MIN_BOX_CELLS = 4  # a proposal smaller than 4 × 4 heatmap cells is noise
 
 
 def linked_cluster(points: np.ndarray, link: float) -> np.ndarray:

@@ -20,15 +20,15 @@ from .verify import MIRROR_BELOW_DEG, TwinCheck, edge_on_mirror
 # the edge fit from a CNN pose: how far it searches for image edges (px), and the fit quality below
 # which the unrefined pose is kept
 REFINE_SEARCH_PX = 16
-REFINE_MIN_QUALITY = 0.5
+REFINE_MIN_QUALITY = 0.5  # an edge refinement below this quality keeps the unrefined pose
 # The twin choice (see TwinChoice.refine). Tuned on test views 0–399, confirmed on 400–999 (docs/decisions.md):
 # the head is right whenever it is sure (no wrong twin above p = 0.99 in 400 views), so its twin alone is
 # fitted from p ≥ TWIN_SURE; below, every twin is fitted and the head's belief is weighed against the
 # edge support, log p + TWIN_EDGE_WEIGHT · log quality. Edge support alone picks worse than the head
 # (20 % vs 9 % of views > 30°): wrong-twin fits lock onto the truss's symmetric chords.
 TWIN_SURE = 0.8
-TWIN_EDGE_WEIGHT = 8.0
-VERIFIER_WEIGHT = 1.0
+TWIN_EDGE_WEIGHT = 8.0  # see above (chosen with TWIN_SURE on views 0–399)
+VERIFIER_WEIGHT = 1.0  # see above (chosen with TWIN_SURE on views 0–399)
 # with a twin verifier the head counts as sure only from this probability (chosen on the seed-101 test
 # set)
 VERIFIER_SURE = 0.95

@@ -31,8 +31,8 @@ from ..objects import ObjectModel
 
 log = logging.getLogger(__name__)
 
-STRIP_W, STRIP_H = 160, 80
-STRIP_MARGIN = 1.15
+STRIP_W, STRIP_H = 160, 80  # the verifier's input image, px
+STRIP_MARGIN = 1.15  # strip side / the drawn object's extent
 SHADE_MIN = 0.35  # grey of a face seen edge-on in the drawing (1.0 face-on); 0 is background
 CHECKPOINT_FORMAT = "hybridpose-twin-verifier/1"
 VERIFIER_ENGINES = ("auto", "torch", "onnxruntime")

@@ -38,7 +38,7 @@ TARGET_SIGMA_CELLS = 1.0   # the training target's Gaussian, heatmap cells
 # triples → CNN-only within a tracker's basin on 37 / 40 / 38 % of the frames at 31 / 37 / 57 ms a frame)
 TRIPLES = 2
 EARLY_STOP_RESIDUAL = 0.25  # mean residual (of the threshold) below which a pose ends the search
-EARLY_STOP_DETECTIONS = 7
+EARLY_STOP_DETECTIONS = 7  # …and at least this many detections agree with it
 MAX_PLANES = 12            # hull faces kept per keypoint (a vertex of a fine hull touches more)
 
 

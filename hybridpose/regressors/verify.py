@@ -15,8 +15,8 @@ from ..core import Frame
 from ..geometry import Pose, rotvec_to_matrix
 from ..objects import ObjectModel
 
-MATCH_PX = 2.0
-SEARCH_PX = 4
+MATCH_PX = 2.0  # an image edge within this of a model edge supports a twin
+SEARCH_PX = 4  # edge search along each sample's normal, px
 SWITCH_MARGIN = 0.05  # a twin must beat the PnP pose by this much support to replace it
 # views estimated within this many degrees of edge-on (view_elevation_deg) get the edge-on mirror check
 # (edge_on_mirror): 75 of the 83 views > 30° off in four test sets (seeds 128–131, 4000 views) lie there

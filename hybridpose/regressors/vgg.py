@@ -19,8 +19,8 @@ CFG = {
     "vgg16": [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M"],
     "vgg19": [64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512, 512, 512, "M", 512, 512, 512, 512, "M"],
 }
-FEATURE_DIM = 512 * 7 * 7
-BRANCH_DIM = 1024
+FEATURE_DIM = 512 * 7 * 7  # VGG's last pooled features at 224 × 224
+BRANCH_DIM = 1024  # hidden width of the branched heads
 # how a VGG model's weights start: "torchvision" (init_vgg_weights, the default) or
 # "torch-default" (torch's per-layer defaults, which the models had before: to reproduce those runs)
 VGG_INITS = ("torchvision", "torch-default")

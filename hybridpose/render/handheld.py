@@ -23,7 +23,7 @@ from ..objects import ObjectModel
 from .appearance import PhotoBackgrounds, clutter_background
 
 BACKGROUNDS = ("photo", "clutter")
-SKIN_RGB = ((224, 172, 138), (198, 134, 106), (141, 85, 60), (236, 188, 160))
+SKIN_RGB = ((224, 172, 138), (198, 134, 106), (141, 85, 60), (236, 188, 160))  # hand tones, light to dark
 PRINT_PX_PER_M = 4000.0  # the print's scale on the part: a 8.5-cm face spans 340 px of its photo
 
 

@@ -23,7 +23,7 @@ from .appearance import MAX_FILL_LIGHTS, TEXTURE_FLOOR, Appearance  # noqa: E402
 from .lighting import SensorModel, SpaceLighting, earth_background  # noqa: E402
 from .occluder import ArmState  # noqa: E402
 
-_ARM_GROUP = 1
+_ARM_GROUP = 1  # MuJoCo geom group of the arm (its own segmentation)
 # arm links and tool: (geom/body name, MuJoCo type, initial size, material); sizes are set per frame
 _ARM_PARTS = (
     ("arm_upper", "capsule", "0.04 0.1", "arm_paint"),
@@ -31,8 +31,8 @@ _ARM_PARTS = (
     ("arm_tool", "cylinder", "0.1 0.015", "tool_metal"),
 )
 _ARM_NAMES = tuple(p[0] for p in _ARM_PARTS)
-_NEAR_M = 0.01
-_FAR_M = 50.0
+_NEAR_M = 0.01  # clip planes: a part 1 cm from the lens
+_FAR_M = 50.0  # far clip plane
 
 
 @dataclass(frozen=True, eq=False)

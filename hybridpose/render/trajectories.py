@@ -13,7 +13,7 @@ from ..geometry import Camera, Pose, quat_wxyz_to_matrix, random_quat, rotvec_to
 from ..objects import ObjectModel, view_elevation_deg
 from ..registry import register
 
-ARM_REACH_M = (0.3, 1.2)
+ARM_REACH_M = (0.3, 1.2)  # distances (m) of the arm's grasp approach
 
 
 def random_poses(

@@ -16,7 +16,7 @@ from ..core import LOST_COVARIANCE, Frame, Measurement
 from ..geometry import Pose
 from ..objects import ObjectModel
 
-MIN_DEPTH_M = 0.01
+MIN_DEPTH_M = 0.01  # a pose whose object comes nearer the camera than this is no pose
 # where the object is seen covered, a fit below this quality follows the occluder's edges, not the
 # object: the next search keeps the previous pose (the truss wholly behind the arm, its edges left
 # out of the honest quality: fits at 0.02–0.09; half behind it, right fits at 0.2 and more)

@@ -37,8 +37,8 @@ from ..geometry import projection_jacobian
 
 log = logging.getLogger(__name__)
 
-MIN_INLIERS_FULL = 20
-RMS_SCALE_PX = 2.0
+MIN_INLIERS_FULL = 20  # PnP inliers for full quality
+RMS_SCALE_PX = 2.0  # quality × exp(−RMS reprojection error / this), px
 
 
 @register("tracker", "klt-pnp", baseline=True)

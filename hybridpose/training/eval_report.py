@@ -12,10 +12,10 @@ from ..machine import cpu_label
 PAPER = {"VGG-16": (13.56, 12.33, 0.18), "VGG-19": (12.21, 11.34, 0.15),
          "Branched VGG-19": (8.34, 7.34, 0.06), "Parallel VGG-19": (4.61, 4.41, 0.03)}
 DISTANCE_BINS_M = np.linspace(0.3, 1.2, 10)
-GROSS_ERROR_DEG = 30.0
+GROSS_ERROR_DEG = 30.0  # a view this far off is a gross error (a wrong twin or a flip)
 # Edge-on views (a flat object seen along its plane) hold most of the gross errors: bins fine near 0°.
 ELEVATION_BINS_DEG = np.array([0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 90.0])
-QUALITY_GATES = (0.0, 0.2, 0.3, 0.4, 0.5)
+QUALITY_GATES = (0.0, 0.2, 0.3, 0.4, 0.5)  # accuracy is reported above each of these qualities
 # Lighting geometry of a view (datasets written by `hybridpose render` record each image's sun):
 # phase angle 0° sun behind the camera, 90° side-lit; azimuth where the light travels in the image.
 PHASE_BINS_DEG = np.array([0.0, 30.0, 45.0, 60.0, 75.0, 90.0, 180.0])

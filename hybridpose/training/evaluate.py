@@ -200,7 +200,7 @@ def covariance_check(rows, coverage: float = COVARIANCE_COVERAGE) -> dict:
             "inside_share_twin": float(np.mean([r["nees_twin"] <= bound for r in got])), "by_quality": by_quality}
 
 
-MIN_CALIBRATION_POSES = 20
+MIN_CALIBRATION_POSES = 20  # fewer held-out poses than this: no calibration
 
 
 def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progress=None,

@@ -26,7 +26,7 @@ from .solve import LineRows
 
 INLIER_PX = 2.0
 FULL_SUPPORT = 40
-QUALITY_SEARCH_PX = 4
+QUALITY_SEARCH_PX = 4  # quality reads edges this near the fitted pose's samples
 
 
 class EdgeCue(Cue):

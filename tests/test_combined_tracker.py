@@ -124,16 +124,26 @@ def test_modalities_are_checked():
 
 
 def test_the_patch_step_finds_how_far_the_part_moved():
-    from hybridpose.trackers.combined import patch_shift
+    from hybridpose.trackers.combined import masked_correlations, patch_shift, refine_shift
 
     rng = np.random.default_rng(0)
     image = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 2.0)
     moved = np.roll(image, (-4, 7), axis=(0, 1))
-    assert np.allclose(patch_shift(image, moved, (60, 40, 100, 80), 12), [7, -4])
+    assert np.allclose(patch_shift(image, moved, (60, 40, 100, 80), 12), [7, -4], atol=0.1)  # sub-pixel peak
     mask = np.zeros_like(image, bool)
     mask[45:75, 65:95] = True
-    assert np.allclose(patch_shift(image, moved, (60, 40, 100, 80), 12, mask), [7, -4])
+    assert np.allclose(patch_shift(image, moved, (60, 40, 100, 80), 12, mask), [7, -4], atol=0.1)
     assert patch_shift(image, rng.uniform(0, 255, image.shape).astype(np.float32), (60, 40, 100, 80), 12) is None
+    # between pixels: the parabola through the peak finds a sub-pixel shift
+    between = cv2.warpAffine(image, np.float32([[1, 0, 7.4], [0, 1, -3.7]]), image.shape[::-1], flags=cv2.INTER_CUBIC)
+    assert np.allclose(patch_shift(image, between, (60, 40, 100, 80), 12), [7.4, -3.7], atol=0.15)
+    # the refinement's correlations are OpenCV's masked TM_CCOEFF_NORMED at the nine shifts around a guess
+    scores = masked_correlations(image, between, mask, 60, 40, 100, 80, 7, -4)
+    oracle = cv2.matchTemplate(between[35:77, 66:108].copy(), image[40:80, 60:100].copy(), cv2.TM_CCOEFF_NORMED,
+                               mask=mask[40:80, 60:100].astype(np.float32))
+    assert np.allclose(scores, oracle, atol=1e-4)
+    assert np.allclose(refine_shift(image, between, (60, 40, 100, 80), mask, [6.6, -4.2]),
+                       patch_shift(image, between, (60, 40, 100, 80), 12, mask), atol=0.01)
 
 
 def test_hand_held_sequences_move_like_a_hand_and_a_tracker_follows_their_truth():
@@ -219,3 +229,20 @@ def test_a_texture_cue_starved_by_blur_lifts_new_points_on_the_other_cues_joint_
     assert not any(lost[3:]), f"lost flags after the blur: {lost}"
     assert tracker.cue_qualities["texture"] > 0.5
     assert rotation_error_deg(tracker.pose, poses[11]) < 1.0
+
+
+def test_the_region_cue_splits_each_line_where_part_turns_to_background():
+    from hybridpose.trackers.cues.region import BINS, best_splits, posterior_image
+
+    L = 8
+    x = np.arange(2 * L + 3) - (L + 1)  # samples from inside to outside, the line's centre at 0
+    edges = np.array([-5.5, -0.5, 0.5, 3.5])
+    part = (x[None] < edges[:, None]).astype(np.float32)  # posterior 1 inside the part, 0 beyond its boundary
+    offset, clear = best_splits(np.vstack([part, np.full((1, len(x)), 0.5, np.float32)]), L, 0.3)
+    assert np.allclose(offset[:4], edges, atol=1e-6) and clear[:4].all()
+    assert not clear[4]  # one colour all along: no split to trust
+    # the posterior image is the colour-bin table looked up per pixel (NumPy as the oracle)
+    rng = np.random.default_rng(1)
+    image, lut = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8), rng.random(BINS ** 3).astype(np.float32)
+    q = image.astype(int) // (256 // BINS)
+    assert np.array_equal(posterior_image(image, lut, BINS), lut[(q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]])

@@ -7,7 +7,13 @@ from functools import cached_property
 import numpy as np
 import trimesh
 
-SHARP_EDGE_ANGLE_DEG = 30.0
+SHARP_EDGE_ANGLE_DEG = 30.0  # faces meeting at more than this show an edge
+
+
+def _read_only(a) -> np.ndarray:
+    a = np.array(a, dtype=np.float64, copy=True)
+    a.flags.writeable = False
+    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,23 +85,26 @@ class ObjectModel:
         d = hull[:, None, :] - hull[None, :, :]
         return float(np.sqrt((d**2).sum(-1)).max())
 
-    @property
+    # the box is read in every tracked frame: worked out once (as ``diameter`` and ``sharp_edges``), read-only
+    @cached_property
     def bbox_min(self) -> np.ndarray:
-        return np.asarray(self.mesh.bounds[0], dtype=np.float64)
+        """(3,) lowest corner of the axis-aligned bounding box, metres."""
+        return _read_only(self.mesh.bounds[0])
 
-    @property
+    @cached_property
     def bbox_max(self) -> np.ndarray:
-        return np.asarray(self.mesh.bounds[1], dtype=np.float64)
+        """(3,) highest corner of the axis-aligned bounding box, metres."""
+        return _read_only(self.mesh.bounds[1])
 
     @property
     def extents(self) -> np.ndarray:
         """(3,) size of the axis-aligned bounding box, metres."""
         return self.bbox_max - self.bbox_min
 
-    @property
+    @cached_property
     def bbox_corners(self) -> np.ndarray:
         """(8, 3) corners of the axis-aligned bounding box, metres."""
-        return box_corners(self.bbox_min, self.bbox_max)
+        return _read_only(box_corners(self.bbox_min, self.bbox_max))
 
     @cached_property
     def center(self) -> np.ndarray:

@@ -27,7 +27,10 @@ explains: a print on the part or clutter behind it is no evidence against a righ
 """
 from __future__ import annotations
 
+import math
+
 import cv2
+import numba
 import numpy as np
 
 from ..core import Frame, covariance_from_information
@@ -42,10 +45,13 @@ from .cues.base import Sight
 from .cues.solve import solve
 
 MODALITIES = ("edges", "texture", "region")
-TEXTURE_PREALIGN_STEPS = 5
+TEXTURE_PREALIGN_STEPS = 5  # Gauss–Newton steps on texture points alone, before the searching cues
 LEARN_CUE_QUALITY = 0.3  # every cue with a verdict at least this for the cues to learn from a frame
 KEYFRAME_CUE_QUALITY = 0.5  # …and the other cues at least this for a new texture keyframe
 PATCH_REACH_PX, PATCH_MIN_SCORE = 48, 0.5  # each frame's first, pose-free step: how far, how alike
+# searched at quarter resolution, then ±1 px at half: a masked matchTemplate over the whole reach costs ≈ 0.6 ms
+# at half resolution, 0.05 at quarter; the quarter's answer alone lost a few frames of the plain box (tuning seeds)
+PATCH_SCALE = 0.5
 MAX_STEP_RAD, MAX_STEP_M_SHARE = 0.5, 0.5  # a Gauss–Newton step beyond these (rad; × diameter) is refused
 
 
@@ -82,7 +88,7 @@ class CombinedTracker(Tracker):
         self.search_px, self.outer, self.inner = int(search_px), int(outer), int(inner)
         self.covariance_scale = float(covariance_scale)
         self.cue_qualities: dict[str, float] = {}
-        self._small = None  # the last frame at half resolution (float32 grey), for the patch step
+        self._small = None  # the last frame at PATCH_SCALE and half that (float32 grey), for the patch step
         self._sight: Sight | None = None  # the frame being fitted, as the cues see it
         self._init_frame: Frame | None = None  # the frame of the last init
         self._deaf: set[str] = set()  # cues left out of this frame's fit and quality
@@ -104,7 +110,7 @@ class CombinedTracker(Tracker):
             raise ValueError(f"pose: {self.object.name!r} covers fewer than 50 pixels of the frame at the initial "
                              "pose — is the object in view and the pose right?")
         self._start(frame, gray, pose, ids)
-        self._small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        self._small = _shrunk(gray)
         self._init_frame = frame
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
@@ -186,10 +192,10 @@ class CombinedTracker(Tracker):
 
     def _follow_patch(self, frame: Frame, gray: np.ndarray, start: Pose) -> Pose:
         """``start`` turned about the camera centre so that the part's projection lands where the image
-        patch around it in the previous frame lies now (normalised cross-correlation at half resolution,
-        ``PATCH_REACH_PX``): a pose-free first step; the part's image may move further in a frame than
+        patch around it in the previous frame lies now (masked normalised cross-correlation ±``PATCH_REACH_PX``
+        at half ``PATCH_SCALE``, refined at ``PATCH_SCALE``): a pose-free first step; the part's image may move further in a frame than
         the edge and region searches reach, and KLT, started closer, keeps more of its points."""
-        small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        small = _shrunk(gray)
         previous, self._small = self._small, small
         if previous is None or self.pose is None:
             return start
@@ -197,13 +203,16 @@ class CombinedTracker(Tracker):
         if box is None:
             return start
         # the part alone, not its background: the previous pose's raster (the start's, when it starts there)
-        same = start is self.pose and ID_SCALE == 0.5
-        seen = (self._sight.ids if same else self.view.facet_ids(self.pose, frame.camera, 0.5)) > 0
-        shift = patch_shift(previous, small, np.asarray(box) * 0.5, PATCH_REACH_PX // 2, seen)
-        if shift is None:
+        ids = self._sight.ids if start is self.pose else self.view.facet_ids(self.pose, frame.camera, ID_SCALE)
+        seen = [cv2.resize((ids > 0).astype(np.uint8), im.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+                for im in small]
+        box = np.asarray(box) * PATCH_SCALE
+        coarse = patch_shift(previous[1], small[1], box * 0.5, int(PATCH_REACH_PX * PATCH_SCALE / 2), seen[1])
+        if coarse is None:
             return start
+        shift = refine_shift(previous[0], small[0], box, seen[0], 2.0 * coarse)
         K = frame.camera.K
-        moved = frame.camera.project(self.object.bbox_corners, self.pose).mean(0) + 2.0 * shift
+        moved = frame.camera.project(self.object.bbox_corners, self.pose).mean(0) + shift / PATCH_SCALE
         delta = moved - frame.camera.project(self.object.bbox_corners, start).mean(0)
         if np.hypot(*delta) < 1.0 or np.hypot(*delta) > 2 * PATCH_REACH_PX:
             return start  # no motion, or a start from elsewhere (a CNN pose): the patch says nothing of it
@@ -234,7 +243,8 @@ def patch_shift(previous: np.ndarray, current: np.ndarray, box, reach_px: int,
     """(2,) px: where the patch ``box`` (x0, y0, x1, y1) of the (H, W) float32 image ``previous`` lies
     in ``current``, searched ±``reach_px``, comparing only the pixels ``mask`` (H, W) bool marks (the
     part, not the background, which moves otherwise); None where the best normalised correlation is
-    below ``PATCH_MIN_SCORE`` or the patch is too small."""
+    below ``PATCH_MIN_SCORE`` or the patch is too small. Sub-pixel: a parabola through the peak and its
+    neighbours, along each axis."""
     h, w = previous.shape
     x0, y0 = max(int(box[0]), 0), max(int(box[1]), 0)
     x1, y1 = min(int(np.ceil(box[2])), w), min(int(np.ceil(box[3])), h)
@@ -255,7 +265,83 @@ def patch_shift(previous: np.ndarray, current: np.ndarray, box, reach_px: int,
     _, best, _, (bx, by) = cv2.minMaxLoc(score)
     if best < PATCH_MIN_SCORE:
         return None
-    return np.array([X0 + bx - x0, Y0 + by - y0], np.float64)
+    return np.array([X0 + bx + _vertex(score[by, bx - 1:bx + 2]) - x0,
+                     Y0 + by + _vertex(score[by - 1:by + 2, bx]) - y0], np.float64)
+
+
+def _vertex(three: np.ndarray) -> float:
+    """Offset (−0.5 … 0.5) of the vertex of the parabola through three scores around a peak; 0 at an edge."""
+    if len(three) != 3:
+        return 0.0
+    den = three[0] - 2 * three[1] + three[2]
+    return float(np.clip(0.5 * (three[0] - three[2]) / den, -0.5, 0.5)) if den < -1e-9 else 0.0
+
+
+def refine_shift(previous: np.ndarray, current: np.ndarray, box, mask: np.ndarray, guess) -> np.ndarray:
+    """(2,) px: ``guess`` (a shift of the patch ``box`` of ``previous`` into ``current``, as
+    :func:`patch_shift` gives it at half this resolution) refined over the integer shifts ±1 px around it
+    by the masked normalised correlation, with a parabola through the peak. The guess where the patch
+    leaves the image."""
+    h, w = previous.shape
+    x0, y0 = max(int(box[0]), 0), max(int(box[1]), 0)
+    x1, y1 = min(int(np.ceil(box[2])), w), min(int(np.ceil(box[3])), h)
+    gx, gy = int(round(guess[0])), int(round(guess[1]))
+    score = masked_correlations(previous, current, mask, x0, y0, x1, y1, gx, gy)
+    by, bx = np.unravel_index(int(np.argmax(score)), score.shape)
+    if score[by, bx] <= -1.0:
+        return np.asarray(guess, np.float64)
+    return np.array([gx + bx - 1 + _vertex(score[by, bx - 1:bx + 2]),
+                     gy + by - 1 + _vertex(score[by - 1:by + 2, bx])], np.float64)
+
+
+@numba.njit(cache=True, nogil=True)
+def masked_correlations(previous, current, mask, x0, y0, x1, y1, gx, gy):
+    """(3, 3) normalised correlations (``cv2.TM_CCOEFF_NORMED`` with a binary mask) of the patch
+    ``previous[y0:y1, x0:x1]``, where ``mask`` holds, against ``current`` shifted by (gx + dx, gy + dy),
+    dx, dy ∈ {−1, 0, 1}; −1 where the shifted patch leaves the image or either side is flat.
+
+    Compiled: nine positions only, where ``cv2.matchTemplate`` pays for its whole-image transforms."""
+    h, w = current.shape
+    out = np.full((3, 3), -1.0)
+    n = 0.0
+    t_sum = 0.0
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if mask[y, x]:
+                n += 1.0
+                t_sum += previous[y, x]
+    if n < 32:
+        return out
+    t_mean = t_sum / n
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            sx, sy = gx + dx, gy + dy
+            if x0 + sx < 0 or y0 + sy < 0 or x1 + sx > w or y1 + sy > h:
+                continue
+            i_sum = 0.0
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    if mask[y, x]:
+                        i_sum += current[y + sy, x + sx]
+            i_mean = i_sum / n
+            tt = ii = ti = 0.0
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    if mask[y, x]:
+                        a = previous[y, x] - t_mean
+                        b = current[y + sy, x + sx] - i_mean
+                        tt += a * a
+                        ii += b * b
+                        ti += a * b
+            if tt > 1e-9 and ii > 1e-9:
+                out[dy + 1, dx + 1] = ti / math.sqrt(tt * ii)
+    return out
+
+
+def _shrunk(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``gray`` at ``PATCH_SCALE`` and at half that."""
+    small = cv2.resize(gray, None, fx=PATCH_SCALE, fy=PATCH_SCALE, interpolation=cv2.INTER_AREA)
+    return small, cv2.resize(small, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
 
 
 class _Once:

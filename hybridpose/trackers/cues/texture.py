@@ -36,7 +36,7 @@ from ...edges import ModelView
 from ...geometry import Pose
 from ...metrics import rotation_error_deg
 from .base import Cue
-from ..surface_points import forward_backward_flow, surface_corners
+from ..surface_points import flow, forward_backward_flow, surface_corners
 from .solve import LineRows
 
 FB_PX = 1.0          # forward–backward KLT tolerance
@@ -146,11 +146,8 @@ class TextureCue(Cue):
         if good.any() and self.kf_gray is not self.prev:
             # back onto the keyframe's patch: the keyframe's look, not the last frame's, says where the point is
             idx = np.flatnonzero(good)
-            anchored, st3, _ = cv2.calcOpticalFlowPyrLK(self.kf_gray, g8, self.kf_uv[idx].reshape(-1, 1, 2),
-                                                        uv[idx].reshape(-1, 1, 2).copy(),
-                                                        flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **ANCHOR_LK)
-            anchored = anchored.reshape(-1, 2)
-            near = (st3.ravel() == 1) & (np.linalg.norm(anchored - uv[idx], axis=1) < ANCHOR_PX)
+            anchored, found = flow(self.kf_gray, g8, self.kf_uv[idx], uv[idx], ANCHOR_LK)
+            near = found & (np.linalg.norm(anchored - uv[idx], axis=1) < ANCHOR_PX)
             uv[idx[near]] = anchored[near]
         self.index = np.flatnonzero(good)
         self.matched = uv[good].astype(np.float64)

@@ -14,10 +14,8 @@ error where it cannot run); ``engine="torch"`` for torch.
 
 ``"auto"`` runs that 8-bit model where one made from this very checkpoint
 lies beside it (the shipped ``default`` and its edge-on expert; a stale one is skipped with a warning):
-on 48 000 fresh test-lit views, written before they were rendered, int8 − float32 = −0.00° mean
-rotation (95 % CI −0.13…+0.13°, ≤ +0.25 asked) and +0.00 points of views > 30° off (−0.08…+0.09, ≤ +0.25
-asked); on 8 000 views lit from within 85° of the optical axis +0.27° (−0.18…+0.74, ≤ +0.75 asked); and
-3.6 ms/view less on the whole path (CI 3.1–4.1; 22.8 → 19.3 ms/view on one thread of an AVX2 EPYC).
+as accurate as float32 within the margins a test set before the views were rendered, and faster on the
+whole path (the figures: ``docs/decisions.md``).
 
 The network is exported at load (torch's TorchScript-based ONNX exporter: ≈ 0.3 s for the shipped
 one; the newer torch.export-based one takes ≈ 6 s) and kept in memory: a checkpoint stays the one

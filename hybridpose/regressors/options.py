@@ -86,8 +86,7 @@ class KeypointOptions:
             reaches PnP quality ``FINE_BELOW``, look again at finer tiles and take an estimate found
             there from quality ``FINE_ACCEPT`` (:mod:`.network_detection`): a part a few dozen pixels
             across in a large frame. Default False: it doubles the cost of a call without a ``roi``
-            (the own-object benchmark: CNN-only in a tracker's basin 89.9 → 91.2 %, 35 → 71 ms a
-            frame; the hybrid's accuracy unchanged at half its frame rate).
+            for a small gain (``docs/decisions.md``).
         dim_fallback: without a ``roi``: where :func:`detect_bright_object` finds
             nothing, or its box gives no plausible pose, look for a faintly lit object
             (:func:`detect_dim_object`) and estimate on its box (default True).

@@ -65,7 +65,7 @@ def load_matching_weights(model, path) -> None:
     src_size = (src.get("build") or {}).get("image_size")
     if src_size and getattr(model, "image_size", src_size) != src_size:
         # the keypoint nets are fully convolutional, so this runs, but every feature sees a new scale
-        # (one epoch 128 → 160 px cost the default network of the time 2.8° mean)
+        # (a new crop size costs accuracy until the network has re-learned its scales)
         log.warning("%s was trained on %d px crops, this run uses %d px (--image-size %d keeps its scale)",
                     path, src_size, model.image_size, src_size)
     # the object's own keypoints stay: a start from another object's checkpoint (of as many keypoints)

@@ -28,8 +28,8 @@ from ..io import atomic_write_bytes
 from ..regressors.int8_file import META_KEY, file_sha256, int8_path, load_int8, read_record, stale_int8  # noqa: F401 (the format's names, used here and re-exported)
 
 # left in float: the heatmap logits (a soft-argmax of 8-bit logits moves keypoints by up to a cell), the
-# twin logits (one small matrix product, ≈ 0 of the time) and the first convolution (the image itself; on
-# 600 crops of test seed 100 it moved the twin head's agreement with the float net 98.7 → 99.0 %)
+# twin logits (one small matrix product, ≈ 0 of the time) and the first convolution (the image itself: in
+# float it keeps the twin head closer to the float net's; docs/decisions.md)
 FLOAT_NODES = ("/net/stem/stem.0/Conv", "/net/head/Conv", "/net/twin_head/Gemm")
 QUANTIZED_OPS = ("Conv", "Add", "Relu")
 

@@ -160,7 +160,7 @@ def main(argv=None) -> None:
         from _common import BENCH_DIR
 
         saved = json.loads((BENCH_DIR / "results" / "realistic.json").read_text())
-        update_results_md("realistic-headline", "\n".join(headline_lines(saved["rows"], saved["environment"])))
+        write_results(saved["rows"], saved["environment"])
         return
     trackers = args.trackers.split(",") if args.trackers else list(available("tracker", baselines=True))
     rows = run(args.split, trackers, Path(args.cache))
@@ -168,19 +168,29 @@ def main(argv=None) -> None:
     if args.split != "report":
         print("\n".join(lines))
         return
+    write_results(rows, environment())
+
+
+def block_head(rows: dict, env: dict) -> list[str]:
+    """The conditions above the results block: seeds, motion, what the trackers were given."""
+    from hybridpose.bench.suite import REALISTIC_FRAMES, REALISTIC_SEEDS as SEEDS, REALISTIC_TUNING_RANGE as TUNING
+
     motion = [r["motion_median_px"] for rs in rows.values() for r in rs]
     worst = max(r["motion_max_px"] for rs in rows.values() for r in rs)
-    from hybridpose.bench.suite import REALISTIC_FRAMES, REALISTIC_SEEDS as SEEDS
-
-    env = environment()
-    head = [f"Hand-held scenes off black space (`python benchmarks/realistic.py`, commit `{env['git']}`, one thread): "
+    return [f"Hand-held scenes off black space (`python benchmarks/realistic.py`, commit `{env['git']}`, one thread): "
             f"{len(SEEDS['report'])} report seeds ({SEEDS['report'][0]}–{SEEDS['report'][-1]}) of each kind, "
             f"{REALISTIC_FRAMES} frames at 640 × 480; the part moves {np.median(motion):.0f} px a frame (median of the "
             f"sequences' medians), {worst:.0f} px at most, with stops and turns, motion blur, auto-exposure, "
             "noise and JPEG; the hand covers the part wholly at the middle of its pass. Every tracker from the "
             "true first pose with its defaults, never re-initialised. Defaults were not tuned on these seeds "
-            f"(tuning: {SEEDS['tuning'][0]}–{SEEDS['tuning'][-1]}).", ""]
-    publish("realistic", "realistic", {"environment": env, "rows": rows}, head + lines)
+            f"(tuning: seeds from {TUNING.start}–{TUNING.stop - 1}, the suite's {SEEDS['tuning'][0]}–{SEEDS['tuning'][-1]} "
+            "by default).", ""]
+
+
+def write_results(rows: dict, env: dict) -> None:
+    """The saved JSON and both blocks of the results page."""
+    trackers = list(dict.fromkeys(r["tracker"] for rs in rows.values() for r in rs))
+    publish("realistic", "realistic", {"environment": env, "rows": rows}, block_head(rows, env) + summary_lines(rows, trackers))
     update_results_md("realistic-headline", "\n".join(headline_lines(rows, env)))
 
 

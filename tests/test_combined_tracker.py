@@ -246,3 +246,19 @@ def test_the_region_cue_splits_each_line_where_part_turns_to_background():
     image, lut = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8), rng.random(BINS ** 3).astype(np.float32)
     q = image.astype(int) // (256 // BINS)
     assert np.array_equal(posterior_image(image, lut, BINS), lut[(q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]])
+
+
+def test_a_print_with_few_corners_keeps_its_keyframe(printed_box):
+    """A keyframe that lifts fewer points than ``min_points`` is not starved at once (it would be lifted
+    again every frame, its points then anchored to nothing older): it re-keys once half its points are gone."""
+    frames, poses, obj = printed_box
+    tracker = create("tracker", "combined", object=obj)
+    texture = next(c for c in tracker.cues if c.name == "texture")
+    texture.min_points = texture.max_points  # every keyframe of this print lifts fewer than that
+    tracker.init(frames[0], poses[0])
+    keyframes = set()
+    for frame, truth in zip(frames[1:7], poses[1:7]):
+        assert not tracker.track(frame).lost
+        keyframes.add(id(texture.kf_pose))
+        assert rotation_error_deg(tracker.pose, truth) < 2.0
+    assert 0 < texture.kf_count < texture.min_points and len(keyframes) <= 2, (texture.kf_count, len(keyframes))

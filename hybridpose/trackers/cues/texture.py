@@ -17,8 +17,8 @@ their image positions do not drift (the role of M3T's texture modality).
   edge cue alone held 0.37° median, with its corners as texture points 1.74°).
 * A new keyframe when the view turned ``KEYFRAME_DEG`` since the last one, where the pose is trusted
   and the tracker allows it (``may_keyframe``: the other cues vouch for the pose); or when fewer than
-  ``min_points`` points survive (starved: its points lost to blur or a fast turn), where the tracker
-  allows that (``may_rekey_starved``).
+  ``min_points`` points survive, and fewer than ``STARVED_SHARE`` of the keyframe's (starved: its points
+  lost to blur or a fast turn), where the tracker allows that (``may_rekey_starved``).
 * A fit of a frame the cue sat out (the tracker's own init frame: its points agree with any pose
   there) lifts its points again at the fitted pose where that is trusted.
 
@@ -44,6 +44,9 @@ ANCHOR_PX = 2.0      # a track re-found on its keyframe patch within this is mov
 INLIER_PX = 3.0      # a point within this of its projection at the fitted pose agrees with it
 FULL_SUPPORT = 20    # agreeing points for full quality
 KEYFRAME_DEG = 20.0  # view turned this far since the keyframe: lift a new one (patches deform)
+# starved: fewer than min_points survive, and fewer than this share of the keyframe's (a print that offers
+# few corners would otherwise be re-lifted every frame, its points then anchored to nothing older)
+STARVED_SHARE = 0.5
 # a print: at least MIN_PRINT_POINTS corners at the start lie inside one face, PRINT_CLEAR_PX from its border
 MIN_PRINT_POINTS, PRINT_CLEAR_PX = 12, 6
 # …with a corner strength (cv2.cornerMinEigenVal, 5 × 5) above noise: hand-held tuning scenes, plain faces
@@ -74,6 +77,7 @@ class TextureCue(Cue):
         self.kf_uv = np.zeros((0, 2), np.float32)    # positions in the keyframe
         self.kf_gray = self.prev = None
         self.kf_pose: Pose | None = None
+        self.kf_count = 0                             # points lifted at the keyframe
         self.matched = np.zeros((0, 2))               # this frame's correspondences
         self.index = np.zeros(0, np.int64)            # … of the points X[index]
         self.entered = 0
@@ -129,6 +133,7 @@ class TextureCue(Cue):
         g8 = np.clip(gray, 0, 255).astype(np.uint8)
         self.uv, self.X = surface_corners(self.view, g8, pose, frame.camera, ids, self.max_points, box_margin_px=0)
         self.kf_uv, self.kf_gray, self.kf_pose, self.prev = self.uv.copy(), g8, pose, g8
+        self.kf_count = len(self.X)
 
     # --- one frame ---------------------------------------------------------------------------------
     def correspond(self, frame: Frame, gray: np.ndarray, pose: Pose, search_px: int) -> None:
@@ -191,7 +196,7 @@ class TextureCue(Cue):
         self.index, self.matched = np.zeros(0, np.int64), np.zeros((0, 2))
         # a starved cue (most of its points lost to blur or a fast turn) drags the tracker's quality down:
         # the other cues' word is enough to lift new points then
-        starved = len(self.X) < self.min_points
+        starved = len(self.X) < min(self.min_points, STARVED_SHARE * self.kf_count)
         turned = rotation_error_deg(self.kf_pose.R, pose.R) > KEYFRAME_DEG
         if ids is not None and ((starved and self.may_rekey_starved) or (trusted and turned and self.may_keyframe)):
             self._keyframe(gray, pose, frame, ids())

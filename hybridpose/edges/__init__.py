@@ -21,6 +21,7 @@ from .fit import (
     search_edges,
     to_gray,
 )
+from .image import to_gray8
 from .image_distance import edge_distances_px
 from .model_view import EdgeSamples, ModelView
 from .pyramid import coarse_to_fine, projected_diagonal_px
@@ -30,4 +31,4 @@ from .silhouette import explained_lit_share, lit_verdict
 __all__ = ["EdgeFit", "EdgeSamples", "EdgeSites", "ModelView", "coarse_to_fine", "edge_distances_px", "explained_edge_share",
            "explained_lit_share", "fit_edges", "fit_from_proposals", "honest_quality", "lit_verdict",
            "printed_faces", "projected_diagonal_px", "quality_verdict", "search_edges",
-           "sunlit_agreement", "sunlit_mask", "to_gray"]
+           "sunlit_agreement", "sunlit_mask", "to_gray", "to_gray8"]

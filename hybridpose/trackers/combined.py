@@ -34,7 +34,7 @@ import numba
 import numpy as np
 
 from ..core import Frame, covariance_from_information
-from ..edges import ModelView, printed_faces, to_gray
+from ..edges import ModelView, printed_faces, to_gray, to_gray8
 from ..edges.model_view import ID_SCALE
 from ..geometry import Pose
 from ..objects import ObjectModel
@@ -114,9 +114,10 @@ class CombinedTracker(Tracker):
         self._init_frame = frame
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
-        gray = to_gray(frame.image)
+        gray8 = to_gray8(frame.image)  # to_gray's, kept in uint8 for KLT and corners
+        gray = gray8.astype(np.float32)
         ids = self.view.facet_ids(start, frame.camera)
-        sight = Sight(frame, gray, start, ids, self.view.visible_index(start, frame.camera, margin_px=2, ids=ids))
+        sight = Sight(frame, gray, gray8, start, ids, self.view.visible_index(start, frame.camera, margin_px=2, ids=ids))
         for cue in self.cues:
             cue.begin(sight)
         self._sight = sight

@@ -53,7 +53,7 @@ def surface_corners(view: ModelView, gray: np.ndarray, pose: Pose, camera: Camer
 
 
 def flow(previous: np.ndarray, current: np.ndarray, points: np.ndarray, guess: np.ndarray,
-         lk: dict) -> tuple[np.ndarray, np.ndarray]:
+         lk: dict, around: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``cv2.calcOpticalFlowPyrLK`` of ``points`` (N, 2) px from the uint8 image ``previous`` to
     ``current``, started at ``guess`` (N, 2), on the crop of both images that holds the points, their
     guesses and the reach of the search (``lk``: its keywords).
@@ -61,8 +61,9 @@ def flow(previous: np.ndarray, current: np.ndarray, points: np.ndarray, guess: n
     Why a crop: the call builds both images' pyramids and derivatives whole (its Python binding takes no
     prebuilt pyramid), ≈ 0.4 ms of a full 640 × 480 frame each call, where the part covers a fraction of
     it. The crop's corner is a multiple of 2^(levels + 1) px, so each pyramid level samples the same pixels
-    as the whole frame's: tracks agree with the full-frame call to 1e-3 px. Returns (uv (N, 2) float32 in
-    ``current``, found (N,) bool)."""
+    as the whole frame's: tracks agree with the full-frame call to 1e-3 px. ``around`` (M, 2) px: more
+    points the crop holds (the same crop for several calls gives the same tracks). Returns (uv (N, 2)
+    float32 in ``current``, found (N,) bool)."""
     prev = np.asarray(points, np.float32).reshape(-1, 2)
     start = np.asarray(guess, np.float32).reshape(-1, 2)
     if len(prev) == 0:
@@ -70,7 +71,7 @@ def flow(previous: np.ndarray, current: np.ndarray, points: np.ndarray, guess: n
     levels = int(lk.get("maxLevel", 3))
     step = 2 ** (levels + 1)
     margin = FLOW_MARGIN_PX + (int(lk.get("winSize", (21, 21))[0]) // 2 + 1) * 2 ** levels
-    both = np.vstack([prev, start])
+    both = np.vstack([prev, start] + ([] if around is None else [np.asarray(around, np.float32).reshape(-1, 2)]))
     h, w = previous.shape[:2]
     x0, y0 = (np.maximum(np.floor(both.min(0)).astype(int) - margin, 0) // step) * step
     x1, y1 = np.minimum(np.ceil(both.max(0)).astype(int) + margin + 1, (w, h))
@@ -91,6 +92,9 @@ def forward_backward_flow(previous: np.ndarray, current: np.ndarray, points: np.
     the round trip lands within ``fb_px`` of where it began)."""
     prev = np.asarray(points, np.float32).reshape(-1, 2)
     nxt, found = flow(previous, current, prev, guess, lk)
-    back, found_back = flow(current, previous, nxt, prev, lk if back_lk is None else back_lk)
-    good = found & found_back & (np.linalg.norm(back - prev, axis=1) < fb_px)
+    good = np.zeros(len(prev), bool)
+    idx = np.flatnonzero(found)  # back only what was found (each point's search is its own)
+    back, found_back = flow(current, previous, nxt[idx], prev[idx], lk if back_lk is None else back_lk,
+                            around=np.vstack([nxt, prev]))
+    good[idx] = found_back & (np.linalg.norm(back - prev[idx], axis=1) < fb_px)
     return nxt, good

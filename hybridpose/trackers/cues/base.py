@@ -30,13 +30,14 @@ class Sight:
     """One frame as every cue sees it at the fit's start pose (worked out once for all of them).
 
     Attributes:
-        frame: the (undistorted) frame. gray: (H, W) float32 intensity.
+        frame: the (undistorted) frame. gray: (H, W) float32 intensity. gray8: the same, uint8.
         start: the pose the fit starts from. ids: the facet-id raster of ``start`` at ``ID_SCALE``.
         visible: (S,) indices of the model's edge samples visible at ``start``.
     """
 
     frame: Frame
     gray: np.ndarray
+    gray8: np.ndarray
     start: Pose
     ids: np.ndarray
     visible: np.ndarray

@@ -130,10 +130,17 @@ class TextureCue(Cue):
         self._active = bool(value)
 
     def _keyframe(self, gray: np.ndarray, pose: Pose, frame: Frame, ids: np.ndarray) -> None:
-        g8 = np.clip(gray, 0, 255).astype(np.uint8)
+        g8 = self._uint8(gray)
         self.uv, self.X = surface_corners(self.view, g8, pose, frame.camera, ids, self.max_points, box_margin_px=0)
         self.kf_uv, self.kf_gray, self.kf_pose, self.prev = self.uv.copy(), g8, pose, g8
         self.kf_count = len(self.X)
+
+    def _uint8(self, gray: np.ndarray) -> np.ndarray:
+        """``gray`` (float32, 0..255) as uint8: the frame's own where the tracker made both."""
+        sight = getattr(self, "sight", None)
+        if sight is not None and sight.gray is gray:
+            return sight.gray8
+        return np.clip(gray, 0, 255).astype(np.uint8)
 
     # --- one frame ---------------------------------------------------------------------------------
     def correspond(self, frame: Frame, gray: np.ndarray, pose: Pose, search_px: int) -> None:
@@ -141,7 +148,7 @@ class TextureCue(Cue):
         if self.prev is None or frame is getattr(self, "_frame", None):
             return  # once a frame
         self._frame = frame
-        g8 = np.clip(gray, 0, 255).astype(np.uint8)
+        g8 = self._uint8(gray)
         self.entered = len(self.X)
         self.matched, self.index = np.zeros((0, 2)), np.zeros(0, np.int64)
         if len(self.X) < 6:

@@ -301,41 +301,45 @@ def masked_correlations(previous, current, mask, x0, y0, x1, y1, gx, gy):
     ``previous[y0:y1, x0:x1]``, where ``mask`` holds, against ``current`` shifted by (gx + dx, gy + dy),
     dx, dy ∈ {−1, 0, 1}; −1 where the shifted patch leaves the image or either side is flat.
 
-    Compiled: nine positions only, where ``cv2.matchTemplate`` pays for its whole-image transforms."""
+    Compiled, one pass over the patch for all nine shifts: nine positions only, where
+    ``cv2.matchTemplate`` pays for its whole-image transforms."""
     h, w = current.shape
     out = np.full((3, 3), -1.0)
-    n = 0.0
-    t_sum = 0.0
-    for y in range(y0, y1):
-        for x in range(x0, x1):
-            if mask[y, x]:
-                n += 1.0
-                t_sum += previous[y, x]
-    if n < 32:
-        return out
-    t_mean = t_sum / n
+    n = t_sum = tt_sum = 0.0
+    s_i = np.zeros((3, 3))
+    s_ii = np.zeros((3, 3))
+    s_ti = np.zeros((3, 3))
+    inside = np.zeros((3, 3), np.bool_)
     for dy in range(-1, 2):
         for dx in range(-1, 2):
             sx, sy = gx + dx, gy + dy
-            if x0 + sx < 0 or y0 + sy < 0 or x1 + sx > w or y1 + sy > h:
+            inside[dy + 1, dx + 1] = x0 + sx >= 0 and y0 + sy >= 0 and x1 + sx <= w and y1 + sy <= h
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if not mask[y, x]:
                 continue
-            i_sum = 0.0
-            for y in range(y0, y1):
-                for x in range(x0, x1):
-                    if mask[y, x]:
-                        i_sum += current[y + sy, x + sx]
-            i_mean = i_sum / n
-            tt = ii = ti = 0.0
-            for y in range(y0, y1):
-                for x in range(x0, x1):
-                    if mask[y, x]:
-                        a = previous[y, x] - t_mean
-                        b = current[y + sy, x + sx] - i_mean
-                        tt += a * a
-                        ii += b * b
-                        ti += a * b
-            if tt > 1e-9 and ii > 1e-9:
-                out[dy + 1, dx + 1] = ti / math.sqrt(tt * ii)
+            t = previous[y, x]
+            n += 1.0
+            t_sum += t
+            tt_sum += t * t
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if inside[dy + 1, dx + 1]:
+                        i = current[y + gy + dy, x + gx + dx]
+                        s_i[dy + 1, dx + 1] += i
+                        s_ii[dy + 1, dx + 1] += i * i
+                        s_ti[dy + 1, dx + 1] += t * i
+    if n < 32:
+        return out
+    tt = tt_sum - t_sum * t_sum / n
+    for r in range(3):
+        for c in range(3):
+            if not inside[r, c]:
+                continue
+            ii = s_ii[r, c] - s_i[r, c] * s_i[r, c] / n
+            ti = s_ti[r, c] - t_sum * s_i[r, c] / n
+            if tt > 1e-6 * n and ii > 1e-6 * n:
+                out[r, c] = ti / math.sqrt(tt * ii)
     return out
 
 

@@ -178,7 +178,12 @@ class TextureCue(Cue):
         """(M,) distance of each matched point from its projection at ``pose``."""
         if len(self.index) == 0:
             return np.zeros(0)
-        return np.linalg.norm(self._frame.camera.project(self.X[self.index], pose) - self.matched, axis=1)
+        cached = getattr(self, "_residuals", None)
+        if cached is not None and cached[0] is pose and cached[1] is self.index:
+            return cached[2]  # the fitted pose's, asked by quality and again by finish
+        res = np.linalg.norm(self._frame.camera.project(self.X[self.index], pose) - self.matched, axis=1)
+        self._residuals = (pose, self.index, res)
+        return res
 
     def quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         if self.entered < 6:

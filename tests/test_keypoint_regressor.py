@@ -1224,7 +1224,8 @@ def test_quality_scale_recovers_each_bands_spread_and_never_rises_with_quality()
     one factor for all; sparse bands merge upwards; a better band never gets a larger factor."""
     from scipy.stats import chi2
 
-    from hybridpose.regressors.calibration import quality_factor, quality_scale
+    from hybridpose.regressors.calibration import quality_factor
+    from hybridpose.training.calibrate import quality_scale
 
     rng = np.random.default_rng(0)
     spread = {0.05: 9.0, 0.25: 2.0, 0.45: 0.5}          # quality → NEES multiplier

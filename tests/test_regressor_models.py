@@ -7,9 +7,9 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from hybridpose.regressors import (
-    BranchedVGG19, ParallelVGG19, VGGPose, available_models, build_model, load_imagenet_weights, pose_loss,
-    quat_geodesic_angle,
+    BranchedVGG19, ParallelVGG19, VGGPose, available_models, build_model, load_imagenet_weights,
 )
+from hybridpose.training.losses import pose_loss, quat_geodesic_angle
 
 torch.manual_seed(0)
 

@@ -9,7 +9,7 @@ from torch import nn
 from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera, Pose
 from hybridpose.regressors import models
-from hybridpose.regressors.losses import normalize_quat
+from hybridpose.regressors.vgg import normalize_quat
 from hybridpose.training.train import run_summary, train, TrainConfig
 from hybridpose.regressors.checkpoints import load_checkpoint
 
@@ -116,7 +116,7 @@ def test_loader_workers_start_after_this_process_used_opencv_threads(data, tmp_p
         import cv2, numpy as np, torch
         from torch import nn
         from hybridpose.regressors import models
-        from hybridpose.regressors.losses import normalize_quat
+        from hybridpose.regressors.vgg import normalize_quat
         from hybridpose.training.train import TrainConfig, train
 
         class Tiny(nn.Module):
@@ -323,7 +323,7 @@ def test_validation_errors_of_a_symmetric_part_go_to_the_nearest_equivalent_pose
     import torch
 
     from hybridpose.objects import ObjectModel
-    from hybridpose.regressors.losses import quat_geodesic_angle
+    from hybridpose.training.losses import quat_geodesic_angle
     from hybridpose.training.train_steps import nearest_twin
 
     box = ObjectModel("box", trimesh.creation.box(extents=(0.2, 0.12, 0.08)))

@@ -59,7 +59,7 @@ class CheckpointRegressor(PoseRegressor):
     Keypoint models' ``Measurement.quality`` (0..1) = PnP inlier share × exp(−RMS reprojection error
     / 2 % of the crop side) × the twin head's probability of the twin returned (no last factor
     without a head). The covariance (the calibrated PnP one, times the factor of the quality's band
-    where the calibration has bands: :func:`~hybridpose.regressors.calibration.quality_scale`)
+    where the calibration has bands: :func:`~hybridpose.training.calibrate.quality_scale`)
     covers the error up to the object's box twins; the quality is
     what says a pose may be turned end for end: on the held-out truss test set a gate at 0.3 keeps
     ≈ 88 % of the views with almost none > 30° off (``hybridpose eval``, "accuracy by quality").

@@ -11,9 +11,18 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from .losses import normalize_quat
 
 log = logging.getLogger(__name__)
+
+QUAT_NORM_EPS = 1e-7  # a raw quaternion output this short is not scaled up further
+
+
+def normalize_quat(q: torch.Tensor) -> torch.Tensor:
+    """(B, 4) → unit quaternions (w, x, y, z); the network's raw output is normalised here."""
+    if q.ndim != 2 or q.shape[1] != 4:
+        raise ValueError(f"q: expected (B, 4) quaternions (w, x, y, z), got {tuple(q.shape)}")
+    return q / q.norm(dim=1, keepdim=True).clamp_min(QUAT_NORM_EPS)
+
 
 CFG = {
     "vgg16": [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M"],

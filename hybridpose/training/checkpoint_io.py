@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import atomic_write_json, atomic_write_text
-from ..regressors.calibration import calibrate
+from .calibrate import calibrate
 from ..regressors.checkpoints import load_checkpoint, save_checkpoint
 from ..regressors.keypoint_net import widen_state_dict
 from .train_steps import forward

@@ -28,12 +28,13 @@ from ..metrics import add_recall, nearest_equivalent, rotation_error_deg
 from ..metrics import pose_errors as metric_errors
 from ..objects import light_azimuth_deg, sun_phase_angle_deg, view_elevation_deg
 from ..regressors.calibration import COVERAGE as COVARIANCE_COVERAGE
-from ..regressors.calibration import MIN_BAND_POSES, nees, quality_scale
+from ..regressors.calibration import MIN_BAND_POSES, nees
 from ..regressors.engines import call_ms, keypoint_engine
 from ..regressors.keypoint_passes import image_batch
 from ..regressors.calibration import uncalibrated_record
 from ..regressors.options import KeypointOptions
 from ..regressors.predictor import CheckpointRegressor
+from .calibrate import quality_scale
 from .eval_report import (AZIMUTH_BINS_DEG, GROSS_ERROR_DEG, PHASE_BINS_DEG, accuracy_by_quality, error_in_bins,
                           error_vs_distance, error_vs_elevation, over_confident, plot_error_vs_distance,
                           report_markdown)
@@ -207,7 +208,7 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
                          coverage: float = COVARIANCE_COVERAGE, by_quality: bool = True, **options) -> dict:
     """Re-scale a checkpoint's covariance on the whole inference path; write it to ``out``.
 
-    The training calibration (:func:`~hybridpose.regressors.calibration.calibrate`) sees the first
+    The training calibration (:func:`~hybridpose.training.calibrate.calibrate`) sees the first
     network pass's PnP pose on training-like crops; what a caller gets went through detection, the
     crop turns, the twin choice and the edge refinement, and its errors spread differently (the
     shipped ``default`` had 81 % of the seed-100 test views inside its 90 % ellipsoid). This runs
@@ -219,7 +220,7 @@ def calibrate_checkpoint(checkpoint, data, out, limit: int | None = None, progre
     a path more precise than its training calibration gets a smaller covariance.
 
     ``by_quality`` (keypoint models): also a factor per band of the measurements' quality
-    (:func:`~hybridpose.regressors.calibration.quality_scale`, stored as ``quality_scale``), so that
+    (:func:`~hybridpose.training.calibrate.quality_scale`, stored as ``quality_scale``), so that
     poor measurements are not over-confident and good ones not under-confident; False: one factor
     for all (any bands stored before are dropped).
 

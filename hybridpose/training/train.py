@@ -24,7 +24,7 @@ from torch.utils.data import DataLoader
 from ..datasets.bop import dataset_object
 from ..datasets.torch_dataset import single_threaded_worker
 from ..regressors.checkpoints import RESUME_ONLY_KEYS, load_checkpoint
-from ..regressors.losses import DEFAULT_BETA
+from .losses import DEFAULT_BETA
 from ..regressors.verify import box_half_turns
 from ..regressors.models import MODEL_DEFAULTS, available_models, build_model, model_kind, torch_device
 from .train_data import dataset_info, make_augment, make_datasets

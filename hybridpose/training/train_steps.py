@@ -7,10 +7,10 @@ import numpy as np
 import torch
 
 from ..geometry import Pose, quat_wxyz_to_matrix
-from ..regressors.calibration import keypoint_pnp_batch
+from .calibrate import keypoint_pnp_batch
 from ..regressors.keypoint_net import HEATMAP_STRIDE, keypoint_loss
 from ..regressors.unlabelled import focal_loss, heatmap_targets, visible_keypoints
-from ..regressors.losses import pose_loss, quat_geodesic_angle
+from .losses import pose_loss, quat_geodesic_angle
 
 
 def _unwrap(model):

@@ -3,15 +3,10 @@ from __future__ import annotations
 
 import torch
 
+from ..regressors.vgg import normalize_quat
+
 DEFAULT_BETA = 10.0  # the paper's β: rotation (rad) weighed against translation (m)
 _EPS = 1e-7  # keeps arccos' gradient finite at |⟨q, q̂⟩| = 1
-
-
-def normalize_quat(q: torch.Tensor) -> torch.Tensor:
-    """(B, 4) → unit quaternions (w, x, y, z); the network's raw output is normalised here."""
-    if q.ndim != 2 or q.shape[1] != 4:
-        raise ValueError(f"q: expected (B, 4) quaternions (w, x, y, z), got {tuple(q.shape)}")
-    return q / q.norm(dim=1, keepdim=True).clamp_min(_EPS)
 
 
 def quat_geodesic_angle(q_pred: torch.Tensor, q_true: torch.Tensor) -> torch.Tensor:

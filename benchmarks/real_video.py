@@ -54,7 +54,6 @@ from _common import environment, publish  # noqa: E402
 TRACKERS = ("combined", "edges", "klt-pnp", "rapid", "rapid-ols", "rapid-gos")
 RAW = ("rapid", "rapid-ols", "rapid-gos")  # cv2.rapid alone: refine=False
 STRIP_FRAMES = (0, 72, 145, 217)
-WARMUP_FRAMES = 10  # frames each tracker runs untimed before the timed runs
 CASTLE_STRIP = (0, 10, 20, 29)
 # the castle: our edge tracker without the explained-edge check (a partial model of a textured scene)
 CASTLE_EDGES = {"explain": False, "lost_quality": 0.45}
@@ -151,6 +150,7 @@ def main(argv=None) -> None:
 
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
+    from hybridpose.bench.runner import WARMUP_FRAMES
     from hybridpose.estimator import HybridEstimator
     from hybridpose.registry import create
 
@@ -159,7 +159,7 @@ def main(argv=None) -> None:
     frames, camera, obj, pose0 = visp_sequence(mbt / "cube", mbt / "cube.cao", mbt / "cube.xml", mbt / "cube.0.pos")
     out = Path(args.out)
 
-    # untimed, on fresh trackers: the first calls compile the numba kernels (seconds where their cache is
+    # untimed, on fresh trackers (as the bench runner does): the first calls compile the numba kernels (seconds where their cache is
     # cold, as after an install), which would be charged to the first sequence each tracker runs
     for name in TRACKERS:
         step = tracker_step(create("tracker", name, object=obj), pose0)

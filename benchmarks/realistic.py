@@ -32,7 +32,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import environment, publish, update_results_md  # noqa: E402
 
 HELD_DEG, HELD_M, SILENT_DEG, IN_VIEW = 5.0, 0.02, 10.0, 0.9
-WARMUP_FRAMES = 10  # frames each tracker runs untimed before its first sequence
 
 
 def score(seq, tracker) -> dict:
@@ -66,6 +65,7 @@ def score(seq, tracker) -> dict:
 
 def run(split: str, trackers: list[str], cache: Path) -> dict:
     from hybridpose.bench.modes import load_sequence
+    from hybridpose.bench.runner import WARMUP_FRAMES
     from hybridpose.bench.suite import render_suite, suite
     from hybridpose.io import read_json
     from hybridpose.objects import load_object

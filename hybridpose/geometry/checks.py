@@ -34,6 +34,14 @@ def as_array(x, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
     return arr
 
 
+def read_only(a) -> np.ndarray:
+    """A float64 copy of ``a`` that cannot be written to (the fields of immutable types: a pose's R and t,
+    an object's box)."""
+    a = np.array(a, dtype=np.float64, copy=True)
+    a.flags.writeable = False
+    return a
+
+
 def _fmt_shape(shape: tuple) -> str:
     return "(" + ", ".join("N" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 

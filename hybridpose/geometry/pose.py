@@ -5,15 +5,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import as_array, as_rotation_matrix, as_unit_quat, as_vector
+from .checks import as_array, as_rotation_matrix, as_unit_quat, as_vector, read_only
 from .rotations import matrix_to_quat_wxyz, quat_slerp, quat_wxyz_to_matrix, rotvec_to_matrix
 from .se3 import se3_exp, se3_log
-
-
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.float64, copy=True)
-    a.flags.writeable = False
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,8 +26,8 @@ class Pose:
     t: np.ndarray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "R", _frozen(as_rotation_matrix(self.R, "R")))
-        object.__setattr__(self, "t", _frozen(as_vector(self.t, "t", 3)))
+        object.__setattr__(self, "R", read_only(as_rotation_matrix(self.R, "R")))
+        object.__setattr__(self, "t", read_only(as_vector(self.t, "t", 3)))
 
     @classmethod
     def _composed(cls, R: np.ndarray, t: np.ndarray) -> "Pose":
@@ -41,8 +35,8 @@ class Pose:
         float rounding, so the checks and the SVD re-orthonormalisation (≈ 30 µs, a dozen times per
         regressor call) are skipped. Not for data from outside."""
         pose = object.__new__(cls)
-        object.__setattr__(pose, "R", _frozen(R))
-        object.__setattr__(pose, "t", _frozen(t))
+        object.__setattr__(pose, "R", read_only(R))
+        object.__setattr__(pose, "t", read_only(t))
         return pose
 
     # --- constructors -------------------------------------------------------------------------

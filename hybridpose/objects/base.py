@@ -7,13 +7,9 @@ from functools import cached_property
 import numpy as np
 import trimesh
 
+from ..geometry import read_only
+
 SHARP_EDGE_ANGLE_DEG = 30.0  # faces meeting at more than this show an edge
-
-
-def _read_only(a) -> np.ndarray:
-    a = np.array(a, dtype=np.float64, copy=True)
-    a.flags.writeable = False
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,12 +85,12 @@ class ObjectModel:
     @cached_property
     def bbox_min(self) -> np.ndarray:
         """(3,) lowest corner of the axis-aligned bounding box, metres."""
-        return _read_only(self.mesh.bounds[0])
+        return read_only(self.mesh.bounds[0])
 
     @cached_property
     def bbox_max(self) -> np.ndarray:
         """(3,) highest corner of the axis-aligned bounding box, metres."""
-        return _read_only(self.mesh.bounds[1])
+        return read_only(self.mesh.bounds[1])
 
     @property
     def extents(self) -> np.ndarray:
@@ -104,7 +100,7 @@ class ObjectModel:
     @cached_property
     def bbox_corners(self) -> np.ndarray:
         """(8, 3) corners of the axis-aligned bounding box, metres."""
-        return _read_only(box_corners(self.bbox_min, self.bbox_max))
+        return read_only(box_corners(self.bbox_min, self.bbox_max))
 
     @cached_property
     def center(self) -> np.ndarray:

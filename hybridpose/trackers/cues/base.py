@@ -58,6 +58,7 @@ class Cue(ABC):
 
     def __init__(self) -> None:
         self.active = True
+        self.sight: Sight | None = None  # the frame being fitted (begin)
 
     @abstractmethod
     def start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:

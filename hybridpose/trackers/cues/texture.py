@@ -79,6 +79,7 @@ class TextureCue(Cue):
         self.kf_pose: Pose | None = None
         self.kf_count = 0                             # points lifted at the keyframe
         self.matched = np.zeros((0, 2))               # this frame's correspondences
+        self._residuals = None                        # (pose, index, residuals px) last worked out
         self.index = np.zeros(0, np.int64)            # … of the points X[index]
         self.entered = 0
         # whether the part shows a print to follow: points inside its faces, away from every model edge
@@ -137,9 +138,8 @@ class TextureCue(Cue):
 
     def _uint8(self, gray: np.ndarray) -> np.ndarray:
         """``gray`` (float32, 0..255) as uint8: the frame's own where the tracker made both."""
-        sight = getattr(self, "sight", None)
-        if sight is not None and sight.gray is gray:
-            return sight.gray8
+        if self.sight is not None and self.sight.gray is gray:
+            return self.sight.gray8
         return np.clip(gray, 0, 255).astype(np.uint8)
 
     # --- one frame ---------------------------------------------------------------------------------
@@ -178,7 +178,7 @@ class TextureCue(Cue):
         """(M,) distance of each matched point from its projection at ``pose``."""
         if len(self.index) == 0:
             return np.zeros(0)
-        cached = getattr(self, "_residuals", None)
+        cached = self._residuals
         if cached is not None and cached[0] is pose and cached[1] is self.index:
             return cached[2]  # the fitted pose's, asked by quality and again by finish
         res = np.linalg.norm(self._frame.camera.project(self.X[self.index], pose) - self.matched, axis=1)

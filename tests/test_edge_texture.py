@@ -95,3 +95,51 @@ def test_edge_distance_is_subpixel_on_the_part_and_grows_with_a_shift(cube):
     assert 2.0 < np.percentile(moved, 75) <= 4.5
     blank = Frame(np.full_like(frame.image, 90), CAMERA, 0.0, 0)
     assert len(edge_distances_px(view, blank, POSE)) == 0  # no image edge: no distance
+
+
+def test_a_lit_background_caps_the_quality_by_the_share_black_space_by_twice_its_shortfall(cube, monkeypatch):
+    """A right fit whose surroundings leave 30 % of its edges unexplained (clutter and shadows at its
+    outline): around a lit background seen from the start the share itself caps the quality (0.7, held);
+    where the track saw the part on black space the cap is 1 − 2 × 0.3 = 0.4 (lost at the edge trackers'
+    0.5)."""
+    import hybridpose.edges.quality as quality
+    from hybridpose.edges import fit_edges, quality_verdict
+    from hybridpose.edges.silhouette import LitVerdict
+
+    view, frame = ModelView(cube), _scene(cube, textured=False, cluttered=True)
+    fit = fit_edges(view, frame, POSE, search_px=4)
+    assert fit is not None and fit.quality > 0.8
+    monkeypatch.setattr(quality, "explained_edge_share", lambda *a, **k: 0.7)
+    lit = quality_verdict(view, frame, fit)
+    assert lit.beside and lit.quality == pytest.approx(min(fit.quality, 0.7))
+    monkeypatch.setattr(quality, "lit_verdict", lambda *a, **k: LitVerdict(float("nan"), True))
+    assert quality_verdict(view, frame, fit, dark_surround=True).quality == pytest.approx(0.4)
+    monkeypatch.setattr(quality, "lit_verdict", lambda *a, **k: LitVerdict(float("nan"), False))
+    assert quality_verdict(view, frame, fit).quality == pytest.approx(0.4)  # a dark ring now
+
+
+@pytest.mark.parametrize("name", ["edges", "rapid", "klt-pnp"])
+def test_a_restart_in_a_video_that_showed_black_space_keeps_its_strict_slope(name, cube, monkeypatch):
+    """An edge tracker started on a lit background caps a right fit leaving 30 % of the edges
+    unexplained at 0.7; once the video has shown the part on black space, a re-init (the hybrid's restart
+    while an arm stands beside it) keeps judging it as on black space, until ``reset``."""
+    import hybridpose.edges.quality as quality
+    from hybridpose.registry import create
+
+    lit = _scene(cube, textured=False, cluttered=True)
+    image = lit.image.copy()
+    ids = ModelView(cube).facet_ids(POSE, CAMERA)
+    inside = cv2.resize((ids > 0).astype(np.uint8), (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_NEAREST) > 0
+    image[~cv2.dilate(inside.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)] = 0
+    dark = Frame(image, CAMERA, 0.0, 0)
+    monkeypatch.setattr(quality, "explained_edge_share", lambda *a, **k: 0.7)
+    tracker = create("tracker", name, object=cube)
+    tracker.init(lit, POSE)
+    assert tracker.track(lit).quality == pytest.approx(0.7, abs=0.1)
+    tracker.init(dark, POSE)
+    tracker.track(dark)
+    tracker.init(lit, POSE)
+    assert tracker.track(lit).quality <= 0.4 + 1e-9
+    tracker.reset()
+    tracker.init(lit, POSE)
+    assert tracker.track(lit).quality == pytest.approx(0.7, abs=0.1)

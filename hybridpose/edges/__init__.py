@@ -15,13 +15,12 @@ from .fit import (
     explained_edge_share,
     fit_edges,
     fit_from_proposals,
-    honest_quality,
     printed_faces,
-    quality_verdict,
     search_edges,
     to_gray,
 )
 from .image import to_gray8
+from .quality import honest_quality, quality_verdict
 from .image_distance import edge_distances_px
 from .model_view import EdgeSamples, ModelView
 from .pyramid import coarse_to_fine, projected_diagonal_px

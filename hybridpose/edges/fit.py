@@ -9,7 +9,7 @@ silhouette contour and its pose step uses point-to-point distances.
 
 Quality = inliers (within ``inlier_px`` after the last iteration) / (matched samples + samples
 whose search line is lit but shows no edge) × min(1, inliers / 40), capped by how much of the
-image's edges around the object the model explains (:func:`honest_quality`: a fit that found an
+image's edges around the object the model explains (:func:`~hybridpose.edges.quality.honest_quality`: a fit that found an
 edge for every model sample on the wrong beams still leaves the real ones unexplained) and, on a
 dark background, how much of the lit pixels its silhouette covers. Samples on dark search lines
 with no edge are left out: edges between a face in shadow and black space have almost no
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -31,8 +30,7 @@ from ..geometry import Pose, line_jacobian
 from . import kernels
 from .image import to_gray
 from .model_view import EdgeSamples, ModelView, thin
-from .shadows import sunlit_agreement
-from .silhouette import LIT_PIXEL_GREY, lit_verdict, occluder_mask
+from .silhouette import LIT_PIXEL_GREY, occluder_mask
 
 MIN_SUPPORT = 40  # inlier samples for full quality
 LIT_GREY = 30.0  # mean grey level of a search line that is lit (not shadow on black space)
@@ -425,63 +423,6 @@ def _ring_density(edges: np.ndarray, inner) -> float:
     box = edges[max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)]
     ring_px = edges.size - box.size
     return float(int(edges.sum()) - int(box.sum())) / ring_px if ring_px else 0.0
-
-
-# the lit-share term of honest_quality: 1 − LIT_SLOPE · (1 − share), 0.5 at 98 % explained
-LIT_SLOPE = 25.0
-# its sunlit term: 1 − SUNLIT_SLOPE · (1 − precision), 0.5 at 98 %. On tuning frames fitted from the
-# true pose the precision's 0.5th percentile was 0.997; fitted from starts that ended > 5° off, its
-# median 0.75 and 90th percentile 0.93 (0.97 where the sun lights only slivers of the truss)
-SUNLIT_SLOPE = 25.0
-SUNLIT_FROM = 0.5  # a fit already lost (edge trackers' lost_quality) skips the term: it changes nothing there
-
-
-class QualityVerdict(NamedTuple):
-    """:func:`quality_verdict`'s answer: the honest ``quality`` (0..1) and whether something lit
-    stood ``beside`` the object at the fitted pose (:func:`~hybridpose.edges.silhouette.lit_verdict`)."""
-
-    quality: float
-    beside: bool
-
-
-def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None,
-                   sunlit: bool = False) -> float:
-    """A tracker's quality from its final ``fit`` in ``frame``, never above the fit's own:
-    ``min(fit quality, 2·edges − 1, 1 − LIT_SLOPE·(1 − lit))`` with ``edges`` =
-    :func:`explained_edge_share` and ``lit`` = :func:`~hybridpose.edges.silhouette.explained_lit_share`
-    at the fitted pose. Either term alone brings the quality to 0.5 (the edge trackers'
-    ``lost_quality``): a quarter of the image's edges unexplained, or 2 % of the lit pixels around
-    the silhouette outside it. With ``sunlit``, where the frame gives the sun's direction and the
-    background is dark (the lit term has a verdict), also ``1 − SUNLIT_SLOPE·(1 − precision)``,
-    ``precision`` the share of the surface the pose predicts sunlit that is lit in the image
-    (:func:`~hybridpose.edges.shadows.sunlit_agreement`; 0.5 at 98 %), where the quality is at
-    least ``SUNLIT_FROM`` before it. A term without a verdict (NaN) is left out."""
-    return quality_verdict(view, frame, fit, gray, sunlit).quality
-
-
-def quality_verdict(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray | None = None,
-                    sunlit: bool = False, dark_surround: bool = False, printed: bool = False) -> QualityVerdict:
-    """:func:`honest_quality` (same arguments), with whether something lit stood beside the object
-    (its lit term's ring: an arm in front on black space, or a lit background).
-
-    ``dark_surround``: the caller saw the object on dark space before (a tracker's earlier fits). Then
-    a broad lit thing beside it now is an occluder in front (:func:`~hybridpose.edges.silhouette.
-    occluder_mask`), and both terms leave it out: it is no part of the object for any pose to explain.
-    ``printed``: the part carries a print (:func:`explained_edge_share`)."""
-    quality = fit.quality
-    ids = view.facet_ids(fit.pose, frame.camera)  # one raster of the fitted pose for every term
-    lit, beside = lit_verdict(view, frame, fit.pose, gray, ids, dark_surround)
-    explained = explained_edge_share(view, frame, fit.pose, gray, ids, occluder=beside and dark_surround,
-                                     printed=printed)
-    if np.isfinite(explained):
-        quality = min(quality, 2.0 * explained - 1.0)
-    if np.isfinite(lit):
-        quality = min(quality, 1.0 - LIT_SLOPE * (1.0 - lit))
-        if sunlit and frame.sun_direction_cam is not None and quality >= SUNLIT_FROM:
-            precision = sunlit_agreement(view, frame, fit.pose, gray, ids)[0]
-            if np.isfinite(precision):
-                quality = min(quality, 1.0 - SUNLIT_SLOPE * (1.0 - precision))
-    return QualityVerdict(float(max(0.0, quality)), beside)
 
 
 def fit_from_proposals(view: ModelView, frame: Frame, starts, gray: np.ndarray | None = None,

@@ -63,12 +63,16 @@ class Tracker(ABC):
         self._camera = None  # the camera of init's frame, distortion and all
         self.covered = False
         self._dark_around = False  # whether this track has seen dark space around the object
+        # …and whether this video has, before this track too: a re-init (the hybrid's restart) keeps it,
+        # reset forgets it. Around a lit background seen from the start the edge quality is gentler
+        self._dark_scene = False
         self.last_sites = None
         self.printed = False
 
     # --- public API --------------------------------------------------------------------------------
     def init(self, frame: Frame, pose: Pose) -> None:
-        """Start tracking at ``pose`` (``T_cam_obj``, metres) in ``frame``."""
+        """Start tracking at ``pose`` (``T_cam_obj``, metres) in ``frame``. Whether the video showed
+        the object on black space before is kept (a restart within the same video); :meth:`reset` forgets it."""
         self._check_frame(frame)
         self._check_pose(pose, "pose")
         self.covered = self._dark_around = False
@@ -139,7 +143,7 @@ class Tracker(ABC):
     def reset(self) -> None:
         """Forget the object (``track`` needs a new ``init``)."""
         self.pose, self.frame = None, None
-        self.covered = self._dark_around = False
+        self.covered = self._dark_around = self._dark_scene = False
 
     # --- for subclasses -------------------------------------------------------------------------
     @abstractmethod
@@ -157,6 +161,7 @@ class Tracker(ABC):
         photo) is lit from the start and never counts."""
         self.covered = lit_beside and self._dark_around
         self._dark_around = self._dark_around or not lit_beside
+        self._dark_scene = self._dark_scene or self._dark_around
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float) -> tuple[Pose | None, np.ndarray | None, float]:
         """:meth:`_track` with the search reaching ``search_px`` pixels (default: the backend's own range)."""

@@ -145,7 +145,8 @@ class KltPnpTracker(Tracker):
             return None, None, 0.0
         self.last_sites = best.sites
         quality, beside = quality_verdict(self.view, frame, best, gray.astype(np.float32),
-                                          dark_surround=self._dark_around, printed=self.printed)
+                                          dark_surround=self._dark_around, printed=self.printed,
+                                          dark_scene=self._dark_scene)
         self._note_surround(beside)
         if quality >= self.lost_quality:
             self._refresh(gray, best.pose, frame, klt)

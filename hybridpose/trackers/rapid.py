@@ -122,7 +122,8 @@ class RapidTracker(Tracker):
         if best is None:
             return None, None, 0.0
         self.last_sites = best.sites
-        verdict = quality_verdict(self.view, frame, best, gray, dark_surround=self._dark_around, printed=self.printed)
+        verdict = quality_verdict(self.view, frame, best, gray, dark_surround=self._dark_around, printed=self.printed,
+                                  dark_scene=self._dark_scene)
         self._note_surround(verdict.beside)
         return best.pose, best.covariance, verdict.quality
 

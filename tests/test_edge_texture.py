@@ -8,7 +8,7 @@ import trimesh
 
 import hybridpose.edges.fit as edge_fit
 from hybridpose.core import Frame
-from hybridpose.edges import ModelView, explained_edge_share, honest_quality
+from hybridpose.edges import ModelView, explained_edge_share
 from hybridpose.geometry import Camera, Pose
 from hybridpose.objects.base import ObjectModel
 

@@ -16,13 +16,13 @@ from .shadows import sunlit_agreement
 from .silhouette import lit_verdict
 
 # the explained-edge term: 1 − slope · (1 − share). Where the frame shows black space around the
-# object (its ring is dark now, or the track saw it dark before), 0.5 at 75 %: on the truss's tuning
+# object (its ring is dark now, or the video showed it dark before), 0.5 at 75 %: on the truss's tuning
 # frames 0.99 median at the true pose, 0.69 at poses > 5° off the fit did not flag. Around a lit
 # background seen from the start (a desk, a photo, the Earth) clutter and shadows at the outline leave
 # a quarter of a right pose's edges unexplained — ViSP's printed cube on its table 0.74–0.84, which the
-# black-space slope called lost — so the share itself caps the quality there: on the realistic suite's
-# tuning seeds (`edges` from the true pose, frames ≥ 90 % in view) false alarms at poses within 2°
-# 98 → 23 of 395, trusted frames > 10° off 265 → 301 of 2 892
+# steep slope called lost — so the share itself caps the quality there: `edges` on the realistic
+# suite's tuning seeds, false alarms 54 / 16 / 25 % → 28 / 5 / 1 % (printed cube, after a hand, plain
+# box), trusted frames > 10° off 265 → 366 of 5 400 (docs/decisions.md)
 EXPLAINED_SLOPE_DARK, EXPLAINED_SLOPE_LIT = 2.0, 1.0
 # the lit-share term of honest_quality: 1 − LIT_SLOPE · (1 − share), 0.5 at 98 % explained
 LIT_SLOPE = 25.0

@@ -15,14 +15,14 @@ from .model_view import ModelView
 from .shadows import sunlit_agreement
 from .silhouette import lit_verdict
 
-# the explained-edge term: 1 − slope · (1 − share). Where the frame shows black space around the
-# object (its ring is dark now, or the video showed it dark before), 0.5 at 75 %: on the truss's tuning
-# frames 0.99 median at the true pose, 0.69 at poses > 5° off the fit did not flag. Around a lit
-# background seen from the start (a desk, a photo, the Earth) clutter and shadows at the outline leave
-# a quarter of a right pose's edges unexplained — ViSP's printed cube on its table 0.74–0.84, which the
-# steep slope called lost — so the share itself caps the quality there: `edges` on the realistic
-# suite's tuning seeds, false alarms 54 / 16 / 25 % → 28 / 5 / 1 % (printed cube, after a hand, plain
-# box), trusted frames > 10° off 265 → 366 of 5 400 (docs/decisions.md)
+# the explained-edge term: 1 − slope · (1 − share), 0.5 at 75 % (slope 2): on the truss's tuning frames
+# 0.99 median at the true pose, 0.69 at poses > 5° off the fit did not flag. A printed part around a lit
+# background seen from the start (a desk, a photo) takes slope 1: clutter and shadows at its outline
+# leave a quarter of a right pose's edges unexplained — ViSP's printed cube on its table 0.74–0.84, which
+# slope 2 called lost — and the share tells its right poses from wrong ones no better than the print
+# lets it (the realistic suite's printed cube, tuning seeds: 0.88 vs 0.86 median). A plain part keeps
+# slope 2: with slope 1 `edges` on the own-object box's tuning sequences (an arm passing in front of a
+# box over a photo) trusted frames > 5° off 18 → 66 of 1 800 (docs/decisions.md)
 EXPLAINED_SLOPE_DARK, EXPLAINED_SLOPE_LIT = 2.0, 1.0
 # the lit-share term of honest_quality: 1 − LIT_SLOPE · (1 − share), 0.5 at 98 % explained
 LIT_SLOPE = 25.0
@@ -46,10 +46,10 @@ def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray
     """A tracker's quality from its final ``fit`` in ``frame``, never above the fit's own:
     ``min(fit quality, 1 − slope·(1 − edges), 1 − LIT_SLOPE·(1 − lit))`` with ``edges`` =
     :func:`explained_edge_share` and ``lit`` = :func:`~hybridpose.edges.silhouette.explained_lit_share`
-    at the fitted pose; ``slope`` 2 where the object is seen on black space, 1 around a lit
-    background (``EXPLAINED_SLOPE_DARK`` / ``_LIT``). Either term alone brings the quality to 0.5 (the
-    edge trackers' ``lost_quality``) on black space: a quarter of the image's edges unexplained, or 2 %
-    of the lit pixels around the silhouette outside it; around a lit background, half its edges. With
+    at the fitted pose; ``slope`` 2 (``EXPLAINED_SLOPE_DARK``), 1 for a printed part around a lit
+    background (``EXPLAINED_SLOPE_LIT``). Either term alone brings the quality to 0.5 (the edge
+    trackers' ``lost_quality``): a quarter of the image's edges unexplained (half, on a printed part
+    around a lit background), or 2 % of the lit pixels around the silhouette outside it. With
     ``sunlit``, where the frame gives the sun's direction and the background is dark (the lit term has
     a verdict), also ``1 − SUNLIT_SLOPE·(1 − precision)``,
     ``precision`` the share of the surface the pose predicts sunlit that is lit in the image
@@ -69,8 +69,8 @@ def quality_verdict(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarra
     occluder_mask`), and both terms leave it out: it is no part of the object for any pose to explain.
     ``dark_scene``: the video showed the object on dark space before, if not in this track (a tracker
     re-initialised by the hybrid during an occlusion). Without either, a lit ring means a lit
-    background, and the explained-edge term takes its gentler slope.
-    ``printed``: the part carries a print (:func:`explained_edge_share`)."""
+    background, where the explained-edge term of a ``printed`` part (it carries a print:
+    :func:`explained_edge_share`) takes its gentler slope."""
     quality = fit.quality
     ids = view.facet_ids(fit.pose, frame.camera)  # one raster of the fitted pose for every term
     lit, beside = lit_verdict(view, frame, fit.pose, gray, ids, dark_surround)
@@ -78,7 +78,7 @@ def quality_verdict(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarra
                                      printed=printed)
     if np.isfinite(explained):
         lit_background = beside and not (dark_surround or dark_scene)
-        slope = EXPLAINED_SLOPE_LIT if lit_background else EXPLAINED_SLOPE_DARK
+        slope = EXPLAINED_SLOPE_LIT if lit_background and printed else EXPLAINED_SLOPE_DARK
         quality = min(quality, 1.0 - slope * (1.0 - explained))
     if np.isfinite(lit):
         quality = min(quality, 1.0 - LIT_SLOPE * (1.0 - lit))

@@ -196,7 +196,7 @@ def training_render_settings(backgrounds, distance_range_m, occluded_share: floa
     centred on the default direction, a truss re-fit lost 2° mean on views lit from the far side)."""
     from .render import AppearanceSpec, SpaceLighting
 
-    looks = AppearanceSpec(look, None if backgrounds is None else str(backgrounds), texture_share=textured_share)
+    looks = AppearanceSpec(look, backgrounds and str(backgrounds), texture_share=textured_share, camera_effects=look == "random")
     lighting = SpaceLighting(sun_direction_cam=SPACE_SUN_CENTRE) if look == "space" else SpaceLighting()
     return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, lighting=lighting,
                 sun_cone_deg=SUN_CONE_DEG, sun_scale_range=(0.6, 1.3), occluded_share=occluded_share)
@@ -464,14 +464,14 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
     why = (f" The checkpoint carries the hybrid policy `{carried}`, which both apply"
            + (" (a new part's network is sometimes far off where it looks sure: two of its answers must agree "
               "within 20° to restart a lost track)" if "reacquire_deg" in policy else "")
-           + f"; `--hybrid-option NAME=VALUE` (`config={{...}}`) changes it." if policy else "")
+           + "; `--hybrid-option NAME=VALUE` (`config={...}`) changes it." if policy else "")
     minutes = " · ".join(f"{k} {v:.1f}" for k, v in record["minutes"].items())
     return "\n".join([
         f"# hybridpose fit: {obj.name}", "",
         f"Mesh `{req['mesh']}` (×{req['scale']:g} → metres, {obj.diameter:.3f} m across), camera "
         f"{req['camera']['width']}×{req['camera']['height']}, budget {p['budget_min']:g} min, seed {req['seed']}.", "",
         f"- Rendered {p['train_views']} training and {p['test_views']} held-out views ("
-        + ("black space and the sun alone" if req.get("look") == "space" else "random backgrounds, lights and colours")
+        + ("black space and the sun alone" if req.get("look") == "space" else "random backgrounds, lights, colours and camera effects")
         + f"; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away"
         + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views"
            if req.get("occluded_share") else "")

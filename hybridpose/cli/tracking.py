@@ -432,8 +432,9 @@ def add_commands(sub) -> None:
     f.add_argument("--budget", default="60m", help="time for the whole fit: 60m, 1h30m, 90s (default 60m)")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--look", default="random", choices=LOOKS,
-                   help="random: a part on a bench or in a hand (cluttered or photo backgrounds, lights, colours; "
-                        "the network learns to find the part); space: black space and the sun alone, the part "
+                   help="random: a part on a bench or in a hand (cluttered or photo backgrounds, lights, colours, "
+                        "and a real camera's motion blur, exposure, white balance, noise and JPEG; the network learns "
+                        "to find the part); space: black space and the sun alone, the part "
                         "found as the sunlit pixels (default random)")
     f.add_argument("--distances", type=float_pair, default=None, metavar="NEAR,FAR",
                    help="the part's distances in the views, metres (default: where it fills 70 %% to 12 %% of "

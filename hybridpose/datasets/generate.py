@@ -21,6 +21,7 @@ from ..io import atomic_write_json, read_json
 from ..objects import ObjectModel
 from ..render import Renderer, SensorModel, SpaceLighting, random_poses
 from ..render.appearance import AppearanceSpec
+from ..render.camera_effects import camera_effects
 from ..render.occluder import ArmState, arm_state
 from ..render.sequences import SequenceSpec, make_sequence
 from .bop import BopSceneWriter, write_camera_json, write_models
@@ -78,7 +79,8 @@ def _render_into(renderer: Renderer, writer: BopSceneWriter, obj: ObjectModel, c
     for i, (pose, arm, sun, sun_dir) in chunk:
         res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
                               sun_direction_cam=sun_dir, appearance=looks.draw(cam.width, cam.height, seed, i))
-        writer.write(i, res.rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
+        rgb = camera_effects(res.rgb, np.random.default_rng([seed, i, 31])) if looks.camera_effects else res.rgb
+        writer.write(i, rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
         yield i
 
 

@@ -181,6 +181,8 @@ class AppearanceSpec:
             lights stay while the part moves; False: a new look per image (training data).
         texture_share: the share of images whose part carries a print (:func:`part_texture`; drawn
             from a stream of its own, so the other draws of a seed do not change); 0: plain parts.
+        camera_effects: each image also gets a draw of a real camera's motion blur, exposure and
+            white balance, noise and JPEG (:func:`~hybridpose.render.camera_effects.camera_effects`).
     """
 
     kind: str = "space"
@@ -188,6 +190,7 @@ class AppearanceSpec:
     photo_share: float = 0.5
     fixed: bool = False
     texture_share: float = 0.0
+    camera_effects: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in APPEARANCES:
@@ -202,13 +205,17 @@ class AppearanceSpec:
             raise ValueError(f"texture_share: expected a share of the images in [0, 1], got {self.texture_share!r}")
         if self.texture_share > 0 and self.kind != "random":
             raise ValueError("texture_share: a print on the part is drawn only with appearance 'random'")
+        if self.camera_effects and self.kind != "random":
+            raise ValueError("camera_effects: drawn only with appearance 'random' (space has its own sensor model)")
 
     def record(self) -> dict:
-        """The spec as a dataset config records it (``texture_share`` only where set, so configs
-        written before it existed still match)."""
+        """The spec as a dataset config records it (``texture_share`` and ``camera_effects`` only where
+        set, so configs written before they existed still match)."""
         out = asdict(self)
         if out["texture_share"] == 0:
             del out["texture_share"]
+        if not out["camera_effects"]:
+            del out["camera_effects"]
         return out
 
     def draw(self, width: int, height: int, seed: int, index: int) -> Appearance | None:

@@ -21,6 +21,7 @@ from ..edges import ModelView
 from ..geometry import Camera, Pose
 from ..objects import ObjectModel
 from .appearance import PhotoBackgrounds, clutter_background
+from .camera_effects import jpeg, motion_blur
 
 BACKGROUNDS = ("photo", "clutter")
 SKIN_RGB = ((224, 172, 138), (198, 134, 106), (141, 85, 60), (236, 188, 160))  # hand tones, light to dark
@@ -252,19 +253,10 @@ def handheld_sequence(spec: HandheldSpec, obj: ObjectModel, camera: Camera,
             mask_visib = mask & ~covered
             visible = float(mask_visib.sum() / max(mask.sum(), 1))
         if spec.blur and prev_uv is not None and motion > 1.0:
-            length = 0.5 * motion  # half-frame exposure
-            direction = (uv - prev_uv) / motion
-            size = int(np.ceil(length)) | 1
-            kernel = np.zeros((size, size), np.float32)
-            c = size // 2
-            a = np.round(c + direction * length / 2).astype(int)
-            b = np.round(c - direction * length / 2).astype(int)
-            cv2.line(kernel, tuple(int(v) for v in a), tuple(int(v) for v in b), 1.0, 1)
-            image = cv2.filter2D(image, -1, kernel / kernel.sum())
+            image = motion_blur(image, (uv - prev_uv) / motion, 0.5 * motion)  # half-frame exposure
         if spec.noise:
             image = np.clip(image.astype(np.float32) * gains[k] + rng.normal(0, 3.0, image.shape), 0, 255).astype(np.uint8)
-            ok, jpeg = cv2.imencode(".jpg", image[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(75, 96))])
-            image = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)[..., ::-1]
+            image = jpeg(image, int(rng.integers(75, 96)))
         out.append(HandheldFrame(np.ascontiguousarray(image), pose, visible, motion, k / spec.fps, k, mask, mask_visib))
         prev_uv = uv
     return out

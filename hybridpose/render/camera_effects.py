@@ -11,8 +11,7 @@ import numpy as np
 # ranges drawn per training view, chosen to cover the hand-held scenes' (hybridpose.render.handheld:
 # blur of half a frame's 5–30 px motion, exposure gains, noise σ 3, JPEG 75–95) and a webcam's darker
 # and harsher ends
-EXPOSURE_LOG_SIGMA = 0.3  # exposure gain: exp(N(0, σ)), clipped to EXPOSURE_RANGE
-EXPOSURE_RANGE = (0.5, 2.0)
+EXPOSURE_LOG_SIGMA, EXPOSURE_RANGE = 0.3, (0.5, 2.0)  # exposure gain exp(N(0, σ)), clipped: a stop either way
 WHITE_BALANCE_LOG_SIGMA = 0.07  # per-channel gain exp(N(0, σ)): a few hundred kelvin either way
 BLUR_SHARE, BLUR_PX = 0.5, (2.0, 14.0)  # share of views blurred, and the streak's length range (px)
 NOISE_GREY = (0.0, 4.0)  # sensor noise σ range, grey levels

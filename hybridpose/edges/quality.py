@@ -46,10 +46,10 @@ def honest_quality(view: ModelView, frame: Frame, fit: EdgeFit, gray: np.ndarray
     """A tracker's quality from its final ``fit`` in ``frame``, never above the fit's own:
     ``min(fit quality, 1 − slope·(1 − edges), 1 − LIT_SLOPE·(1 − lit))`` with ``edges`` =
     :func:`explained_edge_share` and ``lit`` = :func:`~hybridpose.edges.silhouette.explained_lit_share`
-    at the fitted pose; ``slope`` 2 (``EXPLAINED_SLOPE_DARK``), 1 for a printed part around a lit
-    background (``EXPLAINED_SLOPE_LIT``). Either term alone brings the quality to 0.5 (the edge
-    trackers' ``lost_quality``): a quarter of the image's edges unexplained (half, on a printed part
-    around a lit background), or 2 % of the lit pixels around the silhouette outside it. With
+    at the fitted pose; ``slope`` 2 (``EXPLAINED_SLOPE_DARK``; :func:`quality_verdict` gives a printed
+    part around a lit background ``EXPLAINED_SLOPE_LIT``, 1). Either term alone brings the quality to
+    0.5 (the edge trackers' ``lost_quality``): a quarter of the image's edges unexplained, or 2 % of the
+    lit pixels around the silhouette outside it. With
     ``sunlit``, where the frame gives the sun's direction and the background is dark (the lit term has
     a verdict), also ``1 − SUNLIT_SLOPE·(1 − precision)``,
     ``precision`` the share of the surface the pose predicts sunlit that is lit in the image

@@ -206,7 +206,7 @@ class Camera:
     def project_cam(self, points_cam) -> np.ndarray:
         """Project (N, 3) camera-frame points (metres) to (N, 2) pixels; z must be > 0."""
         p = as_points3d(points_cam, "points_cam")
-        if not np.all(p[:, 2] > _MIN_DEPTH_M):  # in_front's test, on the array checked once
+        if not np.all(self.in_front(p)):
             raise ValueError(
                 f"points: {int((p[:, 2] <= _MIN_DEPTH_M).sum())} of {len(p)} points are behind the camera "
                 "(z ≤ 0 in the camera frame); check T_cam_obj (t_z must be positive, in metres)"

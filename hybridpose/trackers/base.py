@@ -64,7 +64,7 @@ class Tracker(ABC):
         self.covered = False
         self._dark_around = False  # whether this track has seen dark space around the object
         # …and whether this video has, before this track too: a re-init (the hybrid's restart) keeps it,
-        # reset forgets it. Around a lit background seen from the start the edge quality is gentler
+        # reset forgets it. Around a lit background never seen dark, a printed part's edge quality is gentler
         self._dark_scene = False
         self.last_sites = None
         self.printed = False

@@ -135,8 +135,7 @@ class EdgeTracker(Tracker):
         if not self.explain:
             return fit.pose, fit.covariance, fit.quality, False, fit.sites
         verdict = quality_verdict(self.view, frame, fit, gray, sunlit=verify, dark_surround=self._dark_around,
-                                  printed=self.printed,
-                                  dark_scene=self._dark_scene)
+                                  printed=self.printed, dark_scene=self._dark_scene)
         return fit.pose, fit.covariance, verdict.quality, verdict.beside, fit.sites
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):

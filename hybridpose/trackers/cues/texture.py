@@ -80,6 +80,8 @@ class TextureCue(Cue):
         self.kf_count = 0                             # points lifted at the keyframe
         self.matched = np.zeros((0, 2))               # this frame's correspondences
         self._residuals = None                        # (pose, index, residuals px) last worked out
+        self._frame = None                            # the frame correspond last followed the points into
+        self._g8 = None                               # …as uint8 grey: the next frame's previous image
         self.index = np.zeros(0, np.int64)            # … of the points X[index]
         self.entered = 0
         # whether the part shows a print to follow: points inside its faces, away from every model edge
@@ -145,7 +147,7 @@ class TextureCue(Cue):
     # --- one frame ---------------------------------------------------------------------------------
     def correspond(self, frame: Frame, gray: np.ndarray, pose: Pose, search_px: int) -> None:
         """KLT from the previous frame (once a frame: the correspondences do not depend on the pose)."""
-        if self.prev is None or frame is getattr(self, "_frame", None):
+        if self.prev is None or frame is self._frame:
             return  # once a frame
         self._frame = frame
         g8 = self._uint8(gray)
@@ -194,7 +196,7 @@ class TextureCue(Cue):
     def finish(self, frame: Frame, gray: np.ndarray, pose: Pose, trusted: bool, ids) -> None:
         if self.prev is None:
             return
-        if self.active and frame is not getattr(self, "_frame", None):
+        if self.active and frame is not self._frame:
             # the cue sat this frame out (the tracker's own init frame, where its points agree with any
             # pose): its points were lifted at the start pose; a trusted fit of the same frame knows better
             if trusted and ids is not None:
@@ -204,7 +206,7 @@ class TextureCue(Cue):
         keep = self.residuals_px(pose) < INLIER_PX if trusted else np.ones(len(self.index), bool)
         self.X, self.uv = self.X[self.index[keep]], self.matched[keep].astype(np.float32)
         self.kf_uv = self.kf_uv[self.index[keep]]
-        self.prev = getattr(self, "_g8", self.prev)
+        self.prev = self.prev if self._g8 is None else self._g8
         self.index, self.matched = np.zeros(0, np.int64), np.zeros((0, 2))
         # a starved cue (most of its points lost to blur or a fast turn) drags the tracker's quality down:
         # the other cues' word is enough to lift new points then

@@ -56,14 +56,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .contracts import check_backend
+from .edges import ModelView
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status
 from .fusion.base import nearest_equivalent_measurement
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
+from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
-from .starts import confirmed_start
+from .starts import confirmed_start, image_test
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -94,27 +96,6 @@ class CnnCheck:
     def backed_by(self, track: Measurement, margin: float) -> bool:
         """Whether the ``track`` measurement fits the image better than the fit from the CNN by ``margin``."""
         return not track.lost and track.quality >= self.fit.quality + margin
-
-
-def crop_box(obj: ObjectModel | None, pose: Pose | None, camera: Camera,
-             margin: float) -> tuple[int, int, int, int] | None:
-    """Box (x, y, w, h) px of ``obj``'s projection at ``pose``, grown by ``margin`` (a share of its
-    size) on each side: where a CNN check looks. None (the CNN then takes the whole image) without an
-    object or pose, where it does not overlap the image, or where it reaches behind the camera (a
-    prediction coasting ever closer: the object would overflow the view)."""
-    if obj is None or pose is None:
-        return None
-    box = camera.image_box(obj.bbox_corners, pose)
-    if box is None:
-        return None
-    x0, y0, x1, y1 = box
-    x0, x1 = x0 - margin * (x1 - x0), x1 + margin * (x1 - x0)
-    y0, y1 = y0 - margin * (y1 - y0), y1 + margin * (y1 - y0)
-    x0, y0 = max(x0, 0.0), max(y0, 0.0)
-    x1, y1 = min(x1, camera.width - 1.0), min(y1, camera.height - 1.0)
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        return None
-    return int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0))
 
 
 class HybridEstimator:
@@ -154,6 +135,9 @@ class HybridEstimator:
         self.object: ObjectModel | None = tracker.object
         self.regressor_calls = 0  # since construction: the CNN's share of the work
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
+        # the start's image test slides the model's edges across the frame; a tracker without a CAD
+        # model (a user's own backend) leaves nothing to slide
+        self._view = ModelView(self.object) if self.object is not None else None
         self.reset()
 
     @classmethod
@@ -294,7 +278,8 @@ class HybridEstimator:
         """The CNN on a crop around the fused pose, and the tracker's fit from its answer, held against
         the fused pose and the track's measurement ``m`` (None where the CNN found nothing)."""
         fused = self.fusion.estimate
-        roi = crop_box(self.object, fused.pose, frame.camera, self.config.check_roi_margin)
+        roi = None if self.object is None else projection_roi(self.object.bbox_corners, fused.pose, frame.camera,
+                                                               self.config.check_roi_margin)
         c = self._cnn(frame, roi, timings, near=fused.pose)
         if c.pose is None:
             return None
@@ -356,7 +341,8 @@ class HybridEstimator:
                 return None
             return self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
 
-        return confirmed_start(m, fit, self.config, depth_search)
+        stands_out = image_test(self._view, frame, self.config.start_contrast)
+        return confirmed_start(m, fit, self.config, depth_search, stands_out)
 
     @staticmethod
     def _tracker_twist(previous: Measurement | None, m: Measurement) -> np.ndarray | None:

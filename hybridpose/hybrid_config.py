@@ -96,6 +96,13 @@ class HybridConfig:
             uncertainty (``disagreement_chi2``) starts the track instead (0: off). Right starts
             mostly score 0.8 and more: on the tuning seeds a third of the starts tried the six extra
             fits, about 0.2 ms a frame amortised.
+        start_contrast: a start's fit must also stand out from its own view slid across the image
+            (:class:`~hybridpose.edges.distinct.PlacementContrast`): the share of the model's edges
+            that land on image edges at the fit must beat the share at the same view slid a part's
+            width away in eight directions (their 80th percentile) by this much — unless those match
+            next to nothing (black space). A small part's outline laid on a keyboard or a cable
+            crossing matches as many edges as a right pose of a printed part, but so do the
+            placements beside it (0: off).
         cnn_search_px: how far (px) a tracker fit started from a CNN pose (a start, a check) searches
             for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
             0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
@@ -152,6 +159,7 @@ class HybridConfig:
     restart_unconfirmed: bool = False
     start_turn_deg: float = 4.0
     start_sure_quality: float = 0.8
+    start_contrast: float = 0.3
     cnn_search_px: float = 12.0
     sun_in_cnn_fits: bool = True
     keep_quality: float | None = 0.4
@@ -192,6 +200,8 @@ class HybridConfig:
                              f"{self.start_depth_step}, {self.start_depth_span}")
         if not 0 <= self.start_turn_deg <= 45:
             raise ValueError(f"start_turn_deg: expected degrees in [0, 45] (0: off), got {self.start_turn_deg}")
+        if not 0 <= self.start_contrast <= 1:
+            raise ValueError(f"start_contrast: expected a share of edge samples in [0, 1] (0: off), got {self.start_contrast}")
         if not 0 <= self.start_sure_quality <= 1:
             raise ValueError(f"start_sure_quality: expected a tracker quality in [0, 1], got {self.start_sure_quality}")
         if not self.cnn_search_px >= 0:

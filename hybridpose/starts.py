@@ -13,18 +13,24 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .core import Measurement
+from .core import Frame, Measurement
+from .edges import ModelView, placement_contrast
 from .fusion.base import pose_mahalanobis2
 from .geometry import Pose, rotvec_to_matrix
 from .hybrid_config import HybridConfig
 
 Fit = Callable[[Pose], "Measurement | None"]
+StandsOut = Callable[[Pose], bool]
 
 
-def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search: bool = False) -> Measurement | None:
+def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search: bool = False,
+                    stands_out: StandsOut | None = None) -> Measurement | None:
     """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing,
-    the fit does not reach ``start_quality`` (the model's edges do not match the image) or it left
-    the CNN pose's uncertainty (``disagreement_chi2``, both covariances: it found something else).
+    the fit does not reach ``start_quality`` (the model's edges do not match the image), it left
+    the CNN pose's uncertainty (``disagreement_chi2``, both covariances: it found something else) or
+    ``stands_out`` (the caller's test of a pose in this frame: :func:`~hybridpose.edges.distinct.
+    placement_contrast` against ``start_contrast``) says the image does not single it out (clutter
+    beside it matches the model as well).
 
     With ``depth_search``, where the fit from ``m`` falls short, the fits from ``m`` slid along its
     viewing ray (:func:`slid_starts`, nearest first) are tried: the first one to reach
@@ -40,7 +46,9 @@ def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search
         found = result is not None and not result.lost
         if (found and result.quality >= bar
                 and pose_mahalanobis2(m.pose, m.covariance, result.pose, result.covariance) <= config.disagreement_chi2):
-            return best_turned(m, start, result, fit, config)
+            chosen = best_turned(m, start, result, fit, config)
+            if stands_out is None or stands_out(chosen.pose):
+                return chosen
         if i == 0:  # a slid start must beat the fit from the CNN pose itself
             bar = max(bar, (result.quality if found else 0.0) + config.switch_quality_margin)
     return None
@@ -63,6 +71,15 @@ def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, confi
                     and pose_mahalanobis2(m.pose, m.covariance, other.pose, other.covariance) <= config.disagreement_chi2):
                 best = other
     return best
+
+
+def image_test(view: ModelView | None, frame: Frame, margin: float) -> StandsOut | None:
+    """The ``stands_out`` test of :func:`confirmed_start` in ``frame``: a pose's
+    :func:`~hybridpose.edges.placement_contrast` with ``margin`` (``start_contrast``); None (no test)
+    without a model view or with ``margin`` 0."""
+    if view is None or margin <= 0:
+        return None
+    return lambda pose: placement_contrast(view, frame, pose).stands_out(margin)
 
 
 def slid_starts(pose: Pose, step: float, span: float) -> list[Pose]:

@@ -81,8 +81,9 @@ def run(est, n):
 
 def test_cnn_initialises_then_the_tracker_tracks_with_periodic_checks(truss):
     reg = OracleRegressor()
+    # black frames: nothing for the start's contrast test to see (scripted trackers fit no image)
     est = HybridEstimator(ScriptedTracker(object=truss), reg, registry.create("fusion", "ukf"),
-                          HybridConfig(check_period=10, probation_frames=0))
+                          HybridConfig(check_period=10, probation_frames=0, start_contrast=0))
     out = run(est, 40)
     assert out[0].status == "init" and out[0].pose is not None
     assert all(e.status == "tracking" for e in out[1:])
@@ -491,13 +492,14 @@ def test_a_track_the_tracker_sees_covered_is_kept_down_to_the_covered_threshold(
 
 
 def test_a_check_crop_at_a_pose_reaching_behind_the_camera_is_the_whole_image(truss):
-    from hybridpose.estimator import crop_box
+    from hybridpose.geometry.crops import projection_roi
 
-    x, y, w, h = crop_box(truss, Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM, 0.15)
+    corners = truss.bbox_corners
+    x, y, w, h = projection_roi(corners, Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM, 0.15)
     assert 0 <= x and 0 <= y and x + w <= CAM.width and y + h <= CAM.height and w > 2 and h > 2
     # the truss (0.38 m long) end-on, centred 0.1 m in front of the camera, reaches behind it
-    assert crop_box(truss, Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1]), CAM, 0.15) is None
-    assert crop_box(None, Pose(np.eye(3), [0.0, 0.0, 0.7]), CAM, 0.15) is None
+    assert projection_roi(corners, Pose.from_rotvec_t([0.0, np.pi / 2, 0.0], [0.0, 0.0, 0.1]), CAM, 0.15) is None
+    assert projection_roi(corners, None, CAM, 0.15) is None
 
 
 def test_loss_then_reacquisition_by_two_agreeing_cnn_answers():
@@ -841,7 +843,8 @@ def test_checks_of_a_symmetric_object_compare_the_equivalent_pose_nearest_the_tr
     box = ObjectModel("box", trimesh.creation.box((0.2, 0.12, 0.08)))
     half_turn = next(S for S in box.symmetries if rotation_error_deg(S, Pose.identity()) > 179)
     trk = ScriptedTracker(object=box)
-    est = HybridEstimator(trk, EquivalentRegressor(half_turn), registry.create("fusion", "ukf"), HybridConfig(check_period=3))
+    est = HybridEstimator(trk, EquivalentRegressor(half_turn), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=3, start_contrast=0))  # black frames: no contrast to test
     out = run(est, 40)
     assert set(trk.inits) == {0}, "a half-turned answer is the same look, not a disagreement"
     assert all(e.status == "tracking" for e in out[1:])

@@ -31,3 +31,24 @@ def crop_image(image: np.ndarray, K: np.ndarray, cx: float, cy: float, side: flo
     out = cv2.warpAffine(image, A, (w, h), flags=cv2.INTER_AREA if side > w else cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return out, np.vstack([A, [0, 0, 1]]) @ K
+
+
+def projection_roi(points_obj, pose, camera, margin: float) -> tuple[int, int, int, int] | None:
+    """Box (x, y, w, h) px of the (N, 3) object-frame points (metres; e.g. an object's bounding-box
+    corners) projected at ``pose`` (a :class:`~hybridpose.geometry.Pose`, object→camera), grown by
+    ``margin`` (a share of its size) on each side: where a CNN check looks. None (the CNN then takes
+    the whole image) without a pose, where it does not overlap the image, or where the points reach
+    behind the camera (a prediction coasting ever closer: the object would overflow the view)."""
+    if pose is None:
+        return None
+    box = camera.image_box(points_obj, pose)
+    if box is None:
+        return None
+    x0, y0, x1, y1 = box
+    x0, x1 = x0 - margin * (x1 - x0), x1 + margin * (x1 - x0)
+    y0, y1 = y0 - margin * (y1 - y0), y1 + margin * (y1 - y0)
+    x0, y0 = max(x0, 0.0), max(y0, 0.0)
+    x1, y1 = min(x1, camera.width - 1.0), min(y1, camera.height - 1.0)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0))

@@ -15,8 +15,6 @@ from ..core import Frame
 from ..geometry import Pose, rotvec_to_matrix
 from ..objects import ObjectModel
 
-MATCH_PX = 2.0  # an image edge within this of a model edge supports a twin
-SEARCH_PX = 4  # edge search along each sample's normal, px
 SWITCH_MARGIN = 0.05  # a twin must beat the PnP pose by this much support to replace it
 # views estimated within this many degrees of edge-on (view_elevation_deg) get the edge-on mirror check
 # (edge_on_mirror): 75 of the 83 views > 30° off in four test sets (seeds 128–131, 4000 views) lie there
@@ -74,14 +72,12 @@ class TwinCheck:
         self.twins = box_half_turns(obj)
 
     def support(self, gray: np.ndarray, frame: Frame, pose: Pose) -> float:
-        """Share of the visible edge samples with an image edge within ``MATCH_PX`` of the projection."""
-        from ..edges import search_edges
+        """Share of the visible edge samples with an image edge near the projection
+        (:func:`~hybridpose.edges.edge_support`; 0 where too few are in view)."""
+        from ..edges import edge_support
 
-        samples = self.view.visible_samples(pose, frame.camera, margin_px=2, max_samples=300)
-        if len(samples.index) < 10:
-            return 0.0
-        offset, valid, _ = search_edges(gray, samples, SEARCH_PX)
-        return float(np.mean(valid & (np.abs(offset) <= MATCH_PX)))
+        share = edge_support(self.view, frame, pose, gray)
+        return share if np.isfinite(share) else 0.0
 
     def best(self, frame: Frame, pose: Pose) -> tuple[Pose, float, bool]:
         """(chosen pose, its support, whether a twin replaced ``pose``)."""

@@ -1,0 +1,101 @@
+"""Whether the image singles out a pose (hybridpose.edges.distinct): a rendered box on a plain table
+stands out from its own view slid beside it; the same box's outline laid small over clutter matches
+about as many edges as a right pose does, but no more than the placements around it."""
+import numpy as np
+import pytest
+import trimesh
+
+from hybridpose import Frame, HybridConfig, HybridEstimator, Measurement, registry
+from hybridpose.edges import ModelView, edge_support, placement_contrast
+from hybridpose.edges.distinct import PlacementContrast, slid
+from hybridpose.geometry import Camera, Pose
+from hybridpose.objects import load_object
+from hybridpose.render import Renderer
+from hybridpose.render.appearance import Appearance
+
+CAM = Camera.default().scaled((320, 240))
+TRUTH = Pose.from_rotvec_t([0.5, 0.3, 0.1], [-0.06, 0.0, 0.7])
+
+
+@pytest.fixture(scope="module")
+def box(tmp_path_factory):
+    path = tmp_path_factory.mktemp("box") / "box.obj"
+    trimesh.creation.box(extents=(0.2, 0.12, 0.08)).export(path)
+    return load_object(str(path))
+
+
+def busy_right_half(seed: int = 5) -> np.ndarray:
+    """A plain grey table on the left, random 5-px tiles (a keyboard, cables) on the right."""
+    image = np.full((CAM.height, CAM.width, 3), 150, np.uint8)
+    tiles = np.random.default_rng(seed).integers(0, 256, (CAM.height // 5 + 1, CAM.width // 5 + 1, 3), dtype=np.uint8)
+    busy = np.repeat(np.repeat(tiles, 5, 0), 5, 1)[:CAM.height, :CAM.width]
+    image[:, CAM.width // 2 + 40:] = busy[:, CAM.width // 2 + 40:]
+    return image
+
+
+@pytest.fixture(scope="module")
+def scene(box):
+    with Renderer(box, CAM) as r:
+        image = r.render(TRUTH, rng=0, appearance=Appearance(ambient=0.4, background=busy_right_half())).rgb
+    return Frame(image, CAM, 0.0, 0)
+
+
+MARGIN = HybridConfig().start_contrast
+
+
+def test_a_right_pose_on_a_plain_table_stands_out(box, scene):
+    view = ModelView(box)
+    contrast = placement_contrast(view, scene, TRUTH)
+    assert contrast.here == edge_support(view, scene, TRUTH) > 0.8
+    assert contrast.here - contrast.around > 0.5 and contrast.stands_out(MARGIN)
+
+
+def test_an_outline_laid_small_over_clutter_matches_edges_but_does_not_stand_out(box, scene):
+    view = ModelView(box)
+    # the part three times as far, over the tiles: what a CNN fooled by the clutter proposes
+    far = slid(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
+    u = CAM.project(box.bbox_corners, far)[:, 0]
+    assert u.min() > CAM.width // 2 + 40  # all of it over the tiles
+    contrast = placement_contrast(view, scene, far)
+    assert contrast.here > 0.3  # the tiles' edges hold a good share of its outline …
+    assert not contrast.stands_out(MARGIN)  # … as they hold its neighbours'
+
+
+def test_no_score_without_enough_of_the_part_in_view(box, scene):
+    view = ModelView(box)
+    beside_the_frame = Pose(TRUTH.R, TRUTH.t + [1.0, 0.0, 0.0])
+    assert np.isnan(edge_support(view, scene, beside_the_frame))
+    contrast = placement_contrast(view, scene, beside_the_frame)
+    assert np.isnan(contrast.here) and contrast.stands_out(MARGIN)  # no verdict: no veto
+
+
+def test_on_black_space_a_sliver_of_matched_edges_stands_out():
+    """A sunlit sliver matches few of the part's edges, and the black around it none."""
+    contrast = PlacementContrast(here=0.2, around=0.02)
+    assert contrast.here - contrast.around < MARGIN and contrast.stands_out(MARGIN)
+    assert not PlacementContrast(here=0.5, around=0.25).stands_out(MARGIN)
+
+
+class FooledRegressor:
+    """A CNN fooled by the clutter: the part small, over the tiles, with a wide covariance."""
+
+    hybrid_config = {}
+
+    def __init__(self, pose: Pose):
+        self.pose = pose
+
+    def predict(self, frame, roi=None):
+        return Measurement(self.pose, np.diag([0.5**2] * 3 + [0.3**2] * 3), 0.5, "regressor:fooled", frame.timestamp)
+
+
+def test_a_start_over_clutter_that_its_neighbours_match_as_well_stays_init(box, scene):
+    far = slid(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
+    fooled = FooledRegressor(far)
+
+    def first_step(start_contrast):
+        est = HybridEstimator(registry.create("tracker", "edges", object=box), fooled, registry.create("fusion", "ukf"),
+                              HybridConfig(start_contrast=start_contrast))
+        return est.step(scene)
+
+    assert first_step(0.0).pose is not None  # the edge tracker alone confirms it …
+    assert first_step(HybridConfig().start_contrast).pose is None  # … the contrast test does not

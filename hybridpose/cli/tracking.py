@@ -158,7 +158,7 @@ def cmd_bench(args) -> int:
 
 
 def cmd_fit(args) -> int:
-    from ..fit import fit
+    from ..fit import fit, parse_budget
     from ..geometry import NoImageSize, load_camera
     from ..registry import get
 
@@ -168,8 +168,11 @@ def cmd_fit(args) -> int:
         raise ValueError(f"--camera: {exc}: fit renders views of that size; write a camera file with width and "
                          "height, e.g. JSON {\"width\": 640, \"height\": 480, \"fx\": px, \"fy\": py, "
                          "\"cx\": u0, \"cy\": v0}") from None
-    if args.video is not None and not Path(args.video).exists():
-        raise ValueError(f"--video: {args.video}: no such video file or image folder")
+    for flag, path in (("--video", args.video), ("--refine-on", args.refine_on), ("--init-pose", args.init_pose)):
+        if path is not None and not Path(path).exists():
+            raise ValueError(f"{flag}: {path}: no such file or folder")
+    if args.init_pose is not None and args.refine_on is None:
+        raise ValueError("--init-pose: the first frame's pose of the --refine-on video; give --refine-on too")
     get("tracker", args.video_tracker)  # an unknown name refused before the fit's hour
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
         backgrounds=args.backgrounds, workers=args.workers,
@@ -187,6 +190,15 @@ def cmd_fit(args) -> int:
         report = Path(args.out) / "report.md"
         atomic_write_text(report, report.read_text().rstrip("\n") + "\n\n## On your footage\n\n" + check.text() + "\n")
         print(f"fit: {check.text()}")
+    if args.refine_on is not None:
+        from ..objects import load_object
+        from ..refine import refine_on_footage
+        from ..tracking import load_pose
+
+        init_pose = load_pose(args.init_pose) if args.init_pose else None
+        refine_on_footage(args.out, args.refine_on, load_object(args.mesh, scale=args.scale), camera or Camera.default(),
+                          budget_min=parse_budget(args.refine_budget), tracker=args.video_tracker, init_pose=init_pose,
+                          seed=args.seed)
     return 0
 
 
@@ -454,6 +466,15 @@ def add_commands(sub) -> None:
     f.add_argument("--video-tracker", default="combined",
                    help="the tracker that confirms the CNN's poses in the --video check (default combined: real "
                         "footage; edges in space)")
+    f.add_argument("--refine-on", default=None, metavar="VIDEO",
+                   help="your own footage (video file or image folder, same camera): after the fit, the tracker "
+                        "(--video-tracker) follows the part through it and the frames it holds with confidence "
+                        "refine the network (refine/best.pt); the last quarter of the video is held back and "
+                        "report.md gives the network's errors there before and after")
+    f.add_argument("--init-pose", default=None, metavar="FILE",
+                   help="the part's pose in the --refine-on video's first frame (as for `track --init-pose`): the "
+                        "tracker starts from it; without it, from the hybrid's own start")
+    f.add_argument("--refine-budget", default="10m", help="training time of --refine-on (default 10m)")
     f.add_argument("--textured-share", type=float, default=TEXTURED_SHARE, metavar="SHARE",
                    help="share of the training views with a random print on the part: for a printed or "
                         f"painted part (default {TEXTURED_SHARE:g})")

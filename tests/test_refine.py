@@ -83,3 +83,6 @@ def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_che
     assert "## Refined on your footage" in (fit_dir / "report.md").read_text()
     from hybridpose.regressors.predictor import CheckpointRegressor
     assert CheckpointRegressor(fit_dir / "refine" / "best.pt").hybrid_config == {}  # the fit's (the truss's: none)
+    # without an initial pose the hybrid labels the frames: a network that never finds the part gives none
+    with pytest.raises(ValueError, match="on 0 frames.*--init-pose"):
+        refine_on_footage(fit_dir, scene / "rgb", truss, CAM, budget_min=0.05, tracker="edges", progress=lambda *_: None)

@@ -10,9 +10,11 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
 
 - **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker,
   started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
-  error), confirms it (not lost); the tracker's fit starts the fusion — or, where that fit is not
-  convincing (``start_sure_quality``), a clearly better one from the start turned a few degrees (a
-  local minimum of the object's edges lies next to the truth). Every start (init, reinit) does so.
+  error), confirms it (not lost, and its fit stands out from its own view slid across the image:
+  clutter matches a wrong outline as well as its neighbours, ``start_contrast``); the tracker's fit
+  starts the fusion — or, where that fit is not convincing (``start_sure_quality``), a clearly better
+  one from the start turned a few degrees (a local minimum of the object's edges lies next to the
+  truth). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
   gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where
   the tracker sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``:
@@ -56,8 +58,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .contracts import check_backend
-from .edges import ModelView
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status
+from .edges import ModelView
 from .fusion.base import nearest_equivalent_measurement
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose

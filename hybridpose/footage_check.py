@@ -47,7 +47,8 @@ class FootageCheck:
                 f"({self.ms_per_frame:.0f} ms a frame). A confirmed start is the tracker's verdict, not ground "
                 "truth; none confirmed means the hybrid will not start on this footage: fit with photos like "
                 "its scenes (`--backgrounds`), a print on the part if it carries one (`--textured-share`), "
-                "its distances (`--distances`), or a longer budget.")
+                "its distances (`--distances`), a longer budget, or refine it on this footage from the part's "
+                "pose in its first frame (`--refine-on VIDEO --init-pose FILE`).")
 
 
 class _Remembering:

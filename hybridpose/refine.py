@@ -102,8 +102,9 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     with ``camera``; see the module doc). Returns the record written to ``refine/refine.json``.
 
     Raises:
-        FileNotFoundError: no ``best.pt`` in ``fit_dir`` (fit first). ValueError: no budget, or fewer than ``MIN_TRAIN_FRAMES`` tracked frames before the held-back share (the
-        message says how many the tracker held and what to try).
+        FileNotFoundError: no ``best.pt`` in ``fit_dir`` (fit first). ValueError: no budget, or fewer
+        than ``MIN_TRAIN_FRAMES`` tracked frames before the held-back share (the message says how
+        many the tracker held and what to try).
     """
     from .fit import FULL_VIEW, IMAGE_SIZE, REFIT_LR, TRAIN_BATCH, held_out_accuracy, record_hybrid_policy
     from .footage_check import _count_frames
@@ -155,6 +156,7 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
         for name, ck in (("before", checkpoint), ("after", out / "best.pt")):
             evaluate_checkpoint(ck, roots[1], out / f"eval_{name}", timing_images=0, gradcam_count=0)
             record[name] = held_out_accuracy(read_json(out / f"eval_{name}" / "report.json"), obj)
+            record[name]["hybrid"] = hybrid_from(read_frames(source, camera), cut, obj, ck, tracker, poses)
     atomic_write_json(out / "refine.json", record)
     text = refine_report(record)
     report_md = fit_dir / "report.md"
@@ -162,6 +164,36 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     atomic_write_text(report_md, previous + "\n\n## Refined on your footage\n\n" + text + "\n")
     progress(f"refine: {text}")
     return record
+
+
+def hybrid_from(frames: Iterator[Frame], cut: int, obj: ObjectModel, checkpoint, tracker: str,
+                labels: dict[int, Pose]) -> dict:
+    """The hybrid with the network ``checkpoint`` and no initial pose over the ``frames`` from index
+    ``cut`` on: the first frame it trusts a pose at, how many it trusts, and of those with a tracker
+    label in ``labels`` (index → pose) how many lie within 5° and 2 cm of it and how many more than
+    10° from it (to the nearest equivalent pose of a symmetric part)."""
+    from .estimator import HybridEstimator
+    from .metrics import nearest_equivalent, rotation_error_deg
+
+    est = HybridEstimator.from_names(object=obj, tracker=tracker, regressor=str(checkpoint))
+    out = {"first_pose_at": None, "trusted": 0, "scored": 0, "within_5deg_2cm": 0, "over_10deg": 0}
+    for frame in frames:
+        if frame.index < cut:
+            continue
+        e = est.step(frame)
+        if e.status != Status.TRACKING or e.pose is None:
+            continue
+        out["trusted"] += 1
+        out["first_pose_at"] = frame.index if out["first_pose_at"] is None else out["first_pose_at"]
+        label = labels.get(frame.index)
+        if label is None:
+            continue
+        label = nearest_equivalent(e.pose, label, obj.symmetries)
+        rot, trans = rotation_error_deg(e.pose, label), float(np.linalg.norm(e.pose.t - label.t))
+        out["scored"] += 1
+        out["within_5deg_2cm"] += rot <= 5.0 and trans <= 0.02
+        out["over_10deg"] += rot > 10.0
+    return out
 
 
 def refine_report(record: dict) -> str:
@@ -179,4 +211,13 @@ def refine_report(record: dict) -> str:
                    f"the tracker's poses): rotation error median {b['rot_median_deg']:.1f}° → {a['rot_median_deg']:.1f}°, "
                    f"translation {b['trans_median_pct']:.1f} → {a['trans_median_pct']:.1f} % of the distance, in a "
                    f"tracker's basin (≤ 10°, ≤ 5 %) {100 * b['in_tracker_basin']:.0f} → {100 * a['in_tracker_basin']:.0f} %. "
+                   f"The hybrid from no initial pose over the frames from {record['held_back_from']} on: "
+                   f"{_hybrid_text(b['hybrid'])} before, {_hybrid_text(a['hybrid'])} after. "
                    "Track with `--regressor refine/best.pt` where it did better.")
+
+
+def _hybrid_text(h: dict) -> str:
+    if h["first_pose_at"] is None:
+        return "never started"
+    return (f"first pose at frame {h['first_pose_at']}, {h['trusted']} frames trusted, of the {h['scored']} the tracker "
+            f"labelled {h['within_5deg_2cm']} within 5° and 2 cm of it and {h['over_10deg']} more than 10° off")

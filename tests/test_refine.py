@@ -79,6 +79,9 @@ def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_che
     assert max(rotation_error_deg(held.image(i).pose, truth.image(i).pose) for i in held.image_ids) < 1.0
     for side in ("before", "after"):
         assert record[side]["views"] == record["held_back_frames"] and np.isfinite(record[side]["rot_median_deg"])
+        hybrid = record[side]["hybrid"]  # the hybrid from no initial pose over the held-back stretch
+        assert hybrid["scored"] <= hybrid["trusted"] <= 48 - record["held_back_from"]
+        assert hybrid["within_5deg_2cm"] + hybrid["over_10deg"] <= hybrid["scored"]
     assert (fit_dir / "refine" / "best.pt").is_file() and (fit_dir / "best.pt").read_bytes() == before
     assert "## Refined on your footage" in (fit_dir / "report.md").read_text()
     from hybridpose.regressors.predictor import CheckpointRegressor

@@ -10,8 +10,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
 
 - **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker,
   started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
-  error), confirms it (not lost, and its fit stands out from its own view slid across the image:
-  clutter matches a wrong outline as well as its neighbours, ``start_contrast``); the tracker's fit
+  error), confirms it (not lost, not by its edges alone off black space where it reports its cues,
+  and its fit stands out from its own view slid across the image: clutter matches a wrong outline
+  as well as its neighbours, ``start_contrast``); the tracker's fit
   starts the fusion — or, where that fit is not convincing (``start_sure_quality``), a clearly better
   one from the start turned a few degrees (a local minimum of the object's edges lies next to the
   truth). Every start (init, reinit) does so.
@@ -67,7 +68,7 @@ from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
-from .starts import confirmed_start, image_test
+from .starts import confirmed_start, edges_alone_in_clutter, image_test
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -341,7 +342,10 @@ class HybridEstimator:
                 self._timed(timings, "tracker", self.tracker.init, frame, start)
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 return None
-            return self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
+            m = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
+            cues = getattr(self.tracker, "cue_qualities", None)
+            alone = self._view is not None and not m.lost and edges_alone_in_clutter(cues, frame, self._view, m.pose)
+            return None if alone else m
 
         stands_out = image_test(self._view, frame, self.config.start_contrast)
         return confirmed_start(m, fit, self.config, depth_search, stands_out)

@@ -14,7 +14,8 @@ from collections.abc import Callable
 import numpy as np
 
 from .core import Frame, Measurement
-from .edges import ModelView, placement_contrast
+from .edges import ModelView, placement_contrast, to_gray
+from .edges.fit import dark_surround
 from .fusion.base import pose_mahalanobis2
 from .geometry import Pose, rotvec_to_matrix
 from .hybrid_config import HybridConfig
@@ -80,6 +81,21 @@ def image_test(view: ModelView | None, frame: Frame, margin: float) -> StandsOut
     if view is None or margin <= 0:
         return None
     return lambda pose: placement_contrast(view, frame, pose).stands_out(margin)
+
+
+def edges_alone_in_clutter(cue_qualities: dict | None, frame: Frame, view: ModelView, pose: Pose) -> bool:
+    """Whether a start's fit at ``pose`` in ``frame`` was confirmed by the model's edges alone in a lit
+    scene, for a tracker that reports its cues' verdicts (``cue_qualities``: cue name → quality, NaN
+    for none; ``combined``'s): a small outline laid on a keyboard's edge or a cable crossing fits the
+    edges as a right pose does, so off black space another cue must speak too (the texture cue cannot
+    on the frame a start is checked on; the region cue where the part's colours stand out). On black
+    space the edges alone decide; a tracker without cues is not judged here."""
+    if not cue_qualities:
+        return False
+    if {name for name, q in cue_qualities.items() if np.isfinite(q)} != {"edges"}:
+        return False
+    samples = view.visible_samples(pose, frame.camera, margin_px=2)
+    return len(samples.index) > 0 and not dark_surround(to_gray(frame.image), samples.uv)
 
 
 def slid_starts(pose: Pose, step: float, span: float) -> list[Pose]:

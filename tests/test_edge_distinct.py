@@ -99,3 +99,27 @@ def test_a_start_over_clutter_that_its_neighbours_match_as_well_stays_init(box, 
 
     assert first_step(0.0).pose is not None  # the edge tracker alone confirms it …
     assert first_step(HybridConfig().start_contrast).pose is None  # … the contrast test does not
+
+
+class TruthRegressor(FooledRegressor):
+    """A CNN that gives the true pose."""
+
+
+def test_off_black_space_a_start_that_only_the_edges_confirm_stays_init(box):
+    """``combined`` reports its cues: on the frame a start is checked on its texture cannot speak, and
+    where the part's colours do not stand out from a lit background its region cue has no verdict
+    either — the edges alone do not start the hybrid there. The tracker alone is not judged."""
+    from hybridpose.render.appearance import Appearance
+
+    for grey, starts in ((196, False), (150, True)):  # the part's brightest face's grey; a darker table
+        with Renderer(box, CAM) as r:
+            image = r.render(TRUTH, rng=0, appearance=Appearance(ambient=0.4, background=np.full(
+                (CAM.height, CAM.width, 3), grey, np.uint8))).rgb
+        frame = Frame(image, CAM, 0.0, 0)
+        tracker = registry.create("tracker", "combined", object=box)
+        est = HybridEstimator(tracker, TruthRegressor(TRUTH), registry.create("fusion", "ukf"))
+        assert (est.step(frame).pose is not None) == starts
+        assert set(tracker.cue_qualities) == ({"edges", "region"} if starts else {"edges"})
+        alone = registry.create("tracker", "combined", object=box)
+        alone.init(frame, TRUTH)
+        assert not alone.track(frame).lost

@@ -22,10 +22,6 @@ background's (not on black space with faces in shadow), edges always, with less 
 part (:func:`~hybridpose.edges.printed_faces`: the print's edges pull them). ``modalities``
 restricts the set.
 
-On the frame the tracker started on (a start the hybrid checks) the texture cue cannot speak, so
-where the region cue has no verdict either and the scene around the part is lit, the edges alone do
-not confirm it: quality 0 (a small outline laid on a keyboard's edge or a cable fits them as well).
-
 Quality below ``lost_quality`` (default 0.4) → ``lost``. No cue asks how much of the image the model
 explains: a print on the part or clutter behind it is no evidence against a right pose.
 """
@@ -39,7 +35,6 @@ import numpy as np
 
 from ..core import Frame, covariance_from_information
 from ..edges import ModelView, printed_faces, to_gray, to_gray8
-from ..edges.fit import dark_surround
 from ..edges.model_view import ID_SCALE
 from ..geometry import Pose
 from ..objects import ObjectModel
@@ -233,20 +228,7 @@ class CombinedTracker(Tracker):
                 and not np.isfinite(self.cue_qualities.get("texture", np.nan))):
             # a part that shows a print but none of it here: covered, or the pose is elsewhere
             self.cue_qualities["texture"] = 0.0
-        if self._edges_alone_in_clutter(frame, gray, pose):
-            return 0.0
         return self._vote(self.cue_qualities)
-
-    def _edges_alone_in_clutter(self, frame: Frame, gray: np.ndarray, pose: Pose) -> bool:
-        """Whether only the edges have a verdict on a fit of the frame the tracker started on (a start
-        the hybrid checks: the texture cue cannot speak there) with a lit scene around the part: a
-        small outline laid on a keyboard's edge or a cable crossing fits the edges as a right pose
-        does, so off black space the region cue must speak too. On black space the edges alone decide."""
-        speaking = {name for name, q in self.cue_qualities.items() if np.isfinite(q)}
-        if "texture" not in self._deaf or "region" not in self.modalities or speaking - {"edges"}:
-            return False
-        samples = self.view.visible_samples(pose, frame.camera, margin_px=2)
-        return len(samples.index) > 0 and not dark_surround(gray, samples.uv)
 
     def _vote(self, qualities: dict[str, float]) -> float:
         """The weighted mean of the cues' qualities that have a verdict (0 where none has)."""

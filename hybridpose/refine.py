@@ -107,7 +107,6 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
         many the tracker held and what to try).
     """
     from .fit import FULL_VIEW, IMAGE_SIZE, REFIT_LR, TRAIN_BATCH, held_out_accuracy, record_hybrid_policy
-    from .footage_check import _count_frames
     from .regressors.checkpoints import export_checkpoint, load_checkpoint
     from .tracking import read_frames
     from .training.evaluate import calibrate_checkpoint, evaluate_checkpoint
@@ -124,14 +123,23 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     t0 = time.perf_counter()
     how = f"`{tracker}` from your initial pose" if init_pose is not None else f"the hybrid (`{tracker}` and the fit's network)"
     progress(f"refine: tracking `{source}` with {how}")
-    poses = {f.index: p for f, p in labelled_frames(read_frames(source, camera), obj, checkpoint, tracker, init_pose)}
+    total = 0
+
+    def counted(frames):  # the video's length, from the labelling pass rather than another decode
+        nonlocal total
+        for frame in frames:
+            total += 1
+            yield frame
+
+    poses = {f.index: p for f, p in labelled_frames(counted(read_frames(source, camera)), obj, checkpoint, tracker,
+                                                    init_pose)}
     # the last share of the tracked frames is held back: a later stretch of the same footage
     order = sorted(poses)
     cut = order[int(round(len(order) * (1.0 - HELD_BACK)))] if order else 0
     n_train, n_held = sum(k < cut for k in order), sum(k >= cut for k in order)
     if n_train >= MIN_TRAIN_FRAMES:
         write_views(read_frames(source, camera), poses, obj, camera, roots, cut)
-    record = {"source": str(source), "frames": _count_frames(source), "held_back_from": cut, "tracker": tracker,
+    record = {"source": str(source), "frames": total, "held_back_from": cut, "tracker": tracker,
               "from_initial_pose": init_pose is not None, "train_frames": n_train, "held_back_frames": n_held,
               "minutes": {"track": (time.perf_counter() - t0) / 60}}
     if n_train < MIN_TRAIN_FRAMES:

@@ -69,6 +69,7 @@ def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_che
     record = refine_on_footage(fit_dir, scene / "rgb", truss, CAM, budget_min=0.05, tracker="edges", init_pose=first,
                                progress=lambda *_: None)
     tracked = record["train_frames"] + record["held_back_frames"]
+    assert record["frames"] == 48
     assert record["train_frames"] >= MIN_TRAIN_FRAMES and tracked <= 48
     assert record["held_back_frames"] == tracked - round(tracked * (1 - HELD_BACK))
     train, held = (BopScene(fit_dir / "refine" / "data" / s / "000000") for s in ("train", "held_back"))

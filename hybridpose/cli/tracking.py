@@ -469,8 +469,8 @@ def add_commands(sub) -> None:
     f.add_argument("--refine-on", default=None, metavar="VIDEO",
                    help="your own footage (video file or image folder, same camera): after the fit, the tracker "
                         "(--video-tracker) follows the part through it and the frames it holds with confidence "
-                        "refine the network (refine/best.pt); the last quarter of the video is held back and "
-                        "report.md gives the network's errors there before and after")
+                        "refine the network (refine/best.pt); the last quarter of those frames (a later stretch) is held "
+                        "back and report.md gives the network's errors there before and after")
     f.add_argument("--init-pose", default=None, metavar="FILE",
                    help="the part's pose in the --refine-on video's first frame (as for `track --init-pose`): the "
                         "tracker starts from it; without it, from the hybrid's own start")

@@ -7,8 +7,8 @@ import trimesh
 
 from hybridpose import Frame, HybridConfig, HybridEstimator, Measurement, registry
 from hybridpose.edges import ModelView, edge_support, placement_contrast
-from hybridpose.edges.distinct import PlacementContrast, slid
-from hybridpose.geometry import Camera, Pose
+from hybridpose.edges.distinct import PlacementContrast
+from hybridpose.geometry import Camera, Pose, shifted_in_image
 from hybridpose.objects import load_object
 from hybridpose.render import Renderer
 from hybridpose.render.appearance import Appearance
@@ -53,7 +53,7 @@ def test_a_right_pose_on_a_plain_table_stands_out(box, scene):
 def test_an_outline_laid_small_over_clutter_matches_edges_but_does_not_stand_out(box, scene):
     view = ModelView(box)
     # the part three times as far, over the tiles: what a CNN fooled by the clutter proposes
-    far = slid(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
+    far = shifted_in_image(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
     u = CAM.project(box.bbox_corners, far)[:, 0]
     assert u.min() > CAM.width // 2 + 40  # all of it over the tiles
     contrast = placement_contrast(view, scene, far)
@@ -89,7 +89,7 @@ class FooledRegressor:
 
 
 def test_a_start_over_clutter_that_its_neighbours_match_as_well_stays_init(box, scene):
-    far = slid(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
+    far = shifted_in_image(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
     fooled = FooledRegressor(far)
 
     def first_step(start_contrast):

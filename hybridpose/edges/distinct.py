@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import Frame
-from ..geometry import Pose
+from ..geometry import Pose, shifted_in_image
 from .fit import search_edges, to_gray
 from .model_view import ModelView
 
@@ -42,13 +42,6 @@ def edge_support(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | N
         return float("nan")
     offset, valid, _ = search_edges(gray, samples, SEARCH_PX)
     return float(np.mean(valid & (np.abs(offset) <= MATCH_PX)))
-
-
-def slid(pose: Pose, camera, dx_px: float, dy_px: float) -> Pose:
-    """``pose`` turned about the camera centre so that its projection moves by about (dx, dy) pixels:
-    the same view of the part, elsewhere in the image."""
-    K = camera.K
-    return Pose.from_rotvec_t([-dy_px / K[1, 1], dx_px / K[0, 0], 0.0], np.zeros(3)) @ pose
 
 
 @dataclass(frozen=True)
@@ -82,8 +75,8 @@ def placement_contrast(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarr
     around = []
     for ring, reach in enumerate(SLIDES):
         for angle in (np.arange(8) + 0.5 * ring) * np.pi / 4:
-            around.append(edge_support(view, frame, slid(pose, frame.camera, reach * size * np.cos(angle),
-                                                            reach * size * np.sin(angle)), gray))
+            dx, dy = reach * size * np.cos(angle), reach * size * np.sin(angle)
+            around.append(edge_support(view, frame, shifted_in_image(pose, frame.camera, dx, dy), gray))
     around = np.asarray(around)
     around = around[np.isfinite(around)]
     return PlacementContrast(here, float(np.percentile(around, NULL_PERCENTILE)) if len(around) else float("nan"))

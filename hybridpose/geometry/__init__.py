@@ -3,7 +3,7 @@
 Conventions: ``Pose`` is ``T_cam_obj`` (object → OpenCV camera frame, metres); quaternions are
 Hamilton (w, x, y, z); tangent vectors are ``[ω (rad), v (m)]`` with right perturbation.
 """
-from .camera import Camera, line_jacobian, parse_size, projection_jacobian, save_camera
+from .camera import Camera, line_jacobian, parse_size, projection_jacobian, save_camera, shifted_in_image
 from .camera_files import NoImageSize, load_camera
 from .checks import as_points3d, as_rotation_matrix, as_unit_direction, as_unit_quat, read_only
 from .pose import Pose

@@ -241,6 +241,13 @@ def _undistort_maps(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     return cv2.initUndistortRectifyMap(camera.K, np.asarray(camera.dist), None, camera.K, camera.size, cv2.CV_16SC2)
 
 
+def shifted_in_image(pose: Pose, camera: Camera, dx_px: float, dy_px: float) -> Pose:
+    """``pose`` turned about the camera centre so that its projection moves by about (dx, dy) pixels:
+    the same view of the object, elsewhere in the image."""
+    K = camera.K
+    return Pose.from_rotvec_t([-dy_px / K[1, 1], dx_px / K[0, 0], 0.0], np.zeros(3)) @ pose
+
+
 def save_camera(camera: Camera, path) -> None:
     Path(path).write_text(json.dumps(camera.to_dict(), indent=2))
 

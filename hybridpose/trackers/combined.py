@@ -36,7 +36,7 @@ import numpy as np
 from ..core import Frame, covariance_from_information
 from ..edges import ModelView, printed_faces, to_gray, to_gray8
 from ..edges.model_view import ID_SCALE
-from ..geometry import Pose
+from ..geometry import Pose, shifted_in_image
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
@@ -212,13 +212,11 @@ class CombinedTracker(Tracker):
         if coarse is None:
             return start
         shift = refine_shift(previous[0], small[0], box, seen[0], 2.0 * coarse)
-        K = frame.camera.K
         moved = frame.camera.project(self.object.bbox_corners, self.pose).mean(0) + shift / PATCH_SCALE
         delta = moved - frame.camera.project(self.object.bbox_corners, start).mean(0)
         if np.hypot(*delta) < 1.0 or np.hypot(*delta) > 2 * PATCH_REACH_PX:
             return start  # no motion, or a start from elsewhere (a CNN pose): the patch says nothing of it
-        turn = Pose.from_rotvec_t([-delta[1] / K[1, 1], delta[0] / K[0, 0], 0.0], np.zeros(3))
-        return turn @ start
+        return shifted_in_image(start, frame.camera, delta[0], delta[1])
 
     def _quality(self, frame: Frame, gray: np.ndarray, pose: Pose) -> float:
         self.cue_qualities = {c.name: c.quality(frame, gray, pose) for c in self.cues

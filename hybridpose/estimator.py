@@ -68,7 +68,7 @@ from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
-from .starts import confirmed_start, edges_alone_in_clutter, image_test
+from .starts import confirmed_start, cues_vouch, edges_alone_in_clutter, image_test
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -301,7 +301,8 @@ class HybridEstimator:
         if self.config.tracker_resumes:
             m = self._track_from(frame, prior.pose, timings)
             self.last_tracker = m
-            if not m.lost and self._timed(timings, "fusion", self.fusion.update, m):
+            vouched = cues_vouch(getattr(self.tracker, "cue_qualities", None), self.config.resume_cue_quality)
+            if not m.lost and vouched and self._timed(timings, "fusion", self.fusion.update, m):
                 # inside the gate: taken up, but the fusion starts over from the fit — the twist
                 # coasted through the loss is a guess, and after one update its spread still lets the
                 # next CNN check pull the track off by centimetres

@@ -46,6 +46,12 @@ class HybridConfig:
             prediction and takes up again by itself when its fit is not lost and passes the gate
             (the honest quality keeps it from taking up on the arm), and the fusion starts over from
             that fit with zero twist; False: only the CNN restarts it.
+        resume_cue_quality: such a take-up also needs every cue with a verdict to reach this
+            (:func:`~hybridpose.starts.cues_vouch`, for a tracker that reports its cues' verdicts):
+            the coasted prediction is where the track was lost, often under an occluder, and a fit
+            from there can lay the part's outline on what still shows of it (ViSP's MegaPose cube
+            half behind a mug: taken up 32° off with edges 0.79, texture 0.61 and region 0.48). 0:
+            the tracker's own lost threshold alone decides.
         retry_after: where the tracker loses the object from the fusion's prediction, a track that
             has run this many frames since its last (re)start tries once more from the tracker's
             previous pose; a fit there (not lost) starts the fusion over from it with zero twist. A
@@ -142,6 +148,7 @@ class HybridConfig:
     lost_after_rejections: int = 3
     lost_after_tracker_losses: int = 1
     tracker_resumes: bool = True
+    resume_cue_quality: float = 0.5
     retry_after: int | None = 3
     unstable_window: int = 20
     settle_frames: int = 0
@@ -200,6 +207,8 @@ class HybridConfig:
                              f"{self.start_depth_step}, {self.start_depth_span}")
         if not 0 <= self.start_turn_deg <= 45:
             raise ValueError(f"start_turn_deg: expected degrees in [0, 45] (0: off), got {self.start_turn_deg}")
+        if not 0 <= self.resume_cue_quality <= 1:
+            raise ValueError(f"resume_cue_quality: expected a cue quality in [0, 1] (0: off), got {self.resume_cue_quality}")
         if not 0 <= self.start_contrast <= 1:
             raise ValueError(f"start_contrast: expected a share of edge samples in [0, 1] (0: off), got {self.start_contrast}")
         if not 0 <= self.start_sure_quality <= 1:

@@ -98,6 +98,14 @@ def edges_alone_in_clutter(cue_qualities: dict | None, frame: Frame, view: Model
     return len(samples.index) > 0 and not dark_surround(to_gray(frame.image), samples.uv)
 
 
+def cues_vouch(cue_qualities: dict | None, bar: float) -> bool:
+    """Whether every cue with a verdict (``cue_qualities``: cue name → quality, NaN for none) reaches
+    ``bar``; True for a tracker that reports no cues, or with ``bar`` 0."""
+    if not cue_qualities or bar <= 0:
+        return True
+    return all(q >= bar for q in cue_qualities.values() if np.isfinite(q))
+
+
 def slid_starts(pose: Pose, step: float, span: float) -> list[Pose]:
     """``pose``, then ``pose`` with its distance scaled by 1 ± k·``step`` (k = 1, 2, …, up to
     ``span``), nearest first: a CNN pose's largest error is its depth."""

@@ -80,3 +80,48 @@ def test_load_object_errors(tmp_path):
         load_object("truss", scale=0)
     with pytest.raises(ValueError, match="mesh"):
         ObjectModel("empty", trimesh.Trimesh())
+
+
+def _printed_cube_files(folder, with_material=True):
+    """A cube OBJ whose +z face is mapped onto the whole of a four-colour image (OBJ + MTL + PNG)."""
+    import cv2
+
+    mesh = trimesh.creation.box((0.08, 0.08, 0.08))
+    uv = np.c_[(mesh.vertices[:, 0] + 0.04) / 0.08, (mesh.vertices[:, 1] + 0.04) / 0.08]
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv)
+    image = np.zeros((64, 64, 3), np.uint8)
+    image[:32, :32], image[:32, 32:], image[32:, :32], image[32:, 32:] = (255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)
+    lines = ["mtllib print.mtl", "usemtl print"] + [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices]
+    lines += [f"vt {u:.6f} {v:.6f}" for u, v in uv] + [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in mesh.faces + 1]
+    (folder / "cube.obj").write_text("\n".join(lines) + "\n")
+    if with_material:
+        (folder / "print.mtl").write_text("newmtl print\nKd 1 1 1\nmap_Kd print.png\n")
+        cv2.imwrite(str(folder / "print.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    return folder / "cube.obj", image
+
+
+def test_a_mesh_file_with_its_image_loads_as_a_printed_part(tmp_path):
+    path, image = _printed_cube_files(tmp_path)
+    cube = load_object(path)
+    assert np.array_equal(cube.texture, image)
+    assert cube.face_uv.shape == (len(cube.faces), 3, 2) and not cube.texture.flags.writeable
+    assert cube.symmetries == ()  # the print tells the cube's 24 look-alike poses apart
+    # each face corner keeps the coordinates it has in the file
+    corners = cube.vertices[cube.faces]
+    assert np.allclose(cube.face_uv, (corners[..., :2] + 0.04) / 0.08, atol=1e-5)
+
+
+def test_a_mesh_file_whose_material_is_missing_is_a_plain_part(tmp_path):
+    path, _ = _printed_cube_files(tmp_path, with_material=False)  # trimesh stands a grey 2 × 2 image in
+    cube = load_object(path)
+    assert cube.texture is None and cube.face_uv is None and len(cube.symmetries) == 23
+
+
+def test_a_print_needs_its_coordinates(tmp_path):
+    mesh = trimesh.creation.box((0.08, 0.08, 0.08))
+    with pytest.raises(ValueError, match="texture, face_uv"):
+        ObjectModel("cube", mesh, texture=np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(ValueError, match="face_uv"):
+        ObjectModel("cube", mesh, texture=np.zeros((4, 4, 3), np.uint8), face_uv=np.zeros((3, 3, 2)))
+    with pytest.raises(ValueError, match="texture: expected an"):
+        ObjectModel("cube", mesh, texture=np.zeros((4, 4)), face_uv=np.zeros((len(mesh.faces), 3, 2)))

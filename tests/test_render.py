@@ -109,3 +109,24 @@ def test_render_bad_input(truss, renderer):
         SpaceLighting(sun_direction_cam=(0, 0, 0))
     with pytest.raises(ValueError, match="distortion"):
         Renderer(truss, Camera(64, 48, 60, 60, 31.5, 23.5, (0.1, 0, 0, 0)))
+
+
+def test_a_printed_part_shows_its_print_the_way_up_the_mesh_file_maps_it(tmp_path):
+    from test_objects import _printed_cube_files
+
+    from hybridpose.objects import load_object
+    from hybridpose.render import Appearance
+
+    path, image = _printed_cube_files(tmp_path)
+    cube = load_object(path)
+    camera = Camera.default().scaled((320, 240))
+    # the +z face towards the camera, the object's +y up in the image (the camera's y points down)
+    pose = Pose.from_rotvec_t([np.pi, 0.0, 0.0], [0.0, 0.0, 0.3])
+    with Renderer(cube, camera) as r:
+        rgb = r.render(pose, appearance=Appearance(ambient=1.0)).rgb
+    # object (x, y) quarter → the image quarter it maps to (v counts up from the image's bottom row)
+    for (x, y), (row, col) in {(-1, 1): (0, 0), (1, 1): (0, 1), (-1, -1): (1, 0), (1, -1): (1, 1)}.items():
+        u, v = camera.project(np.array([[0.02 * x, 0.02 * y, 0.04]]), pose)[0]
+        expected = image[16 + 32 * row, 16 + 32 * col].astype(int)
+        seen = rgb[int(v), int(u)].astype(int)
+        assert np.argmax(seen) == np.argmax(expected) and np.abs(seen - expected).max() < 120, (x, y, seen, expected)

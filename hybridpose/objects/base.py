@@ -23,14 +23,21 @@ class ObjectModel:
             CNNs and PnP. Computed by :func:`default_keypoints` when not given.
         symmetries: the rotations ``S`` (object frame, as poses) that map the object onto itself, so
             that ``T_cam_obj @ S`` looks the same: metrics take the nearest (and ADD-S for ADD). None
-            (default): detected from the mesh (:func:`~hybridpose.objects.symmetry.discrete_symmetries`);
+            (default): detected from the mesh (:func:`~hybridpose.objects.symmetry.discrete_symmetries`),
+            none for a part with a ``texture`` (its print tells the shape's look-alike poses apart);
             () declares an asymmetric object.
+        texture: (H, W, 3) uint8 RGB image printed on the part through ``face_uv``, or None (a plain
+            part): the renderer draws it on the surface (a textured mesh file's own image).
+        face_uv: (M, 3, 2) float texture coordinates of each face's corners (``u`` right, ``v`` up
+            from the image's bottom row, as OBJ's ``vt``), given with ``texture``.
     """
 
     name: str
     mesh: trimesh.Trimesh
     keypoints: np.ndarray = field(default=None)
     symmetries: tuple = None
+    texture: np.ndarray = field(default=None, repr=False)
+    face_uv: np.ndarray = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.mesh, trimesh.Trimesh) or len(self.mesh.faces) == 0:
@@ -41,7 +48,10 @@ class ObjectModel:
         kp = kp.copy()
         kp.flags.writeable = False
         object.__setattr__(self, "keypoints", kp)
-        if self.symmetries is None:
+        self._check_texture()
+        if self.symmetries is None and self.texture is not None:
+            object.__setattr__(self, "symmetries", ())  # a print tells the shape's look-alike poses apart
+        elif self.symmetries is None:
             from .symmetry import discrete_symmetries
 
             object.__setattr__(self, "symmetries", discrete_symmetries(self.mesh))
@@ -52,6 +62,22 @@ class ObjectModel:
             if not all(isinstance(S, Pose) for S in syms):
                 raise ValueError("symmetries: expected a tuple of hybridpose Pose (object-frame rotations)")
             object.__setattr__(self, "symmetries", syms)
+
+    def _check_texture(self) -> None:
+        if (self.texture is None) != (self.face_uv is None):
+            raise ValueError("texture, face_uv: expected both (a print and where each face corner sits on it) or neither")
+        if self.texture is None:
+            return
+        tex, uv = np.asarray(self.texture), np.asarray(self.face_uv, dtype=np.float64)
+        if tex.ndim != 3 or tex.shape[2] != 3 or tex.dtype != np.uint8 or min(tex.shape[:2]) < 1:
+            raise ValueError(f"texture: expected an (H, W, 3) uint8 RGB image, got {tex.dtype} {tex.shape}")
+        if uv.shape != (len(self.mesh.faces), 3, 2) or not np.all(np.isfinite(uv)):
+            raise ValueError(f"face_uv: expected finite ({len(self.mesh.faces)}, 3, 2) texture coordinates "
+                             f"(one per face corner), got {uv.shape}")
+        tex = tex.copy()
+        tex.flags.writeable = False
+        object.__setattr__(self, "texture", tex)
+        object.__setattr__(self, "face_uv", read_only(uv))
 
     @property
     def symmetric(self) -> bool:

@@ -6,6 +6,7 @@ import logging
 import warnings
 from pathlib import Path
 
+import cv2
 import numpy as np
 import trimesh
 
@@ -18,6 +19,9 @@ log = logging.getLogger(__name__)
 # outside these bounds the file is almost surely in other units.
 MAX_PLAUSIBLE_DIAMETER_M = 5.0
 MIN_PLAUSIBLE_DIAMETER_M = 0.005  # smaller: the file is in other units (see above)
+# a mesh's print is kept at most this many pixels along its longer side: a part filling a 640 × 480 frame
+# shows a face a few hundred pixels across, and every render process holds its own copy
+MAX_TEXTURE_SIDE = 2048
 
 
 def load_builtin(name) -> ObjectModel | None:
@@ -31,6 +35,24 @@ def _load_mesh(path: Path) -> trimesh.Trimesh:
         return trimesh.load(path, force="mesh")
     except Exception as exc:  # noqa: BLE001 — any loader error becomes one message naming the file
         raise ValueError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
+
+
+def mesh_print(mesh: trimesh.Trimesh) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The image a textured mesh carries and its faces' corners on it: ((H, W, 3) uint8 RGB, (M, 3, 2)
+    texture coordinates), or (None, None) for a mesh without one — no UV coordinates, no image, or a
+    uniform one (trimesh gives an OBJ whose material file is missing a 2 × 2 grey stand-in)."""
+    visual = getattr(mesh, "visual", None)
+    uv = getattr(visual, "uv", None)
+    image = getattr(getattr(visual, "material", None), "image", None)
+    if uv is None or image is None or len(uv) != len(mesh.vertices):
+        return None, None
+    rgb = np.asarray(image.convert("RGB"), dtype=np.uint8)
+    if rgb.size == 0 or np.all(rgb == rgb.reshape(-1, 3)[0]):
+        return None, None
+    if max(rgb.shape[:2]) > MAX_TEXTURE_SIDE:
+        f = MAX_TEXTURE_SIDE / max(rgb.shape[:2])
+        rgb = cv2.resize(rgb, (max(1, round(rgb.shape[1] * f)), max(1, round(rgb.shape[0] * f))), interpolation=cv2.INTER_AREA)
+    return rgb, np.asarray(uv, dtype=np.float64)[np.asarray(mesh.faces)]
 
 
 def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symmetries=None) -> ObjectModel:
@@ -73,6 +95,7 @@ def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symme
         raise ValueError(f"{path}: no triangles found; expected a mesh file trimesh can read (.obj, .ply, .stl)")
     if not np.all(np.isfinite(mesh.vertices)):
         raise ValueError(f"{path}: vertices contain NaN or inf")
+    texture, face_uv = mesh_print(mesh)  # before merging: a seam's corners keep their own coordinates
     if not mesh.is_watertight:
         # a textured mesh splits its vertices along UV seams, and each seam becomes an open outline;
         # the geometry is one surface (silhouettes and creases need it whole)
@@ -81,7 +104,7 @@ def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symme
         if len(boundary_edges(merged)[0]) < len(boundary_edges(mesh)[0]):
             mesh = merged
     mesh.apply_scale(scale)
-    model = ObjectModel(name or path.stem, mesh, symmetries=symmetries)
+    model = ObjectModel(name or path.stem, mesh, symmetries=symmetries, texture=texture, face_uv=face_uv)
     d = model.diameter
     if d > MAX_PLAUSIBLE_DIAMETER_M:
         warnings.warn(

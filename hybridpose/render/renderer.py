@@ -14,6 +14,7 @@ if os.environ["MUJOCO_GL"] == "egl":
 
 from dataclasses import dataclass  # noqa: E402
 
+import cv2  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -74,6 +75,16 @@ def _quat_z_to(axis: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
+PRINT_FILE = "object_print.png"  # the part's print, handed to MuJoCo as an in-memory asset
+
+
+def _png(rgb: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise ValueError("texture: OpenCV could not encode the part's print as PNG")
+    return buf.tobytes()
+
+
 def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_size: int = 2048) -> str:
     """The MJCF scene: camera at the origin, one directional sun, the object and the arm (mocap)."""
     w, h = camera.width, camera.height
@@ -81,6 +92,14 @@ def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_
     # instead of averaging normals across the 90° creases of the beams
     v = obj.vertices[obj.faces].reshape(-1, 3)
     f = np.arange(len(v)).reshape(-1, 3)
+    # a part with a print: the image on its surface (OBJ's v counts up from the image's bottom row,
+    # MuJoCo's texture rows from the top: tests/test_render.py checks the way up end to end)
+    printed = obj.texture is not None
+    texcoord = f' texcoord="{_fmt(np.c_[obj.face_uv[..., 0].ravel(), 1.0 - obj.face_uv[..., 1].ravel()])}"' if printed else ""
+    print_asset = (f'\n    <texture name="object_print" type="2d" file="{PRINT_FILE}"/>' if printed else "")
+    material = ('<material name="object_metal" texture="object_print" rgba="1 1 1 1" specular="0.3" shininess="0.3" reflectance="0"/>'
+                if printed else
+                '<material name="object_metal" rgba="0.78 0.78 0.80 1" specular="0.9" shininess="0.7" reflectance="0"/>')
     # a directional light in MuJoCo projects its shadow map around its position; we move the
     # light with the object each frame (see Renderer.render), the clip box spans the arm too.
     # lights besides the sun for scenes outside space (render(..., appearance=...)); dark unless asked
@@ -106,8 +125,8 @@ def scene_xml(obj: ObjectModel, camera: Camera, lighting: SpaceLighting, shadow_
     <rgba haze="0 0 0 1"/>
   </visual>
   <asset>
-    <mesh name="object" vertex="{_fmt(v)}" face="{_fmt(f)}"/>
-    <material name="object_metal" rgba="0.78 0.78 0.80 1" specular="0.9" shininess="0.7" reflectance="0"/>
+    <mesh name="object" vertex="{_fmt(v)}" face="{_fmt(f)}"{texcoord}/>{print_asset}
+    {material}
     <material name="arm_paint" rgba="0.85 0.85 0.82 1" specular="0.3" shininess="0.3" reflectance="0"/>
     <material name="tool_metal" rgba="0.45 0.45 0.48 1" specular="0.8" shininess="0.6" reflectance="0"/>
   </asset>
@@ -215,7 +234,8 @@ class Renderer:
         self.obj, self.camera = obj, camera
         self.lighting = lighting or SpaceLighting()
         self.sensor = sensor or SensorModel()
-        self._model = mujoco.MjModel.from_xml_string(scene_xml(obj, camera, self.lighting, shadow_size))
+        assets = {PRINT_FILE: _png(obj.texture)} if obj.texture is not None else None
+        self._model = mujoco.MjModel.from_xml_string(scene_xml(obj, camera, self.lighting, shadow_size), assets)
         self._data = mujoco.MjData(self._model)
         self._gl = _OffscreenGL(self._model, camera.width, camera.height)
         m = self._model
@@ -284,7 +304,8 @@ class Renderer:
         # the ambient term rides on the first fill light: it lights every face whatever the sun does
         self._model.light_ambient[self._fills[0]] = (look.ambient,) * 3
         rgba = self._object_rgba.copy()
-        if look.object_rgb is not None:
+        # a part with its own print keeps the print's colours (white balance varies them in the image)
+        if look.object_rgb is not None and self.obj.texture is None:
             rgba[:3] = look.object_rgb
         self._model.mat_rgba[self._object_material] = rgba
 

@@ -309,3 +309,23 @@ def test_find_scenes_reads_a_folder_of_rendered_datasets(random_ds, tmp_path):
     found = find_scenes(tmp_path / "many")
     assert [p.relative_to(tmp_path / "many").parts[0] for p in found] == ["a_seq", "b_seq"]
     assert find_scenes(tmp_path / "many" / "a_seq") == [found[0]]
+
+
+def test_a_dataset_of_a_mesh_named_like_a_built_in_keeps_its_own_mesh_and_symmetries(tmp_path):
+    """A user's printed ``cube.obj`` shares the built-in cube's name, not its mesh, size or (printed:
+    none) symmetries; the training reads back the dataset's own model."""
+    import trimesh
+
+    from hybridpose.datasets.bop import dataset_object, write_models
+    from hybridpose.objects import ObjectModel, load_builtin
+
+    mine = ObjectModel("cube", trimesh.creation.box((0.0845,) * 3).subdivide(), symmetries=())
+    write_models(tmp_path, mine)
+    (tmp_path / "hybridpose.json").write_text(json.dumps({"object": "cube"}))
+    back = dataset_object(tmp_path)
+    assert back.name != "cube" and len(back.faces) == len(mine.faces) and back.symmetries == ()
+    assert np.allclose(back.extents, mine.extents)
+    builtin = load_builtin("cube")  # the built-in's own dataset still gets the built-in back
+    write_models(tmp_path, builtin)
+    back = dataset_object(tmp_path)
+    assert back.name == "cube" and len(back.symmetries) == 23 and np.allclose(back.keypoints, builtin.keypoints)

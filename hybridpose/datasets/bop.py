@@ -62,10 +62,11 @@ def write_models(root, obj) -> None:
     lo, hi = obj.bbox_min * MM_PER_M, obj.bbox_max * MM_PER_M
     info = {str(OBJ_ID): {"diameter": obj.diameter * MM_PER_M, "min_x": lo[0], "min_y": lo[1], "min_z": lo[2],
                           "size_x": hi[0] - lo[0], "size_y": hi[1] - lo[1], "size_z": hi[2] - lo[2], "name": obj.name}}
-    if obj.symmetric:  # BOP's form: row-major 4×4, translation in mm
-        info[str(OBJ_ID)]["symmetries_discrete"] = [
-            np.r_[S.R.ravel()[:3], S.t[0] * MM_PER_M, S.R.ravel()[3:6], S.t[1] * MM_PER_M, S.R.ravel()[6:],
-                  S.t[2] * MM_PER_M, 0.0, 0.0, 0.0, 1.0].tolist() for S in obj.symmetries]
+    # BOP's form: row-major 4×4, translation in mm; written also when empty, so that a reader knows the
+    # object was declared asymmetric (a printed cube) rather than left to its mesh's shape
+    info[str(OBJ_ID)]["symmetries_discrete"] = [
+        np.r_[S.R.ravel()[:3], S.t[0] * MM_PER_M, S.R.ravel()[3:6], S.t[1] * MM_PER_M, S.R.ravel()[6:],
+              S.t[2] * MM_PER_M, 0.0, 0.0, 0.0, 1.0].tolist() for S in obj.symmetries]
     atomic_write_json(Path(root) / "models" / "models_info.json", info)
 
 
@@ -297,12 +298,22 @@ def read_symmetries(info_path, obj_id: int = OBJ_ID):
     return tuple(out)
 
 
+def _same_model(obj, model_path: Path) -> bool:
+    """Whether the BOP model ``model_path`` (mm) is ``obj``'s mesh: a user's ``cube.obj`` carries a
+    built-in's name, not its mesh (the same face count and bounds, to 1 µm)."""
+    import trimesh
+
+    mesh = trimesh.load(model_path, force="mesh", process=False)
+    return (len(mesh.faces) == len(obj.faces)
+            and np.allclose(np.asarray(mesh.bounds) / MM_PER_M, [obj.bbox_min, obj.bbox_max], atol=1e-6))
+
+
 def dataset_object(root, object_name: str | None = None):
     """The object a dataset was rendered with: ``object_name`` (built-in name or mesh path) when
     given, else the dataset's own BOP model ``models/obj_000001.ply`` (millimetres → metres).
 
-    A dataset rendered from a registered built-in object (its name in ``hybridpose.json``) gets that
-    object back, with its own keypoints, rather than the re-read mesh.
+    A dataset rendered from a registered built-in object (its name in ``hybridpose.json`` and its
+    mesh in ``models/``) gets that object back, with its own keypoints, rather than the re-read mesh.
     """
     from ..objects import load_builtin, load_object
 
@@ -311,9 +322,9 @@ def dataset_object(root, object_name: str | None = None):
         return load_object(object_name)
     config = root / "hybridpose.json"
     builtin = load_builtin(json.loads(config.read_text()).get("object")) if config.is_file() else None
-    if builtin is not None:
-        return builtin
     model_path = root / "models" / "obj_000001.ply"
+    if builtin is not None and (not model_path.is_file() or _same_model(builtin, model_path)):
+        return builtin
     if model_path.is_file():
         return load_object(model_path, scale=0.001, name="obj_000001",  # BOP models are in mm
                            symmetries=read_symmetries(root / "models" / "models_info.json"))

@@ -23,9 +23,8 @@ class ObjectModel:
             CNNs and PnP. Computed by :func:`default_keypoints` when not given.
         symmetries: the rotations ``S`` (object frame, as poses) that map the object onto itself, so
             that ``T_cam_obj @ S`` looks the same: metrics take the nearest (and ADD-S for ADD). None
-            (default): detected from the mesh (:func:`~hybridpose.objects.symmetry.discrete_symmetries`),
-            none for a part with a ``texture`` (its print tells the shape's look-alike poses apart);
-            () declares an asymmetric object.
+            (default): detected from the mesh's shape (:func:`~hybridpose.objects.symmetry.discrete_symmetries`),
+            a ``texture`` or not; () declares an asymmetric object.
         texture: (H, W, 3) uint8 RGB image printed on the part through ``face_uv``, or None (a plain
             part): the renderer draws it on the surface (a textured mesh file's own image).
         face_uv: (M, 3, 2) float texture coordinates of each face's corners (``u`` right, ``v`` up
@@ -49,9 +48,7 @@ class ObjectModel:
         kp.flags.writeable = False
         object.__setattr__(self, "keypoints", kp)
         self._check_texture()
-        if self.symmetries is None and self.texture is not None:
-            object.__setattr__(self, "symmetries", ())  # a print tells the shape's look-alike poses apart
-        elif self.symmetries is None:
+        if self.symmetries is None:
             from .symmetry import discrete_symmetries
 
             object.__setattr__(self, "symmetries", discrete_symmetries(self.mesh))

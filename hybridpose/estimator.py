@@ -68,7 +68,7 @@ from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
-from .starts import confirmed_start, cues_vouch, edges_alone_in_clutter, image_test
+from .starts import confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -141,6 +141,7 @@ class HybridEstimator:
         # the start's image test slides the model's edges across the frame; a tracker without a CAD
         # model (a user's own backend) leaves nothing to slide
         self._view = ModelView(self.object) if self.object is not None else None
+        self._print = print_view(self._view)  # a printed part's print checks its starts
         self.reset()
 
     @classmethod
@@ -348,7 +349,8 @@ class HybridEstimator:
             alone = self._view is not None and not m.lost and edges_alone_in_clutter(cues, frame, self._view, m.pose)
             return None if alone else m
 
-        stands_out = image_test(self._view, frame, self.config.start_contrast)
+        stands_out = image_test(self._view, frame, self.config.start_contrast, self._print,
+                                self.config.start_print_margin)
         return confirmed_start(m, fit, self.config, depth_search, stands_out)
 
     @staticmethod

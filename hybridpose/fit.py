@@ -473,8 +473,7 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"- Rendered {p['train_views']} training and {p['test_views']} held-out views ("
         + ("black space and the sun alone" if req.get("look") == "space" else "random backgrounds, lights, colours and camera effects")
         + f"; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away"
-        + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views"
-           if req.get("occluded_share") else "")
+        + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views" if req.get("occluded_share") else "")
         + ("; the part's own print, from its mesh file" if obj.texture is not None else "")
         + (f"; a random print on it in {req['textured_share']:.0%} of the training views"
            if req.get("textured_share") else "") + ").",

@@ -109,6 +109,12 @@ class HybridConfig:
             next to nothing (black space). A small part's outline laid on a keyboard or a cable
             crossing matches as many edges as a right pose of a printed part, but so do the
             placements beside it (0: off).
+        start_print_margin: for a part that carries its print (:attr:`~hybridpose.objects.ObjectModel.
+            texture`), a start's fit must also show it: among the fit's pose and its equivalents under
+            the shape's symmetries, the print's correlation with the image must single out one by
+            this much (:func:`~hybridpose.edges.print_match.print_agreement`). On ViSP's MegaPose cube
+            video a fit's network put the printed cube on a bottle's label 1 m away and inside one of
+            its own faces, where the edges and region cues confirmed it (0: off).
         cnn_search_px: how far (px) a tracker fit started from a CNN pose (a start, a check) searches
             for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
             0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
@@ -167,6 +173,7 @@ class HybridConfig:
     start_turn_deg: float = 4.0
     start_sure_quality: float = 0.8
     start_contrast: float = 0.3
+    start_print_margin: float = 0.2
     cnn_search_px: float = 12.0
     sun_in_cnn_fits: bool = True
     keep_quality: float | None = 0.4
@@ -209,6 +216,8 @@ class HybridConfig:
             raise ValueError(f"start_turn_deg: expected degrees in [0, 45] (0: off), got {self.start_turn_deg}")
         if not 0 <= self.resume_cue_quality <= 1:
             raise ValueError(f"resume_cue_quality: expected a cue quality in [0, 1] (0: off), got {self.resume_cue_quality}")
+        if not 0 <= self.start_print_margin <= 2:
+            raise ValueError(f"start_print_margin: expected a correlation difference in [0, 2] (0: off), got {self.start_print_margin}")
         if not 0 <= self.start_contrast <= 1:
             raise ValueError(f"start_contrast: expected a share of edge samples in [0, 1] (0: off), got {self.start_contrast}")
         if not 0 <= self.start_sure_quality <= 1:

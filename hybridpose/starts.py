@@ -16,6 +16,7 @@ import numpy as np
 from .core import Frame, Measurement
 from .edges import ModelView, placement_contrast, to_gray
 from .edges.fit import dark_surround
+from .edges.print_match import PrintView, print_agreement
 from .fusion.base import pose_mahalanobis2
 from .geometry import Pose, rotvec_to_matrix
 from .hybrid_config import HybridConfig
@@ -74,13 +75,35 @@ def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, confi
     return best
 
 
-def image_test(view: ModelView | None, frame: Frame, margin: float) -> StandsOut | None:
-    """The ``stands_out`` test of :func:`confirmed_start` in ``frame``: a pose's
-    :func:`~hybridpose.edges.placement_contrast` with ``margin`` (``start_contrast``); None (no test)
-    without a model view or with ``margin`` 0."""
-    if view is None or margin <= 0:
+def print_view(view: ModelView | None) -> PrintView | None:
+    """The :class:`~hybridpose.edges.print_match.PrintView` of ``view``'s object where it carries a print
+    that maps onto its facets; None otherwise (no print check)."""
+    if view is None or view.object.texture is None:
         return None
-    return lambda pose: placement_contrast(view, frame, pose).stands_out(margin)
+    try:
+        return PrintView(view)
+    except ValueError:  # no facet maps affinely onto the print (a curved unwrap)
+        return None
+
+
+def image_test(view: ModelView | None, frame: Frame, margin: float, print_view: PrintView | None = None,
+               print_margin: float = 0.0) -> StandsOut | None:
+    """The ``stands_out`` test of :func:`confirmed_start` in ``frame``: a pose's
+    :func:`~hybridpose.edges.placement_contrast` with ``margin`` (``start_contrast``) and, for a
+    printed part (``print_view``), :func:`~hybridpose.edges.print_match.print_agreement` singling out
+    one of its equivalent poses by ``print_margin`` (``start_print_margin``); None (no test) without
+    a model view or with both margins 0."""
+    contrast = view is not None and margin > 0
+    printed = print_view is not None and print_margin > 0
+    if not contrast and not printed:
+        return None
+
+    def stands_out(pose: Pose) -> bool:
+        if contrast and not placement_contrast(view, frame, pose).stands_out(margin):
+            return False
+        return not printed or print_agreement(print_view, frame, pose).singles_out(print_margin)
+
+    return stands_out
 
 
 def edges_alone_in_clutter(cue_qualities: dict | None, frame: Frame, view: ModelView, pose: Pose) -> bool:

@@ -1,0 +1,77 @@
+"""A printed part's print at a pose (edges.print_match) against MuJoCo renders of it: the right pose
+shows it and singles out its branch among the shape's equivalent poses; the outline laid elsewhere
+does not."""
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from hybridpose.core import Frame
+from hybridpose.edges import ModelView
+from hybridpose.edges.print_match import PrintView, print_agreement
+from hybridpose.geometry import Camera, Pose
+from hybridpose.objects import ObjectModel
+from hybridpose.render import Appearance, Renderer
+from hybridpose.render.appearance import clutter_background
+
+CAM = Camera.default().scaled((320, 240))
+
+
+@pytest.fixture(scope="module")
+def printed_cube():
+    """A 6-cm cube whose faces are unwrapped into the six cells of a 3 × 2 print of random blocks."""
+    rng = np.random.default_rng(4)
+    mesh = trimesh.creation.box((0.06, 0.06, 0.06))
+    image = cv2.resize(rng.integers(0, 255, (12, 18, 3)).astype(np.uint8), (384, 256), interpolation=cv2.INTER_NEAREST)
+    uv = np.zeros((len(mesh.faces), 3, 2))
+    for k, normal in enumerate(np.asarray(mesh.face_normals)):
+        axis = int(np.argmax(np.abs(normal)))
+        cell = 2 * axis + (normal[axis] > 0)
+        a, b = [i for i in range(3) if i != axis]
+        corners = mesh.vertices[mesh.faces[k]]
+        local = (corners[:, [a, b]] + 0.03) / 0.06          # 0..1 across the face
+        uv[k] = (np.c_[(cell % 3 + local[:, 0]) / 3, (cell // 3 + local[:, 1]) / 2]) * 0.98 + 0.01
+    return ObjectModel("printed-cube", mesh, texture=image, face_uv=uv)
+
+
+def _frame(obj, pose, background):
+    with Renderer(obj, CAM) as r:
+        rgb = r.render(pose, appearance=Appearance(ambient=0.8, fill_lights=(((0.0, 0.0, 1.0), 0.4),),
+                                                    background=background)).rgb
+    return Frame(rgb, CAM, 0.0, 0)
+
+
+def test_the_right_pose_shows_the_print_and_picks_its_branch(printed_cube):
+    pose = Pose.from_rotvec_t([0.5, -0.4, 0.3], [0.0, 0.0, 0.35])
+    background = clutter_background(CAM.width, CAM.height, np.random.default_rng(1))
+    frame = _frame(printed_cube, pose, background)
+    view = PrintView(ModelView(printed_cube))
+    assert view.score(frame, pose) > 0.6
+    shape_twins = ObjectModel("cube", printed_cube.mesh)  # the same shape, its 23 look-alike poses
+    twin = PrintView(ModelView(ObjectModel("printed-cube", printed_cube.mesh, symmetries=shape_twins.symmetries,
+                                           texture=printed_cube.texture, face_uv=printed_cube.face_uv)))
+    agreement = print_agreement(twin, frame, pose)
+    assert agreement.singles_out(0.2) and agreement.branch.allclose(Pose.identity(), atol=1e-9)
+    # a look-alike pose of the shape shows another face's print: the print gives it away
+    turned = pose @ shape_twins.symmetries[0]
+    assert view.score(frame, turned) < 0.3
+    # the same outline laid over the clutter beside the part
+    beside = Pose(pose.R, pose.t + np.array([0.09, 0.0, 0.0]))
+    assert not print_agreement(twin, frame, beside).singles_out(0.2)
+
+
+def test_a_plain_part_has_no_print_view():
+    with pytest.raises(ValueError, match="carries no print"):
+        PrintView(ModelView(ObjectModel("cube", trimesh.creation.box((0.06,) * 3))))
+
+
+def test_a_start_of_a_printed_part_must_show_its_print(printed_cube):
+    from hybridpose.starts import image_test, print_view
+
+    pose = Pose.from_rotvec_t([0.2, 0.6, -0.1], [0.01, 0.0, 0.3])
+    frame = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(2)))
+    view = ModelView(printed_cube)
+    test = image_test(view, frame, 0.0, print_view(view), 0.2)  # the print alone (no placement contrast)
+    assert test(pose) and not test(Pose(pose.R, pose.t + np.array([-0.08, 0.02, 0.0])))
+    assert image_test(view, frame, 0.0, print_view(view), 0.0) is None  # both off: no test
+    assert print_view(ModelView(ObjectModel("cube", trimesh.creation.box((0.06,) * 3)))) is None

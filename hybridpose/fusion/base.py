@@ -107,7 +107,16 @@ class Fusion(ABC):
             raise ValueError(f"timestamp: {timestamp:.6f} s is before the current {self.timestamp:.6f} s "
                              "(timestamps must not decrease)")
         if timestamp > self.timestamp:
-            self._predict(float(timestamp) - self.timestamp, float(timestamp))
+            dt = float(timestamp) - self.timestamp
+            try:
+                self._predict(dt, float(timestamp))
+            except (np.linalg.LinAlgError, RuntimeError):
+                # a coast of seconds with no measurement (the object lost: ≈ 9 s at 30 fps) leaves the
+                # pose next to no information: the UKF's sigma points go indefinite, gtsam finds the
+                # system indeterminate. The belief starts over at the constant-velocity prediction,
+                # with the spread it had
+                pose, cov, twist = self._state()
+                self._reset(pose.retract(twist * dt), cov, float(timestamp), twist)
             self.timestamp = float(timestamp)
         return self.estimate
 

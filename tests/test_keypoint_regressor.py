@@ -1419,3 +1419,13 @@ def test_eval_scores_a_symmetric_part_against_its_nearest_equivalent_pose(tmp_pa
     assert far["rot_deg"] == pytest.approx(180.0, abs=1e-6)
     assert far["add_m"] == pytest.approx(add(truth @ Pose.from_rotvec_t([0, 0, np.pi], [0, 0, 0]), truth,
                                              truss.sample_surface(300, rng=0)))
+
+
+def test_a_checkpoint_of_a_mesh_named_like_a_built_in_does_not_get_the_built_in():
+    from hybridpose.objects import load_builtin
+    from hybridpose.regressors.checkpoint_checks import builtin_object
+
+    cube = load_builtin("cube")
+    assert builtin_object({"object": "cube", "diameter_m": cube.diameter}).name == "cube"
+    assert builtin_object({"object": "cube", "diameter_m": 0.14636}) is None  # ViSP's 8.45-cm cube.obj
+    assert builtin_object({"object": "my_part", "diameter_m": 0.2}) is None

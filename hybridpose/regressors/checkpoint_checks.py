@@ -31,6 +31,17 @@ def regressor_checkpoint(path, expect_model: str | None = None) -> dict:
     return ck
 
 
+def builtin_object(dataset: dict):
+    """The built-in object a checkpoint was trained on (``dataset``: its training set's record), or None
+    where the record names none — or names one whose diameter its object did not have (a user's
+    ``cube.obj`` carries the built-in cube's name, not its mesh)."""
+    from ..objects import load_builtin
+
+    obj = load_builtin(dataset.get("object"))
+    d = dataset.get("diameter_m")
+    return obj if obj is not None and (d is None or abs(obj.diameter - d) <= 1e-6) else None
+
+
 def check_object(dataset: dict, path, obj) -> None:
     """ValueError unless ``obj`` has the diameter of the object the checkpoint at ``path`` was trained on
     (``dataset``: its training set's record)."""

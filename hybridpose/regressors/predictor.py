@@ -29,7 +29,7 @@ from ..objects import view_elevation_deg
 from ..registry import register
 from .base import PoseRegressor, check_roi
 from .checkpoints import WEIGHTS_DIR, shipped_checkpoint
-from .checkpoint_checks import check_camera, check_object, regressor_checkpoint
+from .checkpoint_checks import builtin_object, check_camera, check_object, regressor_checkpoint
 from .calibration import SIGMA_FLOOR_PX, UNCALIBRATED_SCALE, pnp_covariance, quality_factor, uncalibrated_record
 from .detection import detect_dim_object
 from .direct import bounded_image, direct_pose
@@ -146,9 +146,7 @@ class CheckpointRegressor(PoseRegressor):
             check_object(self.dataset, self.path, object)
         self.twin_check = None
         if (opts.check_twins or opts.refine_edges) and self.kind == "keypoints":
-            from ..objects import load_builtin
-
-            obj = object if object is not None else load_builtin(self.dataset.get("object"))
+            obj = object if object is not None else builtin_object(self.dataset)
             if obj is not None:
                 from .verify import TwinCheck
 
@@ -232,9 +230,7 @@ class CheckpointRegressor(PoseRegressor):
             raise ValueError(f"edge_on_expert: {path} is not a keypoint model for the keypoints and twins of "
                              f"{self.path}" + ("" if reg.has_twin_head or not self.has_twin_head else " (no twin head)"))
         if obj is None:
-            from ..objects import load_builtin
-
-            obj = self.twin_check.view.object if self.twin_check is not None else load_builtin(self.dataset.get("object"))
+            obj = self.twin_check.view.object if self.twin_check is not None else builtin_object(self.dataset)
         if obj is None:
             raise ValueError(f"edge_on_expert: gating it needs the model of the object {self.path} was trained on "
                              f"({self.dataset.get('object')!r}): pass object=")

@@ -75,3 +75,13 @@ def test_a_start_of_a_printed_part_must_show_its_print(printed_cube):
     assert test(pose) and not test(Pose(pose.R, pose.t + np.array([-0.08, 0.02, 0.0])))
     assert image_test(view, frame, 0.0, print_view(view), 0.0) is None  # both off: no test
     assert print_view(ModelView(ObjectModel("cube", trimesh.creation.box((0.06,) * 3)))) is None
+
+
+def test_the_equivalent_poses_scored_from_one_raster_are_those_scored_one_by_one(printed_cube):
+    shape_twins = ObjectModel("cube", printed_cube.mesh).symmetries
+    view = PrintView(ModelView(ObjectModel("printed-cube", printed_cube.mesh, symmetries=shape_twins,
+                                           texture=printed_cube.texture, face_uv=printed_cube.face_uv)))
+    pose = Pose.from_rotvec_t([0.3, 0.5, -0.2], [0.0, 0.01, 0.32])
+    frame = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(3)))
+    one_by_one = [view.score(frame, pose @ S) for S in view.branches]
+    assert np.allclose(view.branch_scores(frame, pose), one_by_one, atol=1e-9, equal_nan=True)

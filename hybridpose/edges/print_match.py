@@ -59,40 +59,71 @@ class PrintView:
         if not np.isfinite(self.maps).any():
             raise ValueError(f"object: no facet of {obj.name!r} maps affinely onto its print (a curved unwrap)")
 
+        # the shape's symmetries permute its facets: the pose's equivalents are scored from one raster
+        self.branches = (Pose.identity(), *obj.symmetries)
+        ids = np.unique(view.facet_of)
+        centroids = np.zeros((len(view.plane_point), 3))
+        for fid in ids:
+            centroids[fid] = view.triangles[view.facet_of == fid].reshape(-1, 3).mean(0)
+        self._facets_of_branch = []
+        for S in self.branches:
+            seen = S.inverse() @ centroids[ids]  # where each facet's centre lies on the part turned by S
+            perm = np.zeros(len(view.plane_point), np.int64)
+            perm[ids] = ids[np.argmin(np.linalg.norm(seen[:, None] - centroids[ids][None], axis=2), axis=1)]
+            self._facets_of_branch.append(perm)
+
     def score(self, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> float:
         """Pixel-weighted mean over the visible facets of the correlation (−1..1) between the grey
         image (``gray``: (H, W) float32, computed when None) and the grey print at ``pose``; NaN where
         fewer than ``MIN_FACET_PIXELS`` pixels of any mapped facet show."""
+        return float(self.branch_scores(frame, pose, gray, branches=[0])[0])
+
+    def branch_scores(self, frame: Frame, pose: Pose, gray: np.ndarray | None = None, branches=None) -> np.ndarray:
+        """:meth:`score` of ``pose @ S`` for each ``S`` of :attr:`branches` (indices ``branches``; all
+        where None), from one raster of ``pose``: the pixel that sees point ``X`` at ``pose`` sees
+        ``S⁻¹ X`` at ``pose @ S``, on the facet ``S⁻¹`` takes ``X``'s to."""
         camera = frame.camera
+        branches = range(len(self.branches)) if branches is None else branches
         ids = self.view.facet_ids(pose, camera, scale=1.0)
         k = np.ones((2 * BORDER_PX + 1,) * 2, np.uint8)
-        inner = (ids > 0) & (cv2.dilate(ids, k) == cv2.erode(ids, k)) & np.isfinite(self.maps[ids, 0, 0])
+        inner = (ids > 0) & (cv2.dilate(ids, k) == cv2.erode(ids, k))
         ys, xs = np.nonzero(inner)
         if len(xs) == 0:
-            return float("nan")
+            return np.full(len(branches), np.nan)
         step = max(1, len(xs) // MAX_PIXELS)
         ys, xs = ys[::step], xs[::step]
         f = ids[ys, xs].astype(np.int64)
-        h, w = self.levels[0].shape
-        texels = []
+        points = []
         for dx, dy in ((0, 0), (1, 0), (0, 1)):  # the pixel and its neighbours: texels per pixel
             X, ok_d = self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(np.float64), ids=ids)
-            uv = np.einsum("nk,nkj->nj", np.c_[X, np.ones(len(X))], self.maps[f])
-            texels.append(uv * (w, h))
+            points.append(X)
             ok = ok_d if dx == dy == 0 else ok
+        seen = (to_gray(frame.image) if gray is None else gray)[ys, xs].astype(np.float64)
+        out = []
+        for b in branches:
+            S_inv = self.branches[b].inverse()
+            f_b = self._facets_of_branch[b][f]
+            out.append(self._correlation(seen, f_b, [S_inv @ X for X in points], ok & np.isfinite(self.maps[f_b, 0, 0])))
+        return np.array(out)
+
+    def _correlation(self, seen: np.ndarray, f: np.ndarray, points: list, ok: np.ndarray) -> float:
+        """The facet-by-facet correlation of the grey values ``seen`` (N,) with the print at the model
+        points ``points`` (the pixel's and its two neighbours', each (N, 3)) on facets ``f`` (N,)."""
+        h, w = self.levels[0].shape
+        texels = [np.einsum("nk,nkj->nj", np.c_[X, np.ones(len(X))], np.nan_to_num(self.maps[f])) * (w, h)
+                  for X in points]
         du, dv = texels[1] - texels[0], texels[2] - texels[0]
         footprint = np.sqrt(np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0]))
         level = np.clip(np.round(np.log2(np.maximum(footprint, 1.0))), 0, len(self.levels) - 1).astype(int)
         # OBJ's v counts up from the print's bottom row; coordinates outside [0, 1] repeat it
         u, v = np.mod(texels[0][:, 0] / w, 1.0), 1.0 - np.mod(texels[0][:, 1] / h, 1.0)
-        printed = np.zeros(len(xs), np.float64)
+        printed = np.zeros(len(f), np.float64)
         for lv in np.unique(level):
             sel = level == lv
             img = self.levels[lv]
             col, row = u[sel] * (img.shape[1] - 1), v[sel] * (img.shape[0] - 1)
             printed[sel] = cv2.remap(img, col.astype(np.float32)[None], row.astype(np.float32)[None],
                                      cv2.INTER_LINEAR)[0]
-        seen = (to_gray(frame.image) if gray is None else gray)[ys, xs].astype(np.float64)
         total, weight = 0.0, 0
         for fid in np.unique(f[ok]):
             sel = ok & (f == fid)
@@ -132,11 +163,9 @@ class PrintAgreement:
 def print_agreement(print_view: PrintView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> PrintAgreement:
     """:meth:`PrintView.score` of ``pose`` and of its equivalents ``pose @ S`` under the object's shape
     symmetries: which of them the print shows is the image's to say."""
-    gray = to_gray(frame.image) if gray is None else gray
-    branches = (Pose.identity(), *print_view.view.object.symmetries)
-    scores = np.array([print_view.score(frame, pose @ S, gray) for S in branches])
+    scores = print_view.branch_scores(frame, pose, gray)
     order = [k for k in np.argsort(-np.nan_to_num(scores, nan=-np.inf)) if np.isfinite(scores[k])]
     if not order:
         return PrintAgreement(float("nan"), float("nan"), None)
     runner_up = float(scores[order[1]]) if len(order) > 1 else float("nan")
-    return PrintAgreement(float(scores[order[0]]), runner_up, branches[order[0]])
+    return PrintAgreement(float(scores[order[0]]), runner_up, print_view.branches[order[0]])

@@ -98,10 +98,14 @@ def image_test(view: ModelView | None, frame: Frame, margin: float, print_view: 
     if not contrast and not printed:
         return None
 
+    grey: list[np.ndarray] = []  # the frame in grey, converted once, for the first candidate that gets here
+
     def stands_out(pose: Pose) -> bool:
-        if contrast and not placement_contrast(view, frame, pose).stands_out(margin):
+        if not grey:
+            grey.append(to_gray(frame.image))
+        if contrast and not placement_contrast(view, frame, pose, grey[0]).stands_out(margin):
             return False
-        return not printed or print_agreement(print_view, frame, pose).singles_out(print_margin)
+        return not printed or print_agreement(print_view, frame, pose, grey[0]).singles_out(print_margin)
 
     return stands_out
 

@@ -49,22 +49,21 @@ class PrintView:
         while min(self.levels[-1].shape) > 16:
             self.levels.append(cv2.pyrDown(self.levels[-1]))
         self.maps = np.full((len(view.plane_point), 4, 2), np.nan)   # per facet id: [X, 1] → (u, v)
-        for fid in np.unique(view.facet_of):
+        ids = np.unique(view.facet_of)
+        centroids = np.zeros((len(view.plane_point), 3))
+        for fid in ids:
             tris = np.nonzero(view.facet_of == fid)[0]
-            A = np.c_[view.triangles[tris].reshape(-1, 3), np.ones(3 * len(tris))]
+            corners = view.triangles[tris].reshape(-1, 3)
+            centroids[fid] = corners.mean(0)
+            A = np.c_[corners, np.ones(len(corners))]
             uv = np.asarray(obj.face_uv[tris], dtype=np.float64).reshape(-1, 2)
             M = np.linalg.lstsq(A, uv, rcond=None)[0]
             if np.abs(A @ M - uv).max() <= AFFINE_TOL:
                 self.maps[fid] = M
         if not np.isfinite(self.maps).any():
             raise ValueError(f"object: no facet of {obj.name!r} maps affinely onto its print (a curved unwrap)")
-
         # the shape's symmetries permute its facets: the pose's equivalents are scored from one raster
         self.branches = (Pose.identity(), *obj.symmetries)
-        ids = np.unique(view.facet_of)
-        centroids = np.zeros((len(view.plane_point), 3))
-        for fid in ids:
-            centroids[fid] = view.triangles[view.facet_of == fid].reshape(-1, 3).mean(0)
         self._facets_of_branch = []
         for S in self.branches:
             seen = S.inverse() @ centroids[ids]  # where each facet's centre lies on the part turned by S

@@ -12,12 +12,15 @@ Each network (``NAME=CHECKPOINT``, one row each) runs alone on every 5th frame a
 (``combined`` + ``isam2``, defaults, no initial pose) over the first 590 frames. No true pose exists:
 the reference is the ``combined`` tracker alone from the hand-labelled first pose
 (``data/megapose_cube.0.pos``), which ends its round trip over the same frames within a few degrees
-and millimetres of where it started (``real_video.py``). Scored up to the cube's symmetries (its shape
-is a cube; which printed face is which is not scored): the hybrid's trusted frames within 5° and 2 cm
-of the reference, those more than 10° off, its first pose; the CNN's frames within a tracker's basin
-(10°, 5 % of the distance). Writes ``results/megapose_no_pose.json`` and the ``megapose-no-pose``
-block of ``RESULTS.md``. A mesh with its print (``--mesh``: an OBJ whose ``.mtl`` names
-``color.jpg``) is rendered printed by ``fit``; the trackers and the scores use the shape alone.
+and millimetres of where it started (``real_video.py``), on the frames where the same tracker from
+starts a hand label cannot tell from it agrees with it (:func:`reference_track`). Scored up to the cube's symmetries (its shape
+is a cube): the hybrid's trusted frames within 5° and 2 cm of the reference, those more than 10° off,
+its first pose; the CNN's frames within a tracker's basin (10°, 5 % of the distance). And scored
+exactly: the hybrid's frames within 5° and 2 cm of the reference itself, the printed cube's own pose
+(which face is which: the labelled first pose is the one its print shows). Writes
+``results/megapose_no_pose.json`` and the ``megapose-no-pose`` block of ``RESULTS.md``. A mesh with its
+print (``--mesh``: an OBJ whose ``.mtl`` names ``color.jpg``) is rendered printed by ``fit``, and the
+hybrid given it checks its starts against the print and starts at the pose the print shows.
 """
 from __future__ import annotations
 
@@ -36,13 +39,36 @@ HELD_DEG, HELD_M, WRONG_DEG = 5.0, 0.02, 10.0
 CNN_EVERY = 5
 
 
+REF_AGREE_DEG, REF_AGREE_M = 2.0, 0.005
+# starts as far from the label as a label is good to: 0.2° about a camera axis, 0.5 mm across
+LABEL_NUDGES = (((0.2, 0.0, 0.0), (0.0005, 0.0, 0.0)), ((0.0, -0.2, 0.0), (0.0, -0.0005, 0.0)))
+
+
 def reference_track(frames, obj, pose0) -> list:
-    """The ``combined`` tracker alone from ``pose0``: its pose per frame (None where lost)."""
+    """The ``combined`` tracker alone from ``pose0``: its pose per frame, None where it is lost or where
+    the same tracker started from ``pose0`` nudged as far as a hand label is good to (``LABEL_NUDGES``)
+    ends more than ``REF_AGREE_DEG`` or ``REF_AGREE_M`` away from it, up to the symmetries: tracks from
+    starts a label cannot tell apart part ways by up to 18° on this video's fast turns, and a frame
+    where they do has no reference to score against."""
+    from hybridpose.geometry import Pose, rotvec_to_matrix
+    from hybridpose.metrics import nearest_equivalent, rotation_error_deg
     from hybridpose.registry import create
 
-    tracker = create("tracker", "combined", object=obj)
-    tracker.init(frames[0], pose0)
-    return [m.pose for m in (tracker.track(f) for f in frames)]
+    def track(start):
+        tracker = create("tracker", "combined", object=obj)
+        tracker.init(frames[0], start)
+        return [m.pose for m in (tracker.track(f) for f in frames)]
+
+    reference = track(pose0)
+    for turn_deg, shift_m in LABEL_NUDGES:
+        nudged = Pose(rotvec_to_matrix(np.radians(turn_deg)) @ pose0.R, pose0.t + np.asarray(shift_m))
+        for k, (ref, other) in enumerate(zip(reference, track(nudged))):
+            if ref is None:
+                continue
+            same = other is not None and nearest_equivalent(other, ref, obj.symmetries)
+            if same is False or rotation_error_deg(other, same) > REF_AGREE_DEG or np.linalg.norm(other.t - same.t) > REF_AGREE_M:
+                reference[k] = None
+    return reference
 
 
 def score_cnn(regressor: str, frames, obj, reference) -> dict:
@@ -70,26 +96,28 @@ def score_hybrid(regressor: str, frames, obj, reference) -> dict:
     from hybridpose.metrics import nearest_equivalent, rotation_error_deg
 
     est = HybridEstimator.from_names(object=obj, tracker="combined", regressor=regressor, fusion="isam2")
-    held = wrong = trusted = 0
+    held = wrong = trusted = exact = 0
     first, ms, scored = None, [], 0
     for frame in frames:
         t0 = time.perf_counter()
         e = est.step(frame)
         ms.append(1000 * (time.perf_counter() - t0))
         ref = reference[frame.index]
-        if ref is None:
-            continue
-        scored += 1
+        scored += ref is not None
         if e.pose is None or e.status not in ("tracking", "init", "reinit"):
             continue
         trusted += 1
         first = frame.index if first is None else first
+        if ref is None:
+            continue
         truth = nearest_equivalent(e.pose, ref, obj.symmetries)
         rot = rotation_error_deg(e.pose, truth)
         held += rot <= HELD_DEG and np.linalg.norm(e.pose.t - truth.t) <= HELD_M
         wrong += rot > WRONG_DEG
-    return {"frames": scored, "first_pose": first, "trusted": trusted, "held": int(held), "wrong": int(wrong),
-            "ms_per_frame": float(np.mean(ms))}
+        # the printed cube's own pose: which face is which (the reference's first pose shows its print)
+        exact += rotation_error_deg(e.pose, ref) <= HELD_DEG and np.linalg.norm(e.pose.t - ref.t) <= HELD_M
+    return {"frames": scored, "all_frames": len(frames), "first_pose": first, "trusted": trusted, "held": int(held), "wrong": int(wrong),
+            "held_exact": int(exact), "ms_per_frame": float(np.mean(ms))}
 
 
 def main(argv=None) -> None:
@@ -125,19 +153,21 @@ def main(argv=None) -> None:
     lines = [f"ViSP's MegaPose cube video, its first {len(frames)} frames, from no initial pose "
              f"(`python benchmarks/megapose_no_pose.py`, commit `{environment()['git']}`, one thread): the hybrid "
              "(`combined` + `isam2`, defaults) with each fitted network, scored up to the cube's symmetries against "
-             "the `combined` track from the hand-labelled first pose (reference on "
-             f"{sum(r is not None for r in reference)} frames). The start checks' thresholds were set on this video "
+             "the `combined` track from the hand-labelled first pose, on the "
+             f"{sum(r is not None for r in reference)} frames where the same tracker from two starts 0.2° and 0.5 mm "
+             f"from it agrees with it within {REF_AGREE_DEG:g}° and {1000 * REF_AGREE_M:g} mm. The start checks' thresholds were set on this video "
              "(`docs/decisions.md`): development figures, not held-out ones.", "",
              "| network | the hybrid's model | CNN alone: in a tracker's basin (rotation median) | hybrid: first pose | "
-             f"trusted | within {HELD_DEG:g}° and {100 * HELD_M:g} cm | trusted > {WRONG_DEG:g}° off | ms/frame |",
-             "|---|---|---|---|---|---|---|---|"]
+             f"trusted frames (of {len(frames)}) | within {HELD_DEG:g}° and {100 * HELD_M:g} cm | …of its own pose (which face is which) | "
+             f"trusted > {WRONG_DEG:g}° off | ms/frame |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         c, h = r["cnn"], r["hybrid"]
         med = "—" if c["rot_median_deg"] is None else f"{c['rot_median_deg']:.0f}°"
         model = "shape and print (starts checked against the print)" if r["mesh"] == "print" else "shape"
         lines.append(f"| {r['network']} | {model} | {c['in_basin']} of {c['frames']} ({med}) | "
                      f"{'never' if h['first_pose'] is None else 'frame ' + str(h['first_pose'])} | {h['trusted']} | "
-                     f"{h['held']} of {h['frames']} ({100 * h['held'] / h['frames']:.0f} %) | {h['wrong']} | "
+                     f"{h['held']} of {h['frames']} ({100 * h['held'] / h['frames']:.0f} %) | {h['held_exact']} | {h['wrong']} | "
                      f"{h['ms_per_frame']:.0f} |")
     publish("megapose_no_pose", "megapose-no-pose", {"environment": environment(), "rows": rows}, lines)
 

@@ -352,7 +352,7 @@ REPO_VIDEOS = (
               "640 × 480 RGB; after frame 600 a mug hides most of the cube",
               "tutorial/tracking/dnn/data/cube_video.mp4", "tutorial/tracking/dnn/data/models/cube/cube.obj",
               "tutorial/tracking/dnn/data/megapose_cube.json", 590, (0, 150, 300, 450, 589),
-              "the front face's corners clicked, then one edge fit"),
+              "the front face's corners clicked, then one edge fit; which face is which read from its print"),
     RepoVideo("detection_cube", "ViSP's detection-tutorial cube video",
               "ViSP's printed 8.4-cm cube on a table beside a tube, a hand reaching in, 640 × 480 grey",
               "tutorial/detection/object/cube.mp4", "tutorial/detection/object/cube.cao",

@@ -45,7 +45,9 @@ A start (init, reinit) may be put on probation (``confirm_frames``): not trusted
 
 For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose
 nearest the track (or, while lost, nearest the previous answer): the CNN may give any of the poses that
-look the same, and only that one can be compared with the track or fused into it.
+look the same, and only that one can be compared with the track or fused into it. A part that carries
+its print (``ObjectModel.texture``) starts at the equivalent pose its print shows, so its track gives
+which face is which.
 
 Every threshold is a field of :class:`HybridConfig`, its default chosen on the tuning seeds of the
 suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).

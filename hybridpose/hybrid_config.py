@@ -114,7 +114,9 @@ class HybridConfig:
             the shape's symmetries, the print's correlation with the image must single out one by
             this much (:func:`~hybridpose.edges.print_match.print_agreement`). On ViSP's MegaPose cube
             video a fit's network put the printed cube on a bottle's label 1 m away and inside one of
-            its own faces, where the edges and region cues confirmed it (0: off).
+            its own faces, where the edges and region cues confirmed it (0: off). The start is then
+            the pose the print singles out: a printed part's pose is its own, not any of its shape's
+            look-alikes (which face is which).
         cnn_search_px: how far (px) a tracker fit started from a CNN pose (a start, a check) searches
             for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
             0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than

@@ -17,12 +17,15 @@ from .core import Frame, Measurement
 from .edges import ModelView, placement_contrast, to_gray
 from .edges.fit import dark_surround
 from .edges.print_match import PrintView, print_agreement
-from .fusion.base import pose_mahalanobis2
+from .fusion.base import equivalent_measurement, pose_mahalanobis2
 from .geometry import Pose, rotvec_to_matrix
 from .hybrid_config import HybridConfig
 
 Fit = Callable[[Pose], "Measurement | None"]
-StandsOut = Callable[[Pose], bool]
+# a start's image test: None where the image does not single the pose out; else the symmetry S of the
+# object whose ``pose @ S`` the image shows (the identity but for a printed part, whose print tells
+# which of the shape's equivalent poses is its own)
+StandsOut = Callable[[Pose], "Pose | None"]
 
 
 def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search: bool = False,
@@ -32,7 +35,8 @@ def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search
     the CNN pose's uncertainty (``disagreement_chi2``, both covariances: it found something else) or
     ``stands_out`` (the caller's test of a pose in this frame: :func:`~hybridpose.edges.distinct.
     placement_contrast` against ``start_contrast``) says the image does not single it out (clutter
-    beside it matches the model as well).
+    beside it matches the model as well). Where ``stands_out`` names another of the object's
+    equivalent poses (a printed part's print shows which), the fit is restated there.
 
     With ``depth_search``, where the fit from ``m`` falls short, the fits from ``m`` slid along its
     viewing ray (:func:`slid_starts`, nearest first) are tried: the first one to reach
@@ -49,8 +53,11 @@ def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search
         if (found and result.quality >= bar
                 and pose_mahalanobis2(m.pose, m.covariance, result.pose, result.covariance) <= config.disagreement_chi2):
             chosen = best_turned(m, start, result, fit, config)
-            if stands_out is None or stands_out(chosen.pose):
+            if stands_out is None:
                 return chosen
+            S = stands_out(chosen.pose)
+            if S is not None:
+                return chosen if _is_identity(S) else equivalent_measurement(chosen, S)
         if i == 0:  # a slid start must beat the fit from the CNN pose itself
             bar = max(bar, (result.quality if found else 0.0) + config.switch_quality_margin)
     return None
@@ -91,8 +98,8 @@ def image_test(view: ModelView | None, frame: Frame, margin: float, print_view: 
     """The ``stands_out`` test of :func:`confirmed_start` in ``frame``: a pose's
     :func:`~hybridpose.edges.placement_contrast` with ``margin`` (``start_contrast``) and, for a
     printed part (``print_view``), :func:`~hybridpose.edges.print_match.print_agreement` singling out
-    one of its equivalent poses by ``print_margin`` (``start_print_margin``); None (no test) without
-    a model view or with both margins 0."""
+    one of its equivalent poses by ``print_margin`` (``start_print_margin``) — the one the test then
+    names; None (no test) without a model view or with both margins 0."""
     contrast = view is not None and margin > 0
     printed = print_view is not None and print_margin > 0
     if not contrast and not printed:
@@ -100,14 +107,21 @@ def image_test(view: ModelView | None, frame: Frame, margin: float, print_view: 
 
     grey: list[np.ndarray] = []  # the frame in grey, converted once, for the first candidate that gets here
 
-    def stands_out(pose: Pose) -> bool:
+    def stands_out(pose: Pose) -> Pose | None:
         if not grey:
             grey.append(to_gray(frame.image))
         if contrast and not placement_contrast(view, frame, pose, grey[0]).stands_out(margin):
-            return False
-        return not printed or print_agreement(print_view, frame, pose, grey[0]).singles_out(print_margin)
+            return None
+        if not printed:
+            return Pose.identity()
+        agreement = print_agreement(print_view, frame, pose, grey[0])
+        return agreement.branch if agreement.singles_out(print_margin) else None
 
     return stands_out
+
+
+def _is_identity(S: Pose) -> bool:
+    return bool(np.array_equal(S.matrix, np.eye(4)))
 
 
 def edges_alone_in_clutter(cue_qualities: dict | None, frame: Frame, view: ModelView, pose: Pose) -> bool:

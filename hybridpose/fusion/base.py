@@ -213,7 +213,11 @@ def nearest_equivalent_measurement(m: Measurement, near: Pose, symmetries) -> Me
         return m
     identity = Pose.identity()
     best = min((identity, *symmetries), key=lambda S: rotation_error_rad(m.pose @ S, near))  # first on a tie
-    if best is identity:
-        return m
-    A = adjoint(best.inverse())
-    return replace(m, pose=m.pose @ best, covariance=A @ np.asarray(m.covariance) @ A.T)
+    return m if best is identity else equivalent_measurement(m, best)
+
+
+def equivalent_measurement(m: Measurement, S: Pose) -> Measurement:
+    """``m`` restated as the equivalent pose ``m.pose @ S`` (``S`` a symmetry of the object), its
+    right-perturbation covariance carried along (``Σ' = Ad(S⁻¹) Σ Ad(S⁻¹)ᵀ``)."""
+    A = adjoint(S.inverse())
+    return replace(m, pose=m.pose @ S, covariance=A @ np.asarray(m.covariance) @ A.T)

@@ -75,6 +75,25 @@ def test_faces_from_lines_attributes_and_includes_give_the_same_solid(tmp_path):
     assert len(two.faces) == 24 and two.volume == pytest.approx(2 * SIDE ** 3)
 
 
+def test_a_loaded_part_is_placed_where_the_load_call_puts_it(tmp_path):
+    """ViSP's ``load("part.cao", t=[…], tu=[…])`` (its lego-square tutorial's assembly of four bricks):
+    the part's points land at R(θu)·p + t, degrees or radians, nested placements composed."""
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "cube.cao").write_text(CUBE)
+    (tmp_path / "pair.cao").write_text('V1\nload("parts/cube.cao")  # as it is\n'
+                                       'load("parts/cube.cao", t=[0.3; 0.0; 0.1], tu=[0; 0; 90 deg])\n')
+    (tmp_path / "assembly.cao").write_text('V1\nload("pair.cao", t=[0; -0.2; 0], tu=[0.2 rad; -0.1; 0.4])\n')
+    cube = read_cao(tmp_path / "parts" / "cube.cao")
+    pair = read_cao(tmp_path / "pair.cao")
+    assert len(pair.faces) == 24 and pair.volume == pytest.approx(2 * SIDE ** 3)
+    placed = Rotation.from_euler("z", 90, degrees=True).apply(cube.vertices) + [0.3, 0.0, 0.1]
+    np.testing.assert_allclose(np.sort(pair.vertices, axis=0), np.sort(np.vstack([cube.vertices, placed]), axis=0),
+                               atol=1e-12)
+    assembly = read_cao(tmp_path / "assembly.cao")
+    moved = Rotation.from_rotvec([0.2, -0.1, 0.4]).apply(pair.vertices) + [0, -0.2, 0]
+    np.testing.assert_allclose(np.sort(assembly.vertices, axis=0), np.sort(moved, axis=0), atol=1e-12)
+
+
 def test_a_non_convex_face_is_cut_into_triangles_that_keep_its_outline(tmp_path):
     """An L-shaped prism: two L faces (non-convex hexagons) and six rectangles."""
     L = [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)]
@@ -92,7 +111,9 @@ def test_a_non_convex_face_is_cut_into_triangles_that_keep_its_outline(tmp_path)
     (CUBE.replace("4 1 5 6 2", "4 1 5 6 42"), "needs ≥ 3 existing points"),
     (CUBE.split("# 3D faces from points")[0] + "0\n0\n0\n", "no faces"),
     ('V1\nload("missing.cao")\n' + CUBE.replace("V1\n", ""), "missing.cao: .cao file not found"),
-], ids=["circle", "bad-number", "missing-point", "no-faces", "missing-include"])
+    ('V1\nload("cube.cao", tu=[0; 90 deg])\n', r"cube.cao:2: tu=\[0;90deg\]: expected three numbers"),
+    ('V1\nload("cube.cao", scale=[2; 2; 2])\n', r"cube.cao:2: load\(...\) takes t=\[x; y; z\]"),
+], ids=["circle", "bad-number", "missing-point", "no-faces", "missing-include", "bad-tu", "unknown-placement"])
 def test_bad_cao_files_are_refused_naming_file_and_line(tmp_path, text, match):
     (tmp_path / "cube.cao").write_text(text)
     with pytest.raises((ValueError, FileNotFoundError), match=match):

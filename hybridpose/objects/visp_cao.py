@@ -3,7 +3,10 @@
 A ``.cao`` file lists, each section a count then one row per item: 3D points (x y z, the file's
 units), 3D lines (two point indices), faces from lines (n, then n line indices), faces from points
 (n, then n point indices), cylinders and circles; ``#`` starts a comment, ``load("other.cao")``
-merges another file (relative to this one) and a row may end in ``name=…``-style attributes. What
+merges another file (relative to this one), placed as ViSP places it where the call gives
+``t=[x; y; z]`` (the file's units) and ``tu=[θu_x; θu_y; θu_z]`` (a rotation vector, each value in
+radians or followed by ``deg``): a point ``p`` of the loaded file lands at ``R(θu)·p + t`` (nested
+loads compose), and a row may end in ``name=…``-style attributes. What
 ViSP's tracker follows are the faces' outlines; here the faces become triangles (ear clipping, any
 simple planar polygon) and the trackers take the mesh's sharp edges.
 Lines that bound no face, cylinders and circles have no surface to render or to hide edges behind:
@@ -18,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-_LOAD = re.compile(r'^load\(\s*"([^"]+)"\s*\)$')
+_LOAD = re.compile(r'^load\("([^"]+)"((?:,\w+=\[[^\]]*\])*)\)$')  # spaces removed first
+_LOAD_ARGUMENT = re.compile(r',(\w+)=\[([^\]]*)\]')
 _ATTRIBUTE = re.compile(r'\w+\s*=\s*("[^"]*"|\S+)')  # name="…", useLod=true, minLineLengthThreshold=…
 
 
@@ -53,14 +57,20 @@ def _read(path: Path, depth: int = 0) -> tuple[np.ndarray, list[list[int]]]:
         i += 1
     while i < len(rows) and rows[i][1][0].startswith("load("):
         number, (text,) = rows[i]
-        match = _LOAD.match(text.replace(" ", ""))
+        match = _LOAD.match(text.replace(" ", "").replace("\t", ""))
         if match is None:
-            raise ValueError(f"{path}:{number}: expected load(\"file.cao\"), got {text!r}")
+            raise ValueError(f"{path}:{number}: expected load(\"file.cao\") or load(\"file.cao\", t=[x; y; z], "
+                             f"tu=[θu_x; θu_y; θu_z]), got {text!r}")
+        R, t = _placement(match.group(2), f"{path}:{number}")
         sub_points, sub_faces = _read(path.parent / match.group(1), depth + 1)
+        sub_points = sub_points @ R.T + t
         offset = sum(len(p) for p in points)
         points.append(sub_points)
         faces += [[k + offset for k in f] for f in sub_faces]
         i += 1
+
+    if points and i == len(rows):  # an assembly: loads alone, nothing of its own
+        return np.vstack(points), faces
 
     def count(what: str) -> int:
         nonlocal i
@@ -104,6 +114,32 @@ def _read(path: Path, depth: int = 0) -> tuple[np.ndarray, list[list[int]]]:
     points.append(own)
     faces += [[k + base for k in f] for f in point_faces]
     return (np.vstack(points) if points else np.zeros((0, 3))), faces
+
+
+def _placement(arguments: str, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), t (3,)) of a ``load`` call's ``,t=[…],tu=[…]`` (spaces removed; identity where absent)."""
+    from ..geometry import rotvec_to_matrix
+
+    values = {"t": np.zeros(3), "tu": np.zeros(3)}
+    for key, body in _LOAD_ARGUMENT.findall(arguments):
+        if key not in values:
+            raise ValueError(f"{where}: load(...) takes t=[x; y; z] and tu=[θu_x; θu_y; θu_z], got {key}=[{body}]")
+        parts = body.split(";")
+        try:
+            if len(parts) != 3:
+                raise ValueError
+            values[key] = np.array([_angle(v) if key == "tu" else float(v) for v in parts])
+        except ValueError:
+            unit = " (radians, or followed by deg)" if key == "tu" else ""
+            raise ValueError(f"{where}: {key}=[{body}]: expected three numbers separated by ';'{unit}") from None
+    return rotvec_to_matrix(values["tu"]), values["t"]
+
+
+def _angle(text: str) -> float:
+    """A ``tu`` value: radians, or degrees where it ends in ``deg`` (``rad`` also accepted)."""
+    if text.endswith("deg"):
+        return float(np.radians(float(text[:-3])))
+    return float(text[:-3] if text.endswith("rad") else text)
 
 
 def _chain(lines: list[tuple[int, int]], path: Path) -> list[int]:

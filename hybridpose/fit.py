@@ -18,24 +18,19 @@ long it took, how accurate it is).
 """
 from __future__ import annotations
 
-import re
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
+from .fit_plan import (IMAGE_SIZE, TRAIN_BATCH, FitPlan, make_plan, measure_speeds, measure_train_speed, parse_budget,
+                       plan_training, working_distances)
 from .geometry import Camera
 from .io import atomic_write_json, atomic_write_text, read_json
 from .objects import ObjectModel
 
 MIN_BUDGET_MIN = 5.0  # below this nothing usable can be trained on a CPU
-RENDER_SHARE = 0.25   # of the budget: training and test views
-TRAIN_SHARE = 0.60    # the training run; the rest: calibration, evaluation, margins
-MAX_TRAIN_VIEWS = 40_000  # training views rendered at most: beyond, a budget goes to epochs
-TEST_VIEWS = (60, 300)  # held-out views: at least, at most (half calibrate the covariance, half evaluate)
-IMAGE_SIZE = 128  # the shipped keypoint network's crop side: a part's fit starts from its weights
-TRAIN_BATCH = 32  # images a training step (also how a fit times one, to plan its budget)
 # a new object's keypoint heads start afresh even from the shipped features: the from-scratch rate
 # (1.5e-4 left a 40-minute box fit at 127° on its validation views after 3 epochs)
 FIT_LR = 1e-3
@@ -52,55 +47,8 @@ SPACE_SUN_CENTRE = (0.0, 0.0, 1.0)  # the "space" look's: the optical axis (ligh
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
 TEXTURED_SHARE = 0.0  # share of training views with a random print on the part (docs/decisions.md)
-PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
-EVAL_RESERVE_MIN = 2.0  # kept after training for calibration and evaluation (under a minute for 300 views here)
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
-
-
-@dataclass(frozen=True)
-class FitPlan:
-    """What ``fit`` will do within ``budget_min`` minutes on this machine.
-
-    Attributes:
-        budget_min: the budget. train_views, test_views: rendered views. epochs: training epochs
-            planned (the run also stops at ``train_min``). train_min: the training run's time limit.
-        render_s_per_view, train_s_per_view: measured on this machine before planning (rendering: wall
-            seconds a view on the fit's render processes together).
-        distance_range_m: the part's distances in the training views (metres, near, far).
-    """
-
-    budget_min: float
-    train_views: int
-    test_views: int
-    epochs: int
-    train_min: float
-    render_s_per_view: float
-    train_s_per_view: float
-    distance_range_m: tuple[float, float]
-
-
-def parse_budget(text) -> float:
-    """``"60m"``, ``"1h"``, ``"1h30m"``, ``"90s"`` or a number of minutes → minutes (float)."""
-    s = str(text).strip().lower()
-    try:
-        return float(s)
-    except ValueError:
-        pass
-    parts = re.fullmatch(r"(?:(\d+(?:\.\d+)?)h)?(?:(\d+(?:\.\d+)?)m(?:in)?)?(?:(\d+(?:\.\d+)?)s)?", s)
-    if not s or parts is None or not any(parts.groups()):
-        raise ValueError(f"budget: expected a time like 60m, 1h, 1h30m or 90s, got {text!r}")
-    h, m, sec = (float(g) if g else 0.0 for g in parts.groups())
-    return 60 * h + m + sec / 60
-
-
-def working_distances(obj: ObjectModel, camera: Camera) -> tuple[float, float]:
-    """(near, far) metres at which the part fills between ≈ 70 % and ≈ 12 % of the image's shorter
-    side — the range a CNN initialisation is asked to cover (the truss, 0.43 m across, with the default
-    640×480 camera: 0.77–4.5 m)."""
-    f = min(camera.fx, camera.fy)
-    side = min(camera.width, camera.height)
-    return float(f * obj.diameter / (0.7 * side)), float(f * obj.diameter / (0.12 * side))
 
 
 def check_inputs(obj: ObjectModel, camera: Camera, budget_min: float,
@@ -129,60 +77,6 @@ def check_inputs(obj: ObjectModel, camera: Camera, budget_min: float,
         raise ValueError(f"object: {obj.name} would be {px_far:.0f} px across at {far:.2f} m with this camera; "
                          f"at least {MIN_OBJECT_PX} px are needed")
     return near, far
-
-
-def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, workers: int = 1,
-                   **render_kw) -> tuple[float, float]:
-    """(render s/view, training s/view) on this machine: views rendered and written as the training
-    set will be (``render_kw``: the fit's own :func:`~hybridpose.datasets.render_random_dataset`
-    settings — its photos, lights, shares — on its ``workers`` processes, so the render time is wall
-    time a view with all of them: a software GL renderer already spreads one process over the cores,
-    and a 2-process truss fit planned as twice one process's rate rendered at 1.1 times it; image,
-    depth and masks in BOP files; the per-call start-up cancelled out by a shorter run, after an
-    untimed one), and forward + backward
-    passes of the ``default`` network on 128-px crops. Measured on six views without the fit's photos
-    and sun range, a 60-minute box fit planned 0.024 s a view and rendered at 0.044–0.059: its quarter
-    of the budget became half. Timed from the process's first render call, the GL and mesh set-up fell
-    in the shorter run only: a truss fit measured 0.018 s a view and rendered at 0.05–0.06."""
-    import tempfile
-
-    import torch
-
-    from .datasets import render_random_dataset
-    from .regressors.models import build_model
-    from .render import AppearanceSpec
-
-    render_kw = {"appearance": AppearanceSpec("random"), "distance_range_m": working_distances(obj, camera),
-                 "in_view": True, **render_kw, "workers": max(1, int(workers))}
-    with tempfile.TemporaryDirectory() as tmp:
-        render_random_dataset(Path(tmp) / "warm", obj, camera, 1, seed=0, **render_kw)
-        spent = []
-        for n in (2, 2 + views):
-            t0 = time.perf_counter()
-            render_random_dataset(Path(tmp) / f"n{n}", obj, camera, n, seed=0, **render_kw)
-            spent.append(time.perf_counter() - t0)
-    render_s = max(spent[1] - spent[0], 1e-3) / views
-    torch.manual_seed(0)
-    net = build_model("default", image_size=IMAGE_SIZE, keypoints_m=obj.keypoints)
-    opt = torch.optim.Adam(net.parameters(), 1e-4)
-    x = torch.rand(TRAIN_BATCH, 3, IMAGE_SIZE, IMAGE_SIZE)
-
-    def step():
-        out = net(x)
-        outs = out.values() if isinstance(out, dict) else out if isinstance(out, (tuple, list)) else [out]
-        loss = sum(v.float().mean() for v in outs if isinstance(v, torch.Tensor))
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-
-    step()  # untimed: the first step allocates (timed with the others, it read 0.021 s a view, not 0.015)
-    steps = 3
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        step()
-    # × 1.5: augmentation and validation beside the bare steps (one loader process decodes beside them)
-    train_s = 1.5 * (time.perf_counter() - t0) / (steps * TRAIN_BATCH)
-    return render_s, train_s
 
 
 def training_render_settings(backgrounds, distance_range_m, occluded_share: float = 0.0,
@@ -249,36 +143,6 @@ def record_hybrid_policy(start, checkpoint, refit: bool) -> dict:
         payload["hybrid_config"] = policy
         save_checkpoint(Path(checkpoint), payload)
     return policy
-
-
-def make_plan(budget_min: float, render_s_per_view: float, train_s_per_view: float,
-              distance_range_m: tuple[float, float]) -> FitPlan:
-    """Views and epochs for ``budget_min``: ``RENDER_SHARE`` of it renders (``render_s_per_view``: wall
-    seconds a view on the fit's render processes, :func:`measure_speeds`), ``TRAIN_SHARE`` trains;
-    more views while an epoch over them still fits at least twice."""
-    render_s = 60 * budget_min * RENDER_SHARE / PLAN_MARGIN
-    views = int(render_s / max(render_s_per_view, 1e-4))
-    test = int(np.clip(0.1 * views, *TEST_VIEWS))
-    train_min = budget_min * TRAIN_SHARE
-    # an epoch over the training views must fit at least twice in the training time
-    fit_twice = int(60 * train_min / (2 * PLAN_MARGIN * max(train_s_per_view, 1e-4)))
-    train = int(max(100, min(views - test, fit_twice, MAX_TRAIN_VIEWS)))
-    epochs = max(1, int(60 * train_min / (PLAN_MARGIN * train * train_s_per_view)))
-    return FitPlan(budget_min=float(budget_min), train_views=train, test_views=test, epochs=min(epochs, 200),
-                   train_min=float(train_min), render_s_per_view=float(render_s_per_view),
-                   train_s_per_view=float(train_s_per_view), distance_range_m=tuple(float(d) for d in distance_range_m))
-
-
-def plan_training(plan: FitPlan, spent_min: float) -> FitPlan:
-    """``plan`` with its training run re-planned once the views are rendered: the budget's time left
-    after ``spent_min`` minutes (measuring and rendering, as long as they took) less
-    ``EVAL_RESERVE_MIN``, and as many epochs as fit in it at ``PLAN_MARGIN``. Planned up front at its
-    fixed share (``TRAIN_SHARE``), the training left both stages' margins unused: a 60-minute box fit
-    ended after 44. Never less than half the training time planned up front: a render stage that
-    overran makes the fit overrun its budget rather than ship a network barely trained."""
-    train_min = max(plan.budget_min - spent_min - EVAL_RESERVE_MIN, 0.5 * plan.train_min)
-    epochs = int(60 * train_min / (PLAN_MARGIN * plan.train_views * max(plan.train_s_per_view, 1e-4)))
-    return replace(plan, train_min=float(train_min), epochs=int(np.clip(epochs, 1, 200)))
 
 
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
@@ -410,6 +274,10 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
             progress("fit: kept the start's sun side (its crops are turned to the light it learnt)")
 
     if measured and "train" not in record["done"] and not record.get("training_planned"):
+        # the training speed measured again: what else ran on the machine at the start is no guide (a
+        # fit measured beside another job planned 10 epochs at 0.034 s a view, trained them at 0.016
+        # and stopped after 5 of its 14 minutes)
+        plan = replace(plan, train_s_per_view=measure_train_speed(obj))
         plan = plan_training(plan, sum(record["minutes"].values()))
         record.update(plan=asdict(plan), training_planned=True)
         atomic_write_json(record_path, record)

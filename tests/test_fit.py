@@ -8,8 +8,9 @@ import pytest
 import trimesh
 
 from hybridpose.cli import main
-from hybridpose.fit import (EVAL_RESERVE_MIN, FIT_LR, PLAN_MARGIN, REFIT_LR, FitPlan, check_inputs, fit, make_plan,
-                            measure_speeds, parse_budget, plan_training, start_learning_rate, working_distances)
+from hybridpose.fit import FIT_LR, REFIT_LR, check_inputs, fit, start_learning_rate
+from hybridpose.fit_plan import (EVAL_RESERVE_MIN, PLAN_MARGIN, FitPlan, make_plan, measure_speeds, parse_budget,
+                                 plan_training, working_distances)
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
 from hybridpose.render import SpaceLighting
@@ -65,6 +66,8 @@ def test_a_measured_plan_trains_for_the_time_left_after_rendering(box_mesh, tmp_
                    train_s_per_view=0.05, distance_range_m=working_distances(box, cam))
     monkeypatch.setattr(fit_module, "measure_speeds", lambda *a, **k: (0.05, 0.05))
     monkeypatch.setattr(fit_module, "make_plan", lambda *a, **k: tiny)
+    # the machine was busy when the fit began: training runs five times faster than first measured
+    monkeypatch.setattr(fit_module, "measure_train_speed", lambda *a, **k: 0.01)
     runs = []
 
     class Stop(Exception):
@@ -81,6 +84,10 @@ def test_a_measured_plan_trains_for_the_time_left_after_rendering(box_mesh, tmp_
     record = json.loads((out / "fit.json").read_text())
     spent = record["minutes"]["measure"] + record["minutes"]["render"]
     assert record["training_planned"] and record["plan"]["train_min"] == pytest.approx(6.0 - spent - EVAL_RESERVE_MIN)
+    # …planned at the speed measured just before training, not the first one
+    assert record["plan"]["train_s_per_view"] == 0.01
+    assert record["plan"]["epochs"] == min(200, int(60 * record["plan"]["train_min"] / (PLAN_MARGIN * 32 * 0.01)))
+    assert record["plan"]["epochs"] > int(60 * record["plan"]["train_min"] / (PLAN_MARGIN * 32 * 0.05))
     assert runs[0].time_limit_min == record["plan"]["train_min"] and runs[0].epochs == record["plan"]["epochs"] > 1
     # resumed, the training keeps the plan it was given (its schedule runs over those epochs)
     with pytest.raises(Stop):

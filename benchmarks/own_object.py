@@ -108,8 +108,8 @@ def main() -> None:
         trimesh.creation.box(extents=BOX_MM).export(mesh)
     fit = out / "fit"
     extra = ["--textured-share", args.textured_share] if args.textured_share > 0 else []
-    if args.train_photos == "skimage":
-        extra += ["--backgrounds", training_photos(out / "train_photos")]
+    # its own photos, or none at all (procedural clutter alone), never the fit's default ones
+    extra += ["--backgrounds", training_photos(out / "train_photos") if args.train_photos == "skimage" else "none"]
     hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, "--workers", args.workers, *extra)
     if args.split == "tuning":
         photos, seqs, results = Path(args.tuning_photos), out / "tuning_seqs", []

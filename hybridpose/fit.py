@@ -30,6 +30,7 @@ from .geometry import Camera
 from .io import atomic_write_json, atomic_write_text, read_json
 from .objects import ObjectModel
 
+SHIPPED = "shipped"  # fit's backgrounds: the photos that come with hybridpose (render.appearance.SHIPPED_PHOTOS)
 MIN_BUDGET_MIN = 5.0  # below this nothing usable can be trained on a CPU
 # a new object's keypoint heads start afresh even from the shipped features: the from-scratch rate
 # (1.5e-4 left a 40-minute box fit at 127° on its validation views after 3 epochs)
@@ -146,7 +147,7 @@ def record_hybrid_policy(start, checkpoint, refit: bool) -> dict:
 
 
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
-        backgrounds=None, workers: int = 1, init_from="default", progress=print,
+        backgrounds="shipped", workers: int = 1, init_from="default", progress=print,
         plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE,
         textured_share: float = TEXTURED_SHARE, look: str = "random",
         distance_range_m: tuple[float, float] | None = None) -> dict:
@@ -161,7 +162,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         budget: the time for the whole fit (``"60m"``, ``"1h"``, minutes as a number).
         seed: seeds of the training (``seed``), held-out (``seed + 1``) and calibration (``seed + 2``)
             renders and of the training run.
-        backgrounds: a folder of photos; half the training backgrounds are crops of them.
+        backgrounds: a folder of photos: half the training backgrounds are crops of them; ``"shipped"``
+            (default): the few public-domain photos that come with hybridpose (``"random"`` look;
+            ``"space"`` has none); None: procedural clutter alone.
         workers: render processes.
         init_from: the checkpoint the training starts from (its matching weights): ``"default"``
             (the shipped truss network's features), a path, or None (from scratch).
@@ -196,6 +199,11 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         progress("fit: the views are rendered with the camera's pinhole model (same K); frames are undistorted "
                  "before the network sees them")
         camera = camera.pinhole()
+    from .render.appearance import SHIPPED_PHOTOS
+
+    if backgrounds == SHIPPED:
+        backgrounds = SHIPPED if look == "random" else None
+    photos = SHIPPED_PHOTOS if backgrounds == SHIPPED else backgrounds  # what the views are cut from
     measured = plan is None
     budget_min = parse_budget(budget) if plan is None else plan.budget_min
     distances = check_inputs(obj, camera, budget_min if plan is None else MIN_BUDGET_MIN, distance_range_m)
@@ -229,7 +237,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
             progress(f"fit: measuring this machine ({obj.name}, {camera.width}×{camera.height})")
             t0 = time.time()
             speeds = measure_speeds(obj, camera, workers=workers, **training_render_settings(
-                backgrounds, distances, occluded_share, textured_share, look))
+                photos, distances, occluded_share, textured_share, look))
             plan = make_plan(budget_min, *speeds, distances)
             minutes["measure"] = (time.time() - t0) / 60
         record = {"request": request, "plan": asdict(plan), "minutes": minutes, "done": []}
@@ -248,8 +256,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         record["done"].append(name)
         atomic_write_json(record_path, record)
 
-    training_views = training_render_settings(backgrounds, plan.distance_range_m, occluded_share, textured_share, look)
-    held_out = training_render_settings(backgrounds, plan.distance_range_m, look=look)
+    training_views = training_render_settings(photos, plan.distance_range_m, occluded_share, textured_share, look)
+    held_out = training_render_settings(photos, plan.distance_range_m, look=look)
     tick = bar or (lambda _desc: None)
     half = max(1, plan.test_views // 2)
     stage("render", lambda: (
@@ -339,7 +347,8 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"Mesh `{req['mesh']}` (×{req['scale']:g} → metres, {obj.diameter:.3f} m across), camera "
         f"{req['camera']['width']}×{req['camera']['height']}, budget {p['budget_min']:g} min, seed {req['seed']}.", "",
         f"- Rendered {p['train_views']} training and {p['test_views']} held-out views ("
-        + ("black space and the sun alone" if req.get("look") == "space" else "random backgrounds, lights, colours and camera effects")
+        + ("black space and the sun alone" if req.get("look") == "space" else
+           f"random backgrounds ({_backgrounds(req.get('backgrounds'))}), lights, colours and camera effects")
         + f"; the part {p['distance_range_m'][0]:.2f}–{p['distance_range_m'][1]:.2f} m away"
         + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views" if req.get("occluded_share") else "")
         + ("; the part's own print, from its mesh file" if obj.texture is not None else "")
@@ -366,3 +375,11 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"`HybridEstimator.from_names(object=MESH, regressor=\"best.pt\")`.{why}",
         "The full evaluation: `eval/report.md`.",
         ""])
+
+
+def _backgrounds(recorded) -> str:
+    """What a fit's record says its views' backgrounds were, in words."""
+    if recorded is None:
+        return "procedural clutter"
+    return ("half procedural clutter, half hybridpose's photos" if recorded == SHIPPED
+            else f"half procedural clutter, half crops of `{recorded}`")

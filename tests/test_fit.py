@@ -174,6 +174,30 @@ def test_the_render_speed_is_measured_on_views_like_the_training_views(box_mesh,
     assert measured["appearance"].backgrounds == str(photos) and measured["appearance"].texture_share == 0.25
 
 
+def test_by_default_a_fit_cuts_half_its_backgrounds_from_the_photos_hybridpose_ships(box_mesh, tmp_path, monkeypatch):
+    """Procedural clutter alone left a network blind to a printed cube in real footage: unless told
+    otherwise (a folder of the user's photos, or None) a fit draws on the shipped public-domain photos."""
+    import hybridpose.datasets as datasets
+    from hybridpose.render.appearance import SHIPPED_PHOTOS, PhotoBackgrounds
+
+    calls = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_render(out, obj, camera, count, seed=0, **kw):
+        calls.append(kw)
+        raise Stop
+
+    monkeypatch.setattr(datasets, "render_random_dataset", fake_render)
+    assert len(PhotoBackgrounds(str(SHIPPED_PHOTOS)).files) >= 5  # in the package, readable
+    for kw, expected in (({}, str(SHIPPED_PHOTOS)), ({"backgrounds": None}, None), ({"look": "space"}, None)):
+        with pytest.raises(Stop):
+            fit(str(box_mesh), tmp_path / f"fit{len(calls)}", scale=0.001, budget="30m", progress=lambda _line: None,
+                **kw)
+        assert calls[-1]["appearance"].backgrounds == expected
+
+
 def test_a_camera_with_lens_distortion_is_rendered_through_its_pinhole(box_mesh, tmp_path, monkeypatch):
     """The renderer is a pinhole and the regressor undistorts every frame: a calibrated camera's views
     are rendered with its K and no distortion, and the fit says so."""

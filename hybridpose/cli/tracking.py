@@ -175,7 +175,7 @@ def cmd_fit(args) -> int:
         raise ValueError("--init-pose: the first frame's pose of the --refine-on video; give --refine-on too")
     get("tracker", args.video_tracker)  # an unknown name refused before the fit's hour
     fit(args.mesh, args.out, camera=camera, scale=args.scale, budget=args.budget, seed=args.seed,
-        backgrounds=args.backgrounds, workers=args.workers,
+        backgrounds=None if args.backgrounds == "none" else args.backgrounds, workers=args.workers,
         init_from=None if args.init_from == "none" else args.init_from, bar=progress,
         occluded_share=args.occluded_share, textured_share=args.textured_share, look=args.look,
         distance_range_m=args.distances)
@@ -451,8 +451,9 @@ def add_commands(sub) -> None:
     f.add_argument("--distances", type=float_pair, default=None, metavar="NEAR,FAR",
                    help="the part's distances in the views, metres (default: where it fills 70 %% to 12 %% of "
                         "the image's shorter side)")
-    f.add_argument("--backgrounds", default=None, metavar="DIR",
-                   help="photos: half the training backgrounds are crops of them (look random)")
+    f.add_argument("--backgrounds", default="shipped", metavar="DIR",
+                   help="photos: half the training backgrounds are crops of them (look random); default: a few "
+                        "public-domain photos that come with hybridpose; none: procedural clutter alone")
     f.add_argument("--workers", type=int, default=1, help="render processes")
     f.add_argument("--init-from", default="default",
                    help="checkpoint to start from: 'default' (the shipped network's weights), a path, or 'none'")

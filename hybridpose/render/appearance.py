@@ -16,6 +16,10 @@ import numpy as np
 
 from ..geometry import as_unit_direction
 
+# a few photos released into the public domain (scikit-image's CC0 samples: SOURCES.md there), the
+# backgrounds of a fit's views where the user gives none: a network fitted on procedural clutter alone
+# found a printed cube in none of 76 frames of real footage, with photos in 10 (docs/decisions.md)
+SHIPPED_PHOTOS = Path(__file__).with_name("photos")
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MAX_FILL_LIGHTS = 2  # lights besides the sun (the renderer's scene holds this many, off unless asked)
 TEXTURE_FLOOR = 0.3  # a printed part's darkest ink still reflects this share of the light

@@ -19,12 +19,13 @@ model castle in a cluttered room, modelled only in part by ``chateau.cao``, sepa
 fraction of the castle's edges; the check that asks it to would call every frame lost) and
 ``lost_quality=0.45``, beside the raw ``cv2.rapid`` trackers.
 
-With ``--visp-repo`` (a checkout of github.com/lagadic/visp), two videos of its tutorials too
-(``REPO_VIDEOS``): the MegaPose cube video (a printed cube turned by hand on a cluttered desk) and the
-detection tutorial's cube video; every tracker forward and back to the first frame from a
-hand-labelled first pose (``benchmarks/data/*.0.pos``), scored by how far from it the round trip ends
-(forward–backward consistency) besides the edge distance. Its lego-square and dragon videos are left
-out: the first needs a pose clicked on four bricks, the second's model is a Panda3D ``.bam`` file.
+With ``--visp-repo`` (a checkout of github.com/lagadic/visp), three videos of its tutorials too
+(``REPO_VIDEOS``): the MegaPose cube video (a printed cube turned by hand on a cluttered desk), the
+detection tutorial's cube video and the lego square (four bricks, its ``.cao`` placing one brick model
+four times; a focal length estimated from the video, its XML's does not fit it); every tracker forward
+and back to the first frame from a hand-labelled first pose (``benchmarks/data/*.0.pos``), scored by how
+far from it the round trip ends (forward–backward consistency) besides the edge distance. Its dragon
+video is left out: its model is a Panda3D ``.bam`` file that the repository does not hold.
 
 Every tracker starts from ``cube.0.pos`` on the first frame and is never re-initialised; our
 backends (``edges``, ``klt-pnp``, ``rapid``, ``rapid-ols``, ``rapid-gos``: cv2.rapid's silhouette step
@@ -339,7 +340,7 @@ class RepoVideo:
     about: str          # what it shows
     video: str          # the video, in the repository
     model: str          # its CAD model, in the repository
-    camera: str         # its camera: a ViSP tracker XML, or the MegaPose tutorial's JSON
+    camera: str         # its camera: a ViSP tracker XML, or a JSON of px, py, u0, v0 (in the repository, or ours)
     frames: int         # how many of its frames make the round trip
     strip: tuple        # the frames shown on the way out
     label: str          # how the first pose was labelled
@@ -358,11 +359,21 @@ REPO_VIDEOS = (
               "tutorial/detection/object/cube.mp4", "tutorial/detection/object/cube.cao",
               "tutorial/detection/object/cube.xml", 261, (0, 65, 130, 195, 260),
               "six corners clicked, then one edge fit"),
+    RepoVideo("lego_square", "ViSP's lego-square video",
+              "four 2 × 4 bricks in a square on a green plate (4.8 cm across, `lego-square.cao` loading one brick "
+              "four times, placed), the camera moved around it by hand, 640 × 480 RGB; its camera is ours: "
+              "ViSP's `lego-square.xml` gives 839 px focal length, with which no tracker holds these frames, and "
+              "the model holds them for any focal length from 445 to 485 px (465 here, `data/lego_square.json`)",
+              "tutorial/tracking/model-based/generic/model/lego-square/lego-square.mp4",
+              "tutorial/tracking/model-based/generic/model/lego-square/lego-square.cao",
+              str(DATA / "lego_square.json"), 99, (0, 25, 50, 75, 98),
+              "the square's four top corners clicked, then edge fits searched around that pose"),
 )
 
 
 def repo_camera(path: Path):
-    """A ViSP tracker configuration (XML), or the MegaPose tutorial's JSON (its ``camera``: px, py, u0, v0)."""
+    """A ViSP tracker configuration (XML), or a JSON whose ``camera`` gives px, py, u0, v0 (the MegaPose
+    tutorial's; ours for the lego square)."""
     from hybridpose.geometry import Camera, load_camera
 
     if path.suffix.lower() == ".json":

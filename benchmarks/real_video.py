@@ -361,7 +361,7 @@ REPO_VIDEOS = (
               "six corners clicked, then one edge fit"),
     RepoVideo("lego_square", "ViSP's lego-square video",
               "four 2 × 4 bricks in a square on a green plate (4.8 cm across, `lego-square.cao` loading one brick "
-              "four times, placed), the camera moved around it by hand, 640 × 480 RGB; its camera is ours: "
+              "four times, placed), the plate pushed and turned by a hand before a fixed camera, 640 × 480 RGB; its camera is ours: "
               "ViSP's `lego-square.xml` gives 839 px focal length, with which no tracker holds these frames, and "
               "the model holds them for any focal length from 445 to 485 px (465 here, `data/lego_square.json`)",
               "tutorial/tracking/model-based/generic/model/lego-square/lego-square.mp4",

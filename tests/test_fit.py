@@ -174,52 +174,49 @@ def test_the_render_speed_is_measured_on_views_like_the_training_views(box_mesh,
     assert measured["appearance"].backgrounds == str(photos) and measured["appearance"].texture_share == 0.25
 
 
-def test_by_default_a_fit_cuts_half_its_backgrounds_from_the_photos_hybridpose_ships(box_mesh, tmp_path, monkeypatch):
-    """Procedural clutter alone left a network blind to a printed cube in real footage: unless told
-    otherwise (a folder of the user's photos, or None) a fit draws on the shipped public-domain photos."""
+class _Stop(Exception):
+    """Raised by the fake renderer of :func:`_renders`: what the fit asked for is seen."""
+
+
+def _renders(monkeypatch) -> list:
+    """The renderer replaced: each call's (camera, keywords) recorded, then ``_Stop`` raised."""
     import hybridpose.datasets as datasets
-    from hybridpose.render.appearance import SHIPPED_PHOTOS, PhotoBackgrounds
 
     calls = []
 
-    class Stop(Exception):
-        pass
-
     def fake_render(out, obj, camera, count, seed=0, **kw):
-        calls.append(kw)
-        raise Stop
+        calls.append((camera, kw))
+        raise _Stop
 
     monkeypatch.setattr(datasets, "render_random_dataset", fake_render)
+    return calls
+
+
+def test_by_default_a_fit_cuts_half_its_backgrounds_from_the_photos_hybridpose_ships(box_mesh, tmp_path, monkeypatch):
+    """Procedural clutter alone left a network blind to a printed cube in real footage: unless told
+    otherwise (a folder of the user's photos, or None) a fit draws on the shipped public-domain photos."""
+    from hybridpose.render.appearance import SHIPPED_PHOTOS, PhotoBackgrounds
+
+    calls = _renders(monkeypatch)
     assert len(PhotoBackgrounds(str(SHIPPED_PHOTOS)).files) >= 5  # in the package, readable
     for kw, expected in (({}, str(SHIPPED_PHOTOS)), ({"backgrounds": None}, None), ({"look": "space"}, None)):
-        with pytest.raises(Stop):
+        with pytest.raises(_Stop):
             fit(str(box_mesh), tmp_path / f"fit{len(calls)}", scale=0.001, budget="30m", progress=lambda _line: None,
                 **kw)
-        assert calls[-1]["appearance"].backgrounds == expected
+        assert calls[-1][1]["appearance"].backgrounds == expected
 
 
 def test_a_camera_with_lens_distortion_is_rendered_through_its_pinhole(box_mesh, tmp_path, monkeypatch):
     """The renderer is a pinhole and the regressor undistorts every frame: a calibrated camera's views
     are rendered with its K and no distortion, and the fit says so."""
-    import hybridpose.datasets as datasets
-
-    seen, lines = [], []
-
-    class Stop(Exception):
-        pass
-
-    def fake_render(out, obj, camera, count, seed=0, **kw):
-        seen.append(camera)
-        raise Stop
-
-    monkeypatch.setattr(datasets, "render_random_dataset", fake_render)
+    calls, lines = _renders(monkeypatch), []
     lens = Camera(640, 480, 610.0, 612.0, 321.0, 238.0, (-0.2, 0.05, 0.0, 0.0, 0.0))
     box = load_object(str(box_mesh), scale=0.001)
     plan = FitPlan(budget_min=2.0, train_views=8, test_views=4, epochs=1, train_min=1.0, render_s_per_view=0.05,
                    train_s_per_view=0.05, distance_range_m=working_distances(box, lens))
-    with pytest.raises(Stop):
+    with pytest.raises(_Stop):
         fit(str(box_mesh), tmp_path / "fit", camera=lens, scale=0.001, plan=plan, progress=lines.append)
-    assert seen[0] == lens.pinhole() and not seen[0].dist
+    assert calls[0][0] == lens.pinhole() and not calls[0][0].dist
     assert any("pinhole model (same K)" in line for line in lines)
 
 

@@ -10,10 +10,11 @@ model), with networks fitted to the cube by ``hybridpose fit`` on this CPU::
     python benchmarks/megapose_no_pose.py --visp-repo VISP --regressor plain=runs/mp_fit/best.pt,...
 
 Each network (``NAME=CHECKPOINT``, one row each) runs alone on every 5th frame and inside the hybrid
-(``combined`` + ``isam2``, defaults, no initial pose) over the first 590 frames. No true pose exists:
-the reference is the ``combined`` tracker alone from the hand-labelled first pose
-(``data/megapose_cube.0.pos``), which ends its round trip over the same frames within a few degrees
-and millimetres of where it started (``real_video.py``), on the frames where the same tracker from
+(``combined`` + ``isam2``, defaults, no initial pose) over the frames ``real_video.py`` tracks out and
+back (the MegaPose video's first 590, the detection cube's 261). No true pose exists: the reference is
+the ``combined`` tracker alone from the hand-labelled first pose (``data/<video>.0.pos``), which ends
+its round trip over the same frames within a few degrees and millimetres of where it started
+(``real_video.py``), on the frames where the same tracker from
 starts a hand label cannot tell from it agrees with it (:func:`reference_track`). Scored up to the cube's symmetries (its shape
 is a cube): the hybrid's trusted frames within 5° and 2 cm of the reference, those more than 10° off,
 its first pose; the CNN's frames within a tracker's basin (10°, 5 % of the distance). And scored

@@ -228,7 +228,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         record = read_json(record_path)
         if record["request"] != request:
             diff = sorted(k for k in {*request, *record["request"]} if record["request"].get(k) != request.get(k))
-            raise ValueError(f"out: {out} holds a fit with other settings ({', '.join(diff)}); choose another --out")
+            was = ", ".join(f"{k} {record['request'].get(k)!r} there, {request.get(k)!r} now" for k in diff)
+            raise ValueError(f"out: {out} holds a fit with other settings ({was}); give its settings to resume it, "
+                             "or choose another --out")
         plan = FitPlan(**{**record["plan"], "distance_range_m": tuple(record["plan"]["distance_range_m"])})
         progress(f"fit: resuming in {out}")
     else:

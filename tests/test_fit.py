@@ -291,7 +291,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
                    occluded_share=0.25, textured_share=0.5)
     assert upgraded["hybrid_config"] == {"reacquire_deg": 20.0} and upgraded["minutes"] == record["minutes"]
     assert CheckpointRegressor(out / "best.pt").hybrid_config == {"reacquire_deg": 20.0}
-    with pytest.raises(ValueError, match="other settings.*seed"):
+    with pytest.raises(ValueError, match="other settings.*seed 3 there, 4 now.*give its settings to resume"):
         fit(box_mesh, out, camera=cam, scale=0.001, seed=4, plan=plan, progress=lambda *_: None, occluded_share=0.25,
             textured_share=0.5)
     with pytest.raises(ValueError, match="other settings.*occluded_share"):

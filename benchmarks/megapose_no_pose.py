@@ -56,11 +56,12 @@ LABEL_NUDGES = (((0.2, 0.0, 0.0), (0.0005, 0.0, 0.0)), ((0.0, -0.2, 0.0), (0.0, 
 def reference_track(frames, obj, pose0) -> list:
     """The ``combined`` tracker alone from ``pose0``: its pose per frame, None where it is lost or where
     the same tracker started from ``pose0`` nudged as far as a hand label is good to (``LABEL_NUDGES``)
-    ends more than ``REF_AGREE_DEG`` or ``REF_AGREE_M`` away from it, up to the symmetries: tracks from
-    starts a label cannot tell apart part ways by up to 18° on this video's fast turns, and a frame
-    where they do has no reference to score against."""
+    ends more than ``REF_AGREE_DEG`` or ``REF_AGREE_M`` away from it, up to the symmetries: on the
+    MegaPose video, where the cube faces the camera square-on and a mug passes, tracks from starts a
+    label cannot tell apart part ways by up to 18°, and a frame where they do has no reference to
+    score against."""
     from hybridpose.geometry import Pose, rotvec_to_matrix
-    from hybridpose.metrics import nearest_equivalent, rotation_error_deg
+    from hybridpose.metrics import nearest_equivalent
     from hybridpose.registry import create
 
     def track(start):
@@ -72,12 +73,17 @@ def reference_track(frames, obj, pose0) -> list:
     for turn_deg, shift_m in LABEL_NUDGES:
         nudged = Pose(rotvec_to_matrix(np.radians(turn_deg)) @ pose0.R, pose0.t + np.asarray(shift_m))
         for k, (ref, other) in enumerate(zip(reference, track(nudged))):
-            if ref is None:
-                continue
-            same = other is not None and nearest_equivalent(other, ref, obj.symmetries)
-            if same is False or rotation_error_deg(other, same) > REF_AGREE_DEG or np.linalg.norm(other.t - same.t) > REF_AGREE_M:
+            if ref is not None and (other is None or not _within(other, nearest_equivalent(other, ref, obj.symmetries),
+                                                                 REF_AGREE_DEG, REF_AGREE_M)):
                 reference[k] = None
     return reference
+
+
+def _within(pose, truth, deg: float, metres: float) -> bool:
+    """Whether ``pose`` lies within ``deg`` and ``metres`` of ``truth``."""
+    from hybridpose.metrics import rotation_error_deg
+
+    return bool(rotation_error_deg(pose, truth) <= deg and np.linalg.norm(pose.t - truth.t) <= metres)
 
 
 def score_cnn(regressor: str, frames, obj, reference) -> dict:
@@ -101,11 +107,10 @@ def score_cnn(regressor: str, frames, obj, reference) -> dict:
 
 def score_hybrid(regressor: str, frames, obj, reference) -> dict:
     """The hybrid from no initial pose over ``frames``, against ``reference``."""
-    from hybridpose.estimator import HybridEstimator
-    from hybridpose.metrics import nearest_equivalent, rotation_error_deg
-
     from hybridpose.edges import ModelView
     from hybridpose.edges.image_distance import edge_distances_px
+    from hybridpose.estimator import HybridEstimator
+    from hybridpose.metrics import nearest_equivalent, rotation_error_deg
 
     est = HybridEstimator.from_names(object=obj, tracker="combined", regressor=regressor, fusion="isam2")
     view = ModelView(obj)
@@ -127,11 +132,10 @@ def score_hybrid(regressor: str, frames, obj, reference) -> dict:
         if ref is None:
             continue
         truth = nearest_equivalent(e.pose, ref, obj.symmetries)
-        rot = rotation_error_deg(e.pose, truth)
-        held += rot <= HELD_DEG and np.linalg.norm(e.pose.t - truth.t) <= HELD_M
-        wrong += rot > WRONG_DEG
+        held += _within(e.pose, truth, HELD_DEG, HELD_M)
+        wrong += rotation_error_deg(e.pose, truth) > WRONG_DEG
         # the printed cube's own pose: which face is which (the reference's first pose shows its print)
-        exact += rotation_error_deg(e.pose, ref) <= HELD_DEG and np.linalg.norm(e.pose.t - ref.t) <= HELD_M
+        exact += _within(e.pose, ref, HELD_DEG, HELD_M)
     return {"frames": scored, "all_frames": len(frames), "first_pose": first, "trusted": trusted, "held": int(held), "wrong": int(wrong),
             "held_exact": int(exact), "edge_px_median": float(np.median(edge_px)) if edge_px else None,
             "ms_per_frame": float(np.mean(ms))}

@@ -147,7 +147,7 @@ def record_hybrid_policy(start, checkpoint, refit: bool) -> dict:
 
 
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
-        backgrounds="shipped", workers: int = 1, init_from="default", progress=print,
+        backgrounds=SHIPPED, workers: int = 1, init_from="default", progress=print,
         plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE,
         textured_share: float = TEXTURED_SHARE, look: str = "random",
         distance_range_m: tuple[float, float] | None = None) -> dict:

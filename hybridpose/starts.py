@@ -93,15 +93,16 @@ def print_view(view: ModelView | None) -> PrintView | None:
         return None
 
 
-def image_test(view: ModelView | None, frame: Frame, margin: float, print_view: PrintView | None = None,
+def image_test(view: ModelView | None, frame: Frame, margin: float, part_print: PrintView | None = None,
                print_margin: float = 0.0) -> StandsOut | None:
     """The ``stands_out`` test of :func:`confirmed_start` in ``frame``: a pose's
     :func:`~hybridpose.edges.placement_contrast` with ``margin`` (``start_contrast``) and, for a
-    printed part (``print_view``), :func:`~hybridpose.edges.print_match.print_agreement` singling out
-    one of its equivalent poses by ``print_margin`` (``start_print_margin``) — the one the test then
-    names; None (no test) without a model view or with both margins 0."""
+    printed part (``part_print``: its :func:`print_view`),
+    :func:`~hybridpose.edges.print_match.print_agreement` singling out one of its equivalent poses by
+    ``print_margin`` (``start_print_margin``) — the one the test then names; None (no test) without a
+    model view or with both margins 0."""
     contrast = view is not None and margin > 0
-    printed = print_view is not None and print_margin > 0
+    printed = part_print is not None and print_margin > 0
     if not contrast and not printed:
         return None
 
@@ -114,7 +115,7 @@ def image_test(view: ModelView | None, frame: Frame, margin: float, print_view: 
             return None
         if not printed:
             return Pose.identity()
-        agreement = print_agreement(print_view, frame, pose, grey[0])
+        agreement = print_agreement(part_print, frame, pose, grey[0])
         return agreement.branch if agreement.singles_out(print_margin) else None
 
     return stands_out

@@ -92,11 +92,10 @@ class PrintView:
         step = max(1, len(xs) // MAX_PIXELS)
         ys, xs = ys[::step], xs[::step]
         f = ids[ys, xs].astype(np.int64)
-        points = []
-        for dx, dy in ((0, 0), (1, 0), (0, 1)):  # the pixel and its neighbours: texels per pixel
-            X, ok_d = self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(np.float64), ids=ids)
-            points.append(X)
-            ok = ok_d if dx == dy == 0 else ok
+        # the pixel and its two neighbours (their lifts only measure how many texels a pixel covers)
+        lifted = [self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(np.float64), ids=ids)
+                  for dx, dy in ((0, 0), (1, 0), (0, 1))]
+        points, ok = [X for X, _ in lifted], lifted[0][1]
         seen = (to_gray(frame.image) if gray is None else gray)[ys, xs].astype(np.float64)
         out = []
         for b in branches:

@@ -262,3 +262,16 @@ def test_a_print_with_few_corners_keeps_its_keyframe(printed_box):
         keyframes.add(id(texture.kf_pose))
         assert rotation_error_deg(tracker.pose, truth) < 2.0
     assert 0 < texture.kf_count < texture.min_points and len(keyframes) <= 2, (texture.kf_count, len(keyframes))
+
+
+def test_the_patch_steps_part_mask_picks_the_pixels_opencvs_nearest_resize_picks():
+    """The stride shortcut against its oracle, ``cv2.resize`` with ``INTER_NEAREST``, at whole and
+    non-whole ratios."""
+    from hybridpose.trackers.combined import _nearest_mask
+
+    rng = np.random.default_rng(3)
+    for (H, W), (h, w) in [((240, 320), (240, 320)), ((240, 320), (120, 160)), ((480, 640), (120, 160)),
+                           ((241, 321), (120, 160)), ((240, 320), (70, 90))]:
+        ids = rng.integers(0, 3, (H, W)).astype(np.int32)
+        oracle = cv2.resize((ids > 0).astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+        assert np.array_equal(_nearest_mask(ids, (h, w)), oracle), ((H, W), (h, w))

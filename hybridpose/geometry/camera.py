@@ -184,7 +184,7 @@ class Camera:
             ValueError: if a point lies at or behind the camera plane (z ≤ 0).
         """
         points_obj = as_points3d(points_obj, "points_obj")
-        return self.project_cam(T_cam_obj @ points_obj)
+        return self._project(T_cam_obj @ points_obj)
 
     @staticmethod
     def in_front(points_cam) -> np.ndarray:
@@ -197,16 +197,19 @@ class Camera:
         (metres) projected at ``T_cam_obj``; None where one of them is not in front of the camera
         (an object reaching behind the camera has no image box)."""
         points_cam = T_cam_obj @ as_points3d(points_obj, "points_obj")
-        if not np.all(self.in_front(points_cam)):
+        if not (points_cam[:, 2] > _MIN_DEPTH_M).all():
             return None
-        uv = self.project_cam(points_cam)
+        uv = self._project(points_cam)
         (x0, y0), (x1, y1) = uv.min(0), uv.max(0)
         return float(x0), float(y0), float(x1), float(y1)
 
     def project_cam(self, points_cam) -> np.ndarray:
         """Project (N, 3) camera-frame points (metres) to (N, 2) pixels; z must be > 0."""
-        p = as_points3d(points_cam, "points_cam")
-        if not np.all(self.in_front(p)):
+        return self._project(as_points3d(points_cam, "points_cam"))
+
+    def _project(self, p: np.ndarray) -> np.ndarray:
+        """:meth:`project_cam` of points already checked to be a finite (N, 3) float64 array."""
+        if not (p[:, 2] > _MIN_DEPTH_M).all():
             raise ValueError(
                 f"points: {int((p[:, 2] <= _MIN_DEPTH_M).sum())} of {len(p)} points are behind the camera "
                 "(z ≤ 0 in the camera frame); check T_cam_obj (t_z must be positive, in metres)"

@@ -205,8 +205,7 @@ class CombinedTracker(Tracker):
             return start
         # the part alone, not its background: the previous pose's raster (the start's, when it starts there)
         ids = self._sight.ids if start is self.pose else self.view.facet_ids(self.pose, frame.camera, ID_SCALE)
-        seen = [cv2.resize((ids > 0).astype(np.uint8), im.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
-                for im in small]
+        seen = [_nearest_mask(ids, im.shape) for im in small]
         box = np.asarray(box) * PATCH_SCALE
         coarse = patch_shift(previous[1], small[1], box * 0.5, int(PATCH_REACH_PX * PATCH_SCALE / 2), seen[1])
         if coarse is None:
@@ -339,6 +338,17 @@ def masked_correlations(previous, current, mask, x0, y0, x1, y1, gx, gy):
             if tt > 1e-6 * n and ii > 1e-6 * n:
                 out[r, c] = ti / math.sqrt(tt * ii)
     return out
+
+
+def _nearest_mask(ids: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) bool: where the facet-id raster ``ids`` shows the part, resampled to ``shape`` (h, w) by
+    nearest neighbour (``cv2.INTER_NEAREST``'s pixels); a plain stride where ``ids`` is a whole multiple of
+    it, which picks the same pixels without a full-size copy."""
+    h, w = shape
+    sy, sx = ids.shape[0] // h, ids.shape[1] // w
+    if sy >= 1 and sx >= 1 and ids.shape == (h * sy, w * sx):
+        return ids[::sy, ::sx] > 0
+    return cv2.resize((ids > 0).astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
 
 
 def _shrunk(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

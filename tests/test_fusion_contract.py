@@ -217,3 +217,18 @@ def test_a_coast_of_seconds_without_a_measurement_goes_on_and_takes_a_measuremen
         assert np.all(np.isfinite(e.pose.matrix)) and np.all(np.isfinite(e.covariance))
     seen = Measurement(start, np.diag([1e-4] * 3 + [1e-6] * 3), 0.9, "tracker:test", 15.0)
     assert f.update(seen) and _rot_deg(f.estimate.pose, start) < 1.0
+
+
+def test_a_failure_of_the_smoother_other_than_an_indeterminate_system_is_not_taken_for_a_coast(monkeypatch):
+    """Only gtsam's indeterminate-system error starts the belief over; any other error of the library
+    (or of our code) reaches the caller."""
+    f = create("fusion", "isam2")
+    f.reset(Pose.from_rotvec_t([0.1, 0.2, 0.3], [0.0, 0.0, 0.5]), np.diag([1e-4] * 3 + [1e-6] * 3), 0.0)
+
+    class Broken:
+        def update(self, *args):
+            raise RuntimeError("Attempting to retrieve value with key x1, which does not exist in the Values")
+
+    monkeypatch.setattr(f, "smoother", Broken())
+    with pytest.raises(RuntimeError, match="does not exist"):
+        f.predict(0.1)

@@ -50,6 +50,12 @@ def symmetrised(P: np.ndarray, floor: float = 1e-15) -> np.ndarray:
     return (V * np.maximum(w, floor)) @ V.T
 
 
+class DegenerateBelief(ArithmeticError):
+    """A backend's belief has lost its information: a filter's covariance went indefinite, a smoother's
+    linear system became indeterminate (a coast of seconds with no measurement). Backends raise it from
+    their ``_predict`` where their library reports so; :meth:`Fusion.predict` starts the belief over."""
+
+
 class Fusion(ABC):
     """Pose + twist filter/smoother (role ``"fusion"`` in :mod:`hybridpose.registry`).
 
@@ -110,11 +116,11 @@ class Fusion(ABC):
             dt = float(timestamp) - self.timestamp
             try:
                 self._predict(dt, float(timestamp))
-            except (np.linalg.LinAlgError, RuntimeError):
+            except (np.linalg.LinAlgError, DegenerateBelief):
                 # a coast of seconds with no measurement (the object lost: ≈ 9 s at 30 fps) leaves the
-                # pose next to no information: the UKF's sigma points go indefinite, gtsam finds the
-                # system indeterminate. The belief starts over at the constant-velocity prediction,
-                # with the spread it had
+                # pose next to no information: the UKF's sigma points go indefinite (a Cholesky of its
+                # covariance fails), gtsam finds the system indeterminate. The belief starts over at the
+                # constant-velocity prediction, with the spread it had
                 pose, cov, twist = self._state()
                 self._reset(pose.retract(twist * dt), cov, float(timestamp), twist)
             self.timestamp = float(timestamp)

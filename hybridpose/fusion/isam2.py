@@ -22,7 +22,7 @@ from gtsam.symbol_shorthand import V, X
 
 from ..geometry import Pose
 from ..registry import register
-from .base import Fusion, process_noise
+from .base import DegenerateBelief, Fusion, process_noise
 
 
 def _to_gtsam(pose: Pose) -> gtsam.Pose3:
@@ -119,7 +119,15 @@ class ISAM2Fusion(Fusion):
         if timestamp is not None:
             stamps.insert((X(self.k), timestamp))
             stamps.insert((V(self.k), timestamp))
-        self.smoother.update(graph, values, stamps)
+        try:
+            self.smoother.update(graph, values, stamps)
+        except RuntimeError as exc:
+            # gtsam's IndeterminantLinearSystemException reaches Python as a bare RuntimeError: told apart by
+            # its message ("Indeterminate linear system", "Indeterminant" before gtsam 4.3), so that any
+            # other failure still surfaces
+            if "indetermina" not in str(exc).lower():
+                raise
+            raise DegenerateBelief(f"{self.name}: {str(exc).splitlines()[0].strip()}") from exc
         est = self.smoother.calculateEstimate()
         self._pose = est.atPose3(X(self.k))
         self._twist = np.asarray(est.atVector(V(self.k)))

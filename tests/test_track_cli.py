@@ -347,3 +347,37 @@ def test_regressor_options_are_keypoint_options(tmp_path, capsys):
     assert KeypointOptions(**opts).passes == 2
     with pytest.raises(ValueError, match="-r: expected NAME=VALUE with a name among check_twins"):
         backend_options(["fine=true"], KeypointOptions, "-r")
+
+
+def test_by_default_track_takes_edges_on_black_space_and_combined_on_a_lit_scene(clip, tmp_path, capsys):
+    """``--tracker`` left out: the space clip (black around the truss) gets ``edges``; the same frames on a
+    lit grey background — a lab, not space — get ``combined``; the choice is said and recorded."""
+    root, _ = clip
+    lit = tmp_path / "lit"
+    lit.mkdir()
+    for f in sorted((root / "png").iterdir())[:3]:
+        cv2.imwrite(str(lit / f.name), np.maximum(cv2.imread(str(f)), 90))
+    base = ["--object", "truss", "--camera", str(root / "camera.json"), "--init-pose", str(root / "pose.json"),
+            "--max-frames", "3"]
+    for source, expected in ((root / "png", "edges"), (lit, "combined")):
+        out = tmp_path / f"run_{expected}"
+        assert main(["track", str(source), *base, "--out", str(out)]) == 0
+        said = capsys.readouterr().out
+        assert f"track: tracker {expected} (auto:" in said and f"frames with {expected}" in said
+        options = json.loads((out / "run.json").read_text())["options"]
+        assert options["tracker"] == expected and options["tracker_chosen"].startswith("auto:")
+
+
+def test_auto_tracker_reads_the_dark_share_of_the_first_frame():
+    from hybridpose.tracking import SPACE_DARK_SHARE, auto_tracker
+
+    space = np.zeros((48, 64, 3), np.uint8)
+    space[10:30, 10:30] = 200  # the part, lit, on black
+    assert auto_tracker(space)[0] == "edges" and auto_tracker(space)[1] == pytest.approx(1 - 400 / (48 * 64))
+    lab = np.full((48, 64, 3), 120, np.uint8)
+    assert auto_tracker(lab) == ("combined", 0.0)
+    half = np.zeros((48, 64, 3), np.uint8)
+    half[:, 32 + int(64 * (0.5 - SPACE_DARK_SHARE)):] = 50
+    assert auto_tracker(half)[0] == "edges"  # at the threshold: space
+    with pytest.raises(ValueError, match="image: expected"):
+        auto_tracker(np.zeros((48, 64), np.uint8))

@@ -105,14 +105,15 @@ def score_cnn(regressor: str, frames, obj, reference) -> dict:
     return {"frames": len(sampled), "in_basin": int(inside), "rot_median_deg": float(np.median(rot)) if rot else None}
 
 
-def score_hybrid(regressor: str, frames, obj, reference) -> dict:
-    """The hybrid from no initial pose over ``frames``, against ``reference``."""
+def score_hybrid(regressor: str, frames, obj, reference, tracker: str = "combined") -> dict:
+    """The hybrid (``tracker`` + the fitted network + isam2) from no initial pose over ``frames``, against
+    ``reference``."""
     from hybridpose.edges import ModelView
     from hybridpose.edges.image_distance import edge_distances_px
     from hybridpose.estimator import HybridEstimator
     from hybridpose.metrics import nearest_equivalent, rotation_error_deg
 
-    est = HybridEstimator.from_names(object=obj, tracker="combined", regressor=regressor, fusion="isam2")
+    est = HybridEstimator.from_names(object=obj, tracker=tracker, regressor=regressor, fusion="isam2")
     view = ModelView(obj)
     held = wrong = trusted = exact = 0
     first, ms, scored, edge_px = None, [], 0, []
@@ -148,6 +149,9 @@ def main(argv=None) -> None:
     ap.add_argument("--video", choices=tuple(VIDEOS), default="megapose_cube",
                     help="megapose_cube (default): a printed cube turned by hand in clutter; detection_cube: ViSP's "
                          "printed cube beside a tube, a hand reaching in (its CAD model plain, as a user's often is)")
+    ap.add_argument("--trackers", default="combined",
+                    help="the hybrid's trackers, one row each (default combined, what `hybridpose track` takes on "
+                         "these lit scenes; edges: the space tracker, which it takes on black space)")
     ap.add_argument("--mesh", default=None,
                     help="the cube's mesh with its print (cube.obj beside a cube.mtl naming color.jpg): each network's "
                          "hybrid runs again with it, its starts checked against the print")
@@ -156,6 +160,7 @@ def main(argv=None) -> None:
 
     set_threads(1)
     networks = dict(item.split("=", 1) for item in args.regressor.split(","))
+    trackers = [t.strip() for t in args.trackers.split(",") if t.strip()]
     video = next(v for v in REPO_VIDEOS if v.key == args.video)
     block, tuned = VIDEOS[args.video]
     frames, camera, obj, pose0 = repo_frames(Path(args.visp_repo), video)
@@ -171,25 +176,26 @@ def main(argv=None) -> None:
         for label, part in (("shape", obj), ("print", printed)):
             if part is None:
                 continue
-            row = {"network": name, "checkpoint": path, "mesh": label, "cnn": cnn,
-                   "hybrid": score_hybrid(path, frames, part, reference)}
-            rows.append(row)
-            print(name, label, row, flush=True)
+            for tracker in trackers:
+                row = {"network": name, "checkpoint": path, "mesh": label, "tracker": tracker, "cnn": cnn,
+                       "hybrid": score_hybrid(path, frames, part, reference, tracker)}
+                rows.append(row)
+                print(name, label, tracker, row, flush=True)
     lines = [f"{video.title}, its first {len(frames)} frames, from no initial pose "
              f"(`python benchmarks/megapose_no_pose.py{'' if args.video == 'megapose_cube' else ' --video ' + args.video}`, commit `{environment()['git']}`, one thread): the hybrid "
-             "(`combined` + `isam2`, defaults) with each fitted network, scored up to the cube's symmetries against "
+             f"(`{'`, `'.join(trackers)}` + `isam2`, defaults) with each fitted network, scored up to the cube's symmetries against "
              "the `combined` track from the hand-labelled first pose, on the "
              f"{sum(r is not None for r in reference)} frames where the same tracker from two starts 0.2° and 0.5 mm "
              f"from it agrees with it within {REF_AGREE_DEG:g}° and {1000 * REF_AGREE_M:g} mm. {tuned}", "",
-             "| network | the hybrid's model | CNN alone: in a tracker's basin (rotation median) | hybrid: first pose | "
+             "| network | tracker | the hybrid's model | CNN alone: in a tracker's basin (rotation median) | hybrid: first pose | "
              f"trusted frames (of {len(frames)}) | within {HELD_DEG:g}° and {100 * HELD_M:g} cm | …of its own pose (which face is which) | "
              f"trusted > {WRONG_DEG:g}° off | edge px (median of trusted frames) | ms/frame |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         c, h = r["cnn"], r["hybrid"]
         med = "—" if c["rot_median_deg"] is None else f"{c['rot_median_deg']:.0f}°"
         model = "shape and print (starts checked against the print)" if r["mesh"] == "print" else "shape"
-        lines.append(f"| {r['network']} | {model} | {c['in_basin']} of {c['frames']} ({med}) | "
+        lines.append(f"| {r['network']} | {r['tracker']} | {model} | {c['in_basin']} of {c['frames']} ({med}) | "
                      f"{'never' if h['first_pose'] is None else 'frame ' + str(h['first_pose'])} | {h['trusted']} | "
                      f"{h['held']} of {h['frames']} ({100 * h['held'] / h['frames']:.0f} %) | {h['held_exact'] if r['mesh'] == 'print' else '—'} | {h['wrong']} | "
                      f"{'—' if h['edge_px_median'] is None else format(h['edge_px_median'], '.2f')} | {h['ms_per_frame']:.0f} |")

@@ -393,7 +393,7 @@ def repo_frames(repo: Path, video: RepoVideo):
         raise SystemExit(f"--visp-repo: {path} not found; pass a checkout of github.com/lagadic/visp")
     camera = repo_camera(repo / video.camera)
     frames = []
-    for frame in read_frames(path, camera, fps=30):
+    for frame in read_frames(path, camera):  # at the video's own frame rate, as `hybridpose track` reads it
         if frame.index >= video.frames:
             break
         frames.append(frame)

@@ -727,6 +727,30 @@ def test_a_take_up_from_the_prediction_needs_every_cue_to_vouch(region_quality, 
     assert (statuses(0.5) == statuses(0.0)) if resumes else set(statuses(0.5)) == {"lost"}
 
 
+class EdgesAloneAfterALoss(ScriptedTracker):
+    """Lost on ``lost_frames``; after them it fits a pose 30° off that only its edges vouch for (its
+    region cue silent: the part's colours lost against the background), until it is initialised again."""
+
+    def track(self, frame, prior=None, **options):
+        m = super().track(frame, prior, **options)
+        after = frame.index > max(self.lost_frames) and max(self.inits) < min(self.lost_frames)
+        self.cue_qualities = {"edges": 0.9} if after else {"edges": 0.9, "region": 0.8}
+        return replace(m, pose=tilt(truth(frame.index), 30.0)) if after and m.pose is not None else m
+
+
+@pytest.mark.parametrize("grey, resumes", [(0, True), (120, False)])
+def test_off_black_space_a_take_up_that_only_the_edges_vouch_for_is_refused(truss, grey, resumes):
+    """A take-up from the prediction is a start: in a lit scene the edges alone do not make one (an
+    outline fits a print's or a table's edges as well as the part's); on black space they do."""
+    trk = EdgesAloneAfterALoss(object=truss, lost_frames=range(15, 18))
+    est = HybridEstimator(trk, OracleRegressor(blind=range(15, 40)), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, start_contrast=0))
+    statuses = [est.step(replace(frame(k), image=np.full((CAM.height, CAM.width, 3), grey, np.uint8))).status
+                for k in range(36)]
+    assert statuses[0] == "init" and statuses[15] == "lost"
+    assert ("tracking" in statuses[18:]) == resumes
+
+
 def test_restarts_close_together_are_not_trusted_until_tracking_settles():
     """A tracker that loses the object every few frames: each loss ends in a CNN restart; with
     settle_frames the frames right after a restart that follows another closely are reported lost."""

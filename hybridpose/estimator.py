@@ -306,7 +306,6 @@ class HybridEstimator:
             self.last_tracker = m
             cues = getattr(self.tracker, "cue_qualities", None)
             # a take-up is a start from the prediction: off black space the edges alone do not make one
-            # (ViSP's detection cube, its region cue silent after a loss: taken up 17° off on edges at 0.55)
             vouched = cues_vouch(cues, self.config.resume_cue_quality) and not (
                 self._view is not None and not m.lost and edges_alone_in_clutter(cues, frame, self._view, m.pose))
             if not m.lost and vouched and self._timed(timings, "fusion", self.fusion.update, m):

@@ -176,6 +176,17 @@ def first_frame(source) -> np.ndarray:
 # the hand-held suite's photo scenes ≤ 0.04, a deep-sky photo behind the part 0.66
 SPACE_DARK_SHARE = 0.5
 AUTO_TRACKERS = {"space": "edges", "lit": "combined"}
+AUTO_TRACKER = "auto"  # the name that asks for the choice (`hybridpose track --tracker`'s default)
+
+
+def chosen_tracker(name: str, source) -> tuple[str, str | None]:
+    """``name``, or where it is ``AUTO_TRACKER`` the tracker :func:`auto_tracker` takes for the first frame
+    of ``source`` (a video file or image folder); with why it was taken (None where ``name`` was given)."""
+    if name != AUTO_TRACKER:
+        return name, None
+    tracker, dark = auto_tracker(first_frame(source))
+    scene = "black space" if tracker == AUTO_TRACKERS["space"] else "a lit scene"
+    return tracker, f"auto: {dark:.0%} of the first frame dark, {scene}"
 
 
 def auto_tracker(image: np.ndarray) -> tuple[str, float]:

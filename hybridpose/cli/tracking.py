@@ -14,25 +14,18 @@ from .common import close_bars, counter, float_pair, progress
 from .data import verify_dataset
 
 
-# ``--tracker``'s default: the tracker follows what the video's first frame shows (:func:`~hybridpose.tracking.auto_tracker`)
-AUTO_TRACKER = "auto"
-
-
 def cmd_track(args) -> int:
     from ..geometry import load_camera
     from ..objects import load_object
     from ..registry import create, get
-    from ..tracking import (AUTO_TRACKERS, auto_tracker, first_frame, first_frame_size, load_pose, read_frames,
-                            track_sequence)
+    from ..tracking import chosen_tracker, first_frame_size, load_pose, read_frames, track_sequence
 
     from ..hybrid_config import HybridConfig, changes_text
     from ..regressors.options import KeypointOptions
 
-    if args.tracker == AUTO_TRACKER:
-        args.tracker, dark = auto_tracker(first_frame(args.source))
-        args.tracker_chosen = f"auto: {dark:.0%} of the first frame dark"
-        print(f"track: tracker {args.tracker} ({args.tracker_chosen}, "
-              f"{'black space' if args.tracker == AUTO_TRACKERS['space'] else 'a lit scene'}; --tracker NAME chooses)")
+    args.tracker, args.tracker_chosen = chosen_tracker(args.tracker, args.source)
+    if args.tracker_chosen:
+        print(f"track: tracker {args.tracker} ({args.tracker_chosen}; --tracker NAME chooses)")
     tracker_kw = backend_options(args.tracker_option, get("tracker", args.tracker), "--tracker-option")
     regressor_kw = backend_options(args.regressor_option, KeypointOptions, "--regressor-option")
     if regressor_kw and args.init_pose is not None:
@@ -359,10 +352,9 @@ def add_commands(sub) -> None:
                         "or BOP cam_R_m2c + cam_t_m2c (mm); or a ViSP .pos file (tx ty tz in m, θu in rad)")
     k.add_argument("--regressor", default="default", help="registered regressor or a checkpoint file (best.pt)")
     k.add_argument("--fusion", default=DEFAULT_FUSION, help=f"fusion backend of the hybrid (isam2, ukf, none; default {DEFAULT_FUSION})")
-    k.add_argument("--tracker", default=AUTO_TRACKER,
-                   help="tracker: auto (the default: edges where the first frame is black space — at least half its "
-                        "pixels dark — combined anywhere else), edges (space), combined (real footage: a printed part, "
-                        "clutter, a hand-held camera); the baselines klt-pnp, rapid, rapid-gos and rapid-ols by name too")
+    k.add_argument("--tracker", default="auto", help="tracker: auto (the default: edges where at least half the first frame "
+                   "is dark, black space; else combined), edges (space), combined (real footage: a printed part, clutter, "
+                   "a hand-held camera); the baselines klt-pnp, rapid, rapid-gos and rapid-ols by name too")
     k.add_argument("--tracker-option", action="append", metavar="NAME=VALUE",
                    help="a keyword of the tracker (repeatable), e.g. explain=false or lost_quality=0.4 for "
                         "edges; an unknown name lists the ones it takes")

@@ -304,11 +304,8 @@ class HybridEstimator:
         if self.config.tracker_resumes:
             m = self._track_from(frame, prior.pose, timings)
             self.last_tracker = m
-            cues = getattr(self.tracker, "cue_qualities", None)
-            # a take-up is a start from the prediction: off black space the edges alone do not make one
-            vouched = cues_vouch(cues, self.config.resume_cue_quality) and not (
-                self._view is not None and not m.lost and edges_alone_in_clutter(cues, frame, self._view, m.pose))
-            if not m.lost and vouched and self._timed(timings, "fusion", self.fusion.update, m):
+            vouched = cues_vouch(getattr(self.tracker, "cue_qualities", None), self.config.resume_cue_quality)
+            if not m.lost and vouched and not self._edges_alone(frame, m) and self._timed(timings, "fusion", self.fusion.update, m):
                 # inside the gate: taken up, but the fusion starts over from the fit — the twist
                 # coasted through the loss is a guess, and after one update its spread still lets the
                 # next CNN check pull the track off by centimetres
@@ -350,13 +347,16 @@ class HybridEstimator:
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 return None
             m = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
-            cues = getattr(self.tracker, "cue_qualities", None)
-            alone = self._view is not None and not m.lost and edges_alone_in_clutter(cues, frame, self._view, m.pose)
-            return None if alone else m
+            return None if self._edges_alone(frame, m) else m
 
         stands_out = image_test(self._view, frame, self.config.start_contrast, self._print,
                                 self.config.start_print_margin)
         return confirmed_start(m, fit, self.config, depth_search, stands_out)
+
+    def _edges_alone(self, frame: Frame, m: Measurement) -> bool:
+        """Whether the fit ``m`` in ``frame`` stands on its edges alone in a lit scene: no start, nor a take-up (a start too)."""
+        cues = getattr(self.tracker, "cue_qualities", None)
+        return self._view is not None and not m.lost and edges_alone_in_clutter(cues, frame, self._view, m.pose)
 
     @staticmethod
     def _tracker_twist(previous: Measurement | None, m: Measurement) -> np.ndarray | None:

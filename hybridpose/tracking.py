@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from .core import Estimate, Frame, Measurement
-from .geometry import Camera, Pose
+from .geometry import Camera, Pose, as_rgb_image
 from .io import atomic_write_json, atomic_write_text, read_json
 from .viz import SITE_LEGEND, draw_edge_sites, draw_wireframe, put_label
 
@@ -179,12 +179,12 @@ AUTO_TRACKERS = {"space": "edges", "lit": "combined"}
 AUTO_TRACKER = "auto"  # the name that asks for the choice (`hybridpose track --tracker`'s default)
 
 
-def chosen_tracker(name: str, source) -> tuple[str, str | None]:
-    """``name``, or where it is ``AUTO_TRACKER`` the tracker :func:`auto_tracker` takes for the first frame
-    of ``source`` (a video file or image folder); with why it was taken (None where ``name`` was given)."""
+def chosen_tracker(name: str, first: np.ndarray) -> tuple[str, str | None]:
+    """``name``, or where it is ``AUTO_TRACKER`` the tracker :func:`auto_tracker` takes for a video whose
+    first frame is ``first`` ((H, W, 3) uint8 RGB); with why it was taken (None where ``name`` was given)."""
     if name != AUTO_TRACKER:
         return name, None
-    tracker, dark = auto_tracker(first_frame(source))
+    tracker, dark = auto_tracker(first)
     scene = "black space" if tracker == AUTO_TRACKERS["space"] else "a lit scene"
     return tracker, f"auto: {dark:.0%} of the first frame dark, {scene}"
 
@@ -198,10 +198,7 @@ def auto_tracker(image: np.ndarray) -> tuple[str, float]:
     from .edges import to_gray8
     from .edges.silhouette import LIT_PIXEL_GREY
 
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8 or image.size == 0:
-        raise ValueError(f"image: expected (H, W, 3) uint8 RGB, got shape {image.shape} dtype {image.dtype}")
-    dark = float((to_gray8(image) <= LIT_PIXEL_GREY).mean())
+    dark = float((to_gray8(as_rgb_image(image)) <= LIT_PIXEL_GREY).mean())
     return AUTO_TRACKERS["space" if dark >= SPACE_DARK_SHARE else "lit"], dark
 
 

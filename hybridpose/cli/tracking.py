@@ -18,12 +18,13 @@ def cmd_track(args) -> int:
     from ..geometry import load_camera
     from ..objects import load_object
     from ..registry import create, get
-    from ..tracking import chosen_tracker, first_frame_size, load_pose, read_frames, track_sequence
+    from ..tracking import chosen_tracker, first_frame, load_pose, read_frames, track_sequence
 
     from ..hybrid_config import HybridConfig, changes_text
     from ..regressors.options import KeypointOptions
 
-    args.tracker, args.tracker_chosen = chosen_tracker(args.tracker, args.source)
+    first = first_frame(args.source)
+    args.tracker, args.tracker_chosen = chosen_tracker(args.tracker, first)
     if args.tracker_chosen:
         print(f"track: tracker {args.tracker} ({args.tracker_chosen}; --tracker NAME chooses)")
     tracker_kw = backend_options(args.tracker_option, get("tracker", args.tracker), "--tracker-option")
@@ -37,7 +38,7 @@ def cmd_track(args) -> int:
     get("fusion", args.fusion)
     obj = load_object(args.object, scale=args.scale)
     # a camera file without an image size (a ViSP tracker configuration) calibrates these frames
-    camera = load_camera(args.camera, image_size=first_frame_size(args.source))
+    camera = load_camera(args.camera, image_size=(first.shape[1], first.shape[0]))
     frames = read_frames(args.source, camera, args.fps)
     if args.sun_dir is not None:
         from ..tracking import with_sun

@@ -10,7 +10,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from .checks import as_array, as_points3d
+from .checks import as_array, as_points3d, as_rgb_image
 from .pose import Pose
 
 _MIN_DEPTH_M = 1e-6  # points nearer the camera plane project to infinity: refused
@@ -225,9 +225,7 @@ class Camera:
 
     def check_image(self, image, name: str = "image") -> np.ndarray:
         """Validate an RGB image for this camera: (H, W, 3) uint8."""
-        img = np.asarray(image)
-        if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
-            raise ValueError(f"{name}: expected (H, W, 3) uint8 RGB, got shape {img.shape} dtype {img.dtype}")
+        img = as_rgb_image(image, name)
         if img.shape[:2] != (self.height, self.width):
             raise ValueError(
                 f"{name}: size {img.shape[1]}×{img.shape[0]} does not match the camera ({self.width}×{self.height}); "

@@ -48,6 +48,14 @@ def _fmt_shape(shape: tuple) -> str:
     return "(" + ", ".join("N" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
+def as_rgb_image(image, name: str = "image") -> np.ndarray:
+    """``image`` as an (H, W, 3) uint8 RGB array with at least one pixel."""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or img.size == 0:
+        raise ValueError(f"{name}: expected (H, W, 3) uint8 RGB, got shape {img.shape} dtype {img.dtype}")
+    return img
+
+
 def as_points3d(x, name: str) -> np.ndarray:
     """(N, 3) float64 array of 3D points."""
     return as_array(x, name, (None, 3))

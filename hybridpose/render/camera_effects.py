@@ -8,6 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..geometry import as_rgb_image
+
 # ranges drawn per training view, chosen to cover the hand-held scenes' (hybridpose.render.handheld:
 # blur of half a frame's 5–30 px motion, exposure gains, noise σ 3, JPEG 75–95) and a webcam's darker
 # and harsher ends
@@ -44,9 +46,7 @@ def jpeg(image: np.ndarray, quality: int) -> np.ndarray:
 def camera_effects(image: np.ndarray, rng: np.random.Generator | int | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB → the same with one draw of motion blur, exposure and white-balance gains,
     noise and JPEG (ranges: this module's constants), seeded by ``rng``."""
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise ValueError(f"image: expected (H, W, 3) uint8 RGB, got shape {image.shape} dtype {image.dtype}")
+    image = as_rgb_image(image)
     rng = np.random.default_rng(rng)
     if rng.random() < BLUR_SHARE:
         angle = rng.uniform(0.0, np.pi)

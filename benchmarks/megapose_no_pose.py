@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -86,18 +87,19 @@ def _within(pose, truth, deg: float, metres: float) -> bool:
     return bool(rotation_error_deg(pose, truth) <= deg and np.linalg.norm(pose.t - truth.t) <= metres)
 
 
-def score_cnn(regressor: str, frames, obj, reference) -> dict:
-    """The fitted network alone on every ``CNN_EVERY``-th frame with a reference: frames in a tracker's basin."""
+def score_cnn(regressor, frames, obj, reference) -> dict:
+    """The fitted network (a checkpoint; or any ``predict(frame)`` giving a Measurement or None) alone on
+    every ``CNN_EVERY``-th frame with a reference: frames in a tracker's basin."""
     from hybridpose.bench.modes import BASIN_DEG, BASIN_PCT
     from hybridpose.metrics import nearest_equivalent, rotation_error_deg
     from hybridpose.registry import create_regressor
 
-    reg = create_regressor(regressor, object=obj)
+    predict = create_regressor(regressor, object=obj).predict if isinstance(regressor, str) else regressor
     sampled = [f for f in frames[::CNN_EVERY] if reference[f.index] is not None]
     inside, rot = 0, []
     for frame in sampled:
-        m, ref = reg.predict(frame), reference[frame.index]
-        if m.pose is None:
+        m, ref = predict(frame), reference[frame.index]
+        if m is None or m.pose is None:
             continue
         truth = nearest_equivalent(m.pose, ref, obj.symmetries)
         rot.append(rotation_error_deg(m.pose, truth))
@@ -105,15 +107,28 @@ def score_cnn(regressor: str, frames, obj, reference) -> dict:
     return {"frames": len(sampled), "in_basin": int(inside), "rot_median_deg": float(np.median(rot)) if rot else None}
 
 
-def score_hybrid(regressor: str, frames, obj, reference, tracker: str = "combined") -> dict:
-    """The hybrid (``tracker`` + the fitted network + isam2) from no initial pose over ``frames``, against
-    ``reference``."""
+def score_memory(frames, obj, reference) -> dict | None:
+    """The keypoint memory of a printed ``obj`` (its print alone, nothing learned) on every
+    ``CNN_EVERY``-th frame with a reference, as :func:`score_cnn` scores the network; None for a plain part."""
+    from hybridpose.edges import ModelView
+    from hybridpose.regressors.keypoint_memory import KeypointMemory
+
+    if obj.texture is None:
+        return None
+    memory = KeypointMemory.from_print(ModelView(obj), frames[0].camera)
+    return score_cnn(memory.find, frames, obj, reference)
+
+
+def score_hybrid(regressor: str, frames, obj, reference, tracker: str = "combined", memory: bool = True) -> dict:
+    """The hybrid (``tracker`` + the fitted network + isam2; with its keypoint memory or not) from no
+    initial pose over ``frames``, against ``reference``."""
     from hybridpose.edges import ModelView
     from hybridpose.edges.image_distance import edge_distances_px
     from hybridpose.estimator import HybridEstimator
     from hybridpose.metrics import nearest_equivalent, rotation_error_deg
 
-    est = HybridEstimator.from_names(object=obj, tracker=tracker, regressor=regressor, fusion="isam2")
+    est = HybridEstimator.from_names(object=obj, tracker=tracker, regressor=regressor, fusion="isam2",
+                                     config=None if memory else {"keypoint_memory": False})
     view = ModelView(obj)
     held = wrong = trusted = exact = 0
     first, ms, scored, edge_px = None, [], 0, []
@@ -152,24 +167,29 @@ def main(argv=None) -> None:
     ap.add_argument("--trackers", default="combined",
                     help="the hybrid's trackers, one row each (default combined, what `hybridpose track` takes on "
                          "these lit scenes; edges: the space tracker, which it takes on black space)")
+    ap.add_argument("--memory", default="on",
+                    help="the hybrid's keypoint memory, one row each: on (default), off, or on,off")
     ap.add_argument("--mesh", default=None,
-                    help="the cube's mesh with its print (cube.obj beside a cube.mtl naming color.jpg): each network's "
-                         "hybrid runs again with it, its starts checked against the print")
+                    help="the cube's mesh with its print (an OBJ beside a .mtl naming its image) where the video's "
+                         "own model carries none: each network's hybrid runs again with it, its starts checked "
+                         "against the print (the MegaPose cube's model carries its print)")
     args = ap.parse_args(argv)
+    from hybridpose.objects import load_object
     from hybridpose.threads import set_threads
 
     set_threads(1)
     networks = dict(item.split("=", 1) for item in args.regressor.split(","))
     trackers = [t.strip() for t in args.trackers.split(",") if t.strip()]
+    memories = [{"on": True, "off": False}[m.strip()] for m in args.memory.split(",") if m.strip()]
     video = next(v for v in REPO_VIDEOS if v.key == args.video)
     block, tuned = VIDEOS[args.video]
-    frames, camera, obj, pose0 = repo_frames(Path(args.visp_repo), video)
+    frames, camera, model, pose0 = repo_frames(Path(args.visp_repo), video)
+    obj = replace(model, texture=None, face_uv=None)  # the shape alone, as a plain CAD model gives it
     reference = reference_track(frames, obj, pose0)
-    from hybridpose.objects import load_object
-
-    printed = None if args.mesh is None else load_object(args.mesh)
+    printed = load_object(args.mesh) if args.mesh is not None else (model if model.texture is not None else None)
     if printed is not None and printed.texture is None:
         raise SystemExit(f"--mesh: {args.mesh} carries no print (an OBJ needs its .mtl naming the image)")
+    memory_alone = score_memory(frames, printed, reference) if printed is not None else None
     rows = []
     for name, path in networks.items():
         cnn = score_cnn(path, frames, obj, reference)
@@ -177,25 +197,30 @@ def main(argv=None) -> None:
             if part is None:
                 continue
             for tracker in trackers:
-                row = {"network": name, "checkpoint": path, "mesh": label, "tracker": tracker, "cnn": cnn,
-                       "hybrid": score_hybrid(path, frames, part, reference, tracker)}
-                rows.append(row)
-                print(name, label, tracker, row, flush=True)
+                for memory in memories:
+                    row = {"network": name, "checkpoint": path, "mesh": label, "tracker": tracker, "memory": memory,
+                           "cnn": cnn, "memory_alone": memory_alone if label == "print" else None,
+                           "hybrid": score_hybrid(path, frames, part, reference, tracker, memory)}
+                    rows.append(row)
+                    print(name, label, tracker, memory, row, flush=True)
     lines = [f"{video.title}, its first {len(frames)} frames, from no initial pose "
              f"(`python benchmarks/megapose_no_pose.py{'' if args.video == 'megapose_cube' else ' --video ' + args.video}`, commit `{environment()['git']}`, one thread): the hybrid "
              f"(`{'`, `'.join(trackers)}` + `isam2`, defaults) with each fitted network, scored up to the cube's symmetries against "
              "the `combined` track from the hand-labelled first pose, on the "
              f"{sum(r is not None for r in reference)} frames where the same tracker from two starts 0.2° and 0.5 mm "
              f"from it agrees with it within {REF_AGREE_DEG:g}° and {1000 * REF_AGREE_M:g} mm. {tuned}", "",
-             "| network | tracker | the hybrid's model | CNN alone: in a tracker's basin (rotation median) | hybrid: first pose | "
+             "| network | tracker | the hybrid's model | keypoint memory | CNN alone: in a tracker's basin (rotation median) | "
+             "memory alone, the print's: in a tracker's basin | hybrid: first pose | "
              f"trusted frames (of {len(frames)}) | within {HELD_DEG:g}° and {100 * HELD_M:g} cm | …of its own pose (which face is which) | "
              f"trusted > {WRONG_DEG:g}° off | edge px (median of trusted frames) | ms/frame |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        c, h = r["cnn"], r["hybrid"]
+        c, h, k = r["cnn"], r["hybrid"], r["memory_alone"]
         med = "—" if c["rot_median_deg"] is None else f"{c['rot_median_deg']:.0f}°"
+        alone = "—" if k is None else f"{k['in_basin']} of {k['frames']}"
         model = "shape and print (starts checked against the print)" if r["mesh"] == "print" else "shape"
-        lines.append(f"| {r['network']} | {r['tracker']} | {model} | {c['in_basin']} of {c['frames']} ({med}) | "
+        lines.append(f"| {r['network']} | {r['tracker']} | {model} | {'on' if r['memory'] else 'off'} | "
+                     f"{c['in_basin']} of {c['frames']} ({med}) | {alone} | "
                      f"{'never' if h['first_pose'] is None else 'frame ' + str(h['first_pose'])} | {h['trusted']} | "
                      f"{h['held']} of {h['frames']} ({100 * h['held'] / h['frames']:.0f} %) | {h['held_exact'] if r['mesh'] == 'print' else '—'} | {h['wrong']} | "
                      f"{'—' if h['edge_px_median'] is None else format(h['edge_px_median'], '.2f')} | {h['ms_per_frame']:.0f} |")

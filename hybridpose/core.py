@@ -184,3 +184,18 @@ class Estimate:
         object.__setattr__(self, "status", Status(self.status))
         object.__setattr__(self, "covariance", as_covariance6(self.covariance))
         object.__setattr__(self, "velocity", as_array(self.velocity, "velocity", (6,)))
+
+
+def check_next_frame(frame: Frame, camera, last_timestamp: float | None):
+    """Check that ``frame`` can follow a sequence's frames so far (taken by ``camera``, the last at
+    ``last_timestamp`` seconds; None for both before the first): a :class:`Frame`, the same camera,
+    a later timestamp. Returns the sequence's camera. Raises TypeError / ValueError naming the field."""
+    if not isinstance(frame, Frame):
+        raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+    if camera is not None and frame.camera != camera:
+        raise ValueError(f"frame.camera: {frame.camera} differs from the camera of the first frame ({camera}); "
+                         "call reset() to start over with another camera")
+    if last_timestamp is not None and not frame.timestamp > last_timestamp:
+        raise ValueError(f"frame.timestamp: {frame.timestamp:.6f} s is not after the previous frame's "
+                         f"{last_timestamp:.6f} s (timestamps must increase)")
+    return frame.camera if camera is None else camera

@@ -43,6 +43,10 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
 
 A start (init, reinit) may be put on probation (``confirm_frames``): not trusted until it has held.
 
+In a lit scene, wherever the CNN would run, the part's keypoint memory (``keypoint_memory``) answers
+first where it can: its print, where its model carries one, and its look in this video, learned where
+the track was sure (``learn_after``); its answers are confirmed as the CNN's are.
+
 For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose
 nearest the track (or, while lost, nearest the previous answer): the CNN may give any of the poses that
 look the same, and only that one can be compared with the track or fused into it. A part that carries
@@ -61,15 +65,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .contracts import check_backend
-from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status
-from .edges import ModelView
-from .fusion.base import nearest_equivalent_measurement
+from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status, check_next_frame
+from .edges import ModelView, to_gray8
+from .edges.silhouette import SPACE_DARK_SHARE, dark_share
+from .fusion.base import measured_twist, nearest_equivalent_measurement
 from .fusion.base import pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
 from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
+from .regressors.keypoint_memory import KeypointMemory
 from .starts import confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view
 from .threads import set_threads
 
@@ -181,11 +187,15 @@ class HybridEstimator:
         self.last_timestamp: float | None = None
         self._n = _Counters()
         self.last_tracker = None
+        self.memory: KeypointMemory | None = None  # the part's look, made at the first frame (none on black space)
         self.tracker.reset()
 
     def step(self, frame: Frame) -> Estimate:
         """Estimate the pose in ``frame`` (frames in time order, one camera)."""
-        self._check_frame(frame)
+        self.camera = check_next_frame(frame, self.camera, self.last_timestamp)
+        if self._frames == 0 and self.config.keypoint_memory and self._view is not None \
+                and dark_share(to_gray8(frame.image)) < SPACE_DARK_SHARE:
+            self.memory = KeypointMemory.for_part(self._view, frame.camera)
         timings = {"tracker": 0.0, "regressor": 0.0, "fusion": 0.0}
         t_start = time.perf_counter()
         frame = frame.undistorted()  # once for the tracker and the CNN, which both model a pinhole
@@ -238,6 +248,7 @@ class HybridEstimator:
         elif self._timed(timings, "fusion", self.fusion.update, m):
             sources.append(m.source)
             self._n.rejections = self._n.tracker_losses = 0
+            self._learn(frame, m, timings)
         else:
             self._n.rejections += 1
             rejected = True
@@ -257,7 +268,7 @@ class HybridEstimator:
         if rejected and self.config.check_on_rejection and self._vouched(m, check.cnn, check.fit):
             # the edges from the CNN pose land on the refused measurement: the motion model was
             # wrong, not the tracker; start the fusion over from the tracker
-            self._restart(frame, m, timings, self._tracker_twist(previous, m))
+            self._restart(frame, m, timings, measured_twist(previous, m, MAX_TWIST_GAP_S))
             return self._estimate(Status.TRACKING, (m.source, check.cnn.source))
         if check.disagrees and check.fit.lost and check.backed_by(m, self.config.switch_quality_margin):
             # the model's edges find nothing to hold at the CNN pose (typically its end-for-end twin)
@@ -358,17 +369,6 @@ class HybridEstimator:
         cues = getattr(self.tracker, "cue_qualities", None)
         return self._view is not None and not m.lost and edges_alone_in_clutter(cues, frame, self._view, m.pose)
 
-    @staticmethod
-    def _tracker_twist(previous: Measurement | None, m: Measurement) -> np.ndarray | None:
-        """Body twist (6,) rad/s, m/s between two tracker poses up to ``MAX_TWIST_GAP_S`` apart; None
-        (zero twist) otherwise."""
-        if previous is None or previous.pose is None or m.pose is None:
-            return None
-        dt = m.timestamp - previous.timestamp
-        if not 0 < dt <= MAX_TWIST_GAP_S:
-            return None
-        return previous.pose.local(m.pose) / dt
-
     def _take_up(self, frame: Frame, m: Measurement, timings: dict) -> Estimate:
         """The track goes on from the tracker's own fit ``m`` (no CNN involved): the fusion starts over
         there with zero twist and its initial uncertainty, the counters of the track from zero."""
@@ -466,12 +466,23 @@ class HybridEstimator:
         return (self.config.settle_frames > 0 and len(r) >= 2 and r[-1] - r[-2] <= self.config.unstable_window
                 and self._frames - r[-1] <= self.config.settle_frames)
 
+    def _learn(self, frame: Frame, m: Measurement, timings: dict) -> None:
+        """The memory learns the part's look from the tracker's fit ``m`` where the track is sure of it:
+        ``learn_after`` frames since its start, ``start_sure_quality``, every cue vouching, not the edges alone."""
+        if (self.memory is not None and self._n.since_start >= self.config.learn_after
+                and m.quality >= self.config.start_sure_quality and self.memory.wants(m.pose)
+                and cues_vouch(getattr(self.tracker, "cue_qualities", None), self.config.resume_cue_quality)
+                and not self._edges_alone(frame, m)):
+            self._timed(timings, "regressor", self.memory.learn, frame, m.pose)
+
     def _cnn(self, frame: Frame, roi, timings: dict, near: Pose | None = None) -> Measurement:
-        """The regressor's measurement in ``frame``; for a symmetric object, as the equivalent pose
-        nearest ``near`` (where given): its answer may be any of the poses that look the same, and
-        only the one nearest the track can be compared with it or fused into it."""
-        self.regressor_calls += 1
-        m = self._timed(timings, "regressor", self.regressor.predict, frame, roi)
+        """The memory's answer in ``frame`` (:attr:`memory`), else the regressor's; for a symmetric
+        object, as the equivalent pose nearest ``near`` (where given): its answer may be any of the
+        poses that look the same, and only the one nearest the track can be compared with it or fused into it."""
+        m = None if self.memory is None else self._timed(timings, "regressor", self.memory.find, frame, roi)
+        if m is None:
+            self.regressor_calls += 1
+            m = self._timed(timings, "regressor", self.regressor.predict, frame, roi)
         symmetries = self.object.symmetries if self.object is not None else ()
         return m if near is None else nearest_equivalent_measurement(m, near, symmetries)
 
@@ -485,16 +496,4 @@ class HybridEstimator:
             return fn(*args)
         finally:
             timings[key] += 1000 * (time.perf_counter() - t0)
-
-    def _check_frame(self, frame: Frame) -> None:
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
-        if self.camera is None:
-            self.camera = frame.camera
-        elif frame.camera != self.camera:
-            raise ValueError(f"frame.camera: {frame.camera} differs from the camera of the first frame ({self.camera}); "
-                             "call reset() to start over with another camera")
-        if self.last_timestamp is not None and not frame.timestamp > self.last_timestamp:
-            raise ValueError(f"frame.timestamp: {frame.timestamp:.6f} s is not after the previous frame's "
-                             f"{self.last_timestamp:.6f} s (timestamps must increase)")
 

@@ -143,6 +143,16 @@ class HybridConfig:
             CNN pose does not stay there, restart from the CNN pose alone (True) or declare the object
             lost until the CNN and the edges agree again (False: such restarts were wrong in every
             case on the tuning seeds).
+        keypoint_memory: keep a memory of the part's look (:class:`~hybridpose.regressors.keypoint_memory.
+            KeypointMemory`: image keypoints on the part with the model points under them), asked before
+            the CNN wherever the CNN would run: it holds the part's print where the object carries one
+            (found from the first frame) and learns from the track (found again after a loss, by this
+            camera's view of the part, not by a network's guess). Its answers are confirmed as a
+            CNN's are. Never on black space (the first frame at least ``SPACE_DARK_SHARE`` dark, as
+            ``track`` tells it): a plain part's keypoints there are its shading, which the sun moves
+            (the space suite's hybrid as accurate without it, and a third faster). False: the CNN alone.
+        learn_after: frames a track must have run since its (re)start before the memory learns from
+            it, at fits reaching ``start_sure_quality`` whose cues all vouch (``resume_cue_quality``).
         check_on_rejection: a tracker measurement refused by the gate calls a CNN check at once; when
             the CNN pose and the edge fit started from it both agree with the refused measurement
             (``disagreement_chi2``), the motion model was wrong, not the tracker (a sudden change
@@ -183,10 +193,12 @@ class HybridConfig:
     keep_after: int = 5
     disagreement_deg: float | None = None
     reacquire_deg: float | None = None
+    keypoint_memory: bool = True
+    learn_after: int = 10
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "confirm_frames",
-                     "keep_after"):
+                     "keep_after", "learn_after"):
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")

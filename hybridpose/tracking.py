@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from .core import Estimate, Frame, Measurement
+from .edges.silhouette import SPACE_DARK_SHARE, dark_share
 from .geometry import Camera, Pose, as_rgb_image
 from .io import atomic_write_json, atomic_write_text, read_json
 from .viz import SITE_LEGEND, draw_edge_sites, draw_wireframe, put_label
@@ -169,12 +170,8 @@ def first_frame(source) -> np.ndarray:
     return cv2.cvtColor(first[0], cv2.COLOR_BGR2RGB)
 
 
-# ``auto``'s choice: where at least this share of a first frame's pixels is dark (not lit: grey ≤
-# LIT_PIXEL_GREY), the scene is black space and ``edges`` tracks it; anywhere else ``combined``. Measured
-# (first and later frames): rendered space scenes 0.73–0.97 before the arm comes in (0.15 with it
-# across the view); ViSP's real videos (cube, castle, MegaPose cube, detection cube, lego square) ≤ 0.02;
-# the hand-held suite's photo scenes ≤ 0.04, a deep-sky photo behind the part 0.66
-SPACE_DARK_SHARE = 0.5
+# ``auto``'s choice: ``edges`` where the first frame shows black space (edges.silhouette.SPACE_DARK_SHARE
+# of its pixels dark), ``combined`` anywhere else
 AUTO_TRACKERS = {"space": "edges", "lit": "combined"}
 AUTO_TRACKER = "auto"  # the name that asks for the choice (`hybridpose track --tracker`'s default)
 
@@ -196,9 +193,8 @@ def auto_tracker(image: np.ndarray) -> tuple[str, float]:
     lab, a workshop, the Earth behind the part: its texture and region cues, and a quality that takes
     clutter and a print for no evidence against a pose)."""
     from .edges import to_gray8
-    from .edges.silhouette import LIT_PIXEL_GREY
 
-    dark = float((to_gray8(as_rgb_image(image)) <= LIT_PIXEL_GREY).mean())
+    dark = dark_share(to_gray8(as_rgb_image(image)))
     return AUTO_TRACKERS["space" if dark >= SPACE_DARK_SHARE else "lit"], dark
 
 

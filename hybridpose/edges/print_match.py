@@ -104,9 +104,27 @@ class PrintView:
             out.append(self._correlation(seen, f_b, [S_inv @ X for X in points], ok & np.isfinite(self.maps[f_b, 0, 0])))
         return np.array(out)
 
-    def _correlation(self, seen: np.ndarray, f: np.ndarray, points: list, ok: np.ndarray) -> float:
-        """The facet-by-facet correlation of the grey values ``seen`` (N,) with the print at the model
-        points ``points`` (the pixel's and its two neighbours', each (N, 3)) on facets ``f`` (N,)."""
+    def image(self, pose: Pose, camera) -> np.ndarray:
+        """The grey print as ``camera`` sees the part at ``pose``: (H, W) uint8, 0 off the part and on
+        facets that do not map onto the print (an untextured light: what a matcher of image points
+        learns the print's look from)."""
+        ids = self.view.facet_ids(pose, camera, scale=1.0)
+        ys, xs = np.nonzero(ids)
+        out = np.zeros(ids.shape, np.uint8)
+        if len(xs) == 0:
+            return out
+        f = ids[ys, xs].astype(np.int64)
+        lifted = [self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(np.float64), ids=ids)
+                  for dx, dy in ((0, 0), (1, 0), (0, 1))]
+        ok = lifted[0][1] & np.isfinite(self.maps[f, 0, 0])
+        values = self._printed(f, [X for X, _ in lifted])
+        out[ys[ok], xs[ok]] = np.clip(values[ok], 0, 255).astype(np.uint8)
+        return out
+
+    def _printed(self, f: np.ndarray, points: list) -> np.ndarray:
+        """The grey print (N,) float at the model points ``points`` (the pixel's and its two
+        neighbours', each (N, 3)) on facets ``f`` (N,), from the pyramid level whose texel matches
+        the pixel's footprint."""
         h, w = self.levels[0].shape
         texels = [np.einsum("nk,nkj->nj", np.c_[X, np.ones(len(X))], np.nan_to_num(self.maps[f])) * (w, h)
                   for X in points]
@@ -122,6 +140,12 @@ class PrintView:
             col, row = u[sel] * (img.shape[1] - 1), v[sel] * (img.shape[0] - 1)
             printed[sel] = cv2.remap(img, col.astype(np.float32)[None], row.astype(np.float32)[None],
                                      cv2.INTER_LINEAR)[0]
+        return printed
+
+    def _correlation(self, seen: np.ndarray, f: np.ndarray, points: list, ok: np.ndarray) -> float:
+        """The facet-by-facet correlation of the grey values ``seen`` (N,) with the print at the model
+        points ``points`` (the pixel's and its two neighbours', each (N, 3)) on facets ``f`` (N,)."""
+        printed = self._printed(f, points)
         total, weight = 0.0, 0
         for fid in np.unique(f[ok]):
             sel = ok & (f == fid)

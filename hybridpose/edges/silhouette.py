@@ -20,6 +20,11 @@ from .image import to_gray
 from .model_view import ID_SCALE, ModelView
 
 LIT_PIXEL_GREY = 12.0  # a pixel brighter than this grey level is lit (black space renders at 0–3)
+# where at least this share of a frame's pixels is dark (grey ≤ LIT_PIXEL_GREY), the scene is black space.
+# Measured (first and later frames): rendered space scenes 0.73–0.97 before the arm comes in (0.15 with it
+# across the view); ViSP's real videos (cube, castle, MegaPose cube, detection cube, lego square) ≤ 0.02;
+# the hand-held suite's photo scenes ≤ 0.04, a deep-sky photo behind the part 0.66
+SPACE_DARK_SHARE = 0.5
 SLACK_PX = 2  # lit pixels this close to the projected silhouette count as explained (frame pixels)
 SLACK_SHARE = 0.005  # ... or this share of the silhouette's diagonal (frame pixels), where more
 BAND_PX = 10  # lit pixels this close to it must be explained (frame pixels)
@@ -116,3 +121,9 @@ def lit_verdict(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | No
     if n == 0:
         return LitVerdict(float("nan"), False)
     return LitVerdict(float((lit & explained).sum()) / n, False)
+
+
+def dark_share(gray: np.ndarray) -> float:
+    """Share (0..1) of the (H, W) uint8 grey image's pixels that are dark (grey ≤ ``LIT_PIXEL_GREY``);
+    ``SPACE_DARK_SHARE`` or more: black space, where only the part and what sits near it are lit."""
+    return float((gray <= LIT_PIXEL_GREY).mean())

@@ -227,3 +227,15 @@ def equivalent_measurement(m: Measurement, S: Pose) -> Measurement:
     right-perturbation covariance carried along (``Σ' = Ad(S⁻¹) Σ Ad(S⁻¹)ᵀ``)."""
     A = adjoint(S.inverse())
     return replace(m, pose=m.pose @ S, covariance=A @ np.asarray(m.covariance) @ A.T)
+
+
+def measured_twist(previous: Measurement | None, m: Measurement, max_gap_s: float) -> np.ndarray | None:
+    """Body twist (6,) rad/s, m/s from the pose of ``previous`` to that of ``m`` (a tracker's two
+    measurements) where both have poses and lie at most ``max_gap_s`` apart in time; None (zero twist)
+    otherwise."""
+    if previous is None or previous.pose is None or m.pose is None:
+        return None
+    dt = m.timestamp - previous.timestamp
+    if not 0 < dt <= max_gap_s:
+        return None
+    return previous.pose.local(m.pose) / dt

@@ -217,12 +217,15 @@ class KeypointMemory:
         return uv[keep], X[keep, 0]
 
     def _pose(self, uv: np.ndarray, X: np.ndarray, K: np.ndarray):
-        """RANSAC over minimal P3P solves (fast: most matches in a cluttered frame are wrong), then the
-        inliers' refined fit and its information (:func:`~hybridpose.regressors.keypoint_pnp.solve_pnp`)."""
+        """OpenCV's USAC (RANSAC over minimal P3P solves with local optimisation, seeded: most matches in a
+        cluttered frame are wrong), then the inliers' refined fit and its information
+        (:func:`~hybridpose.regressors.keypoint_pnp.solve_pnp`)."""
+        params = cv2.UsacParams()
+        params.threshold, params.confidence, params.maxIterations = INLIER_PX, 0.999, RANSAC_ITERATIONS
+        params.randomGeneratorState = 0  # the same frame, the same answer
         try:
-            ok, _, _, idx = cv2.solvePnPRansac(X.reshape(-1, 1, 3), uv.reshape(-1, 1, 2), K, None,
-                                               iterationsCount=RANSAC_ITERATIONS, reprojectionError=INLIER_PX,
-                                               confidence=0.999, flags=cv2.SOLVEPNP_AP3P)
+            ok, _, _, _, idx = cv2.solvePnPRansac(np.ascontiguousarray(X.reshape(-1, 1, 3)),
+                                                  np.ascontiguousarray(uv.reshape(-1, 1, 2)), K, None, params=params)
         except cv2.error:  # degenerate samples
             return None
         if not ok or idx is None or len(idx) < MIN_INLIERS:

@@ -75,6 +75,7 @@ from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
+from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE
 from .regressors.keypoint_memory import KeypointMemory
 from .starts import confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view
 from .threads import set_threads
@@ -351,7 +352,6 @@ class HybridEstimator:
 
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
         """The start the CNN measurement ``m`` gives in ``frame`` (:func:`~hybridpose.starts.confirmed_start`)."""
-
         def fit(start: Pose) -> Measurement | None:
             try:
                 self._timed(timings, "tracker", self.tracker.init, frame, start)
@@ -360,9 +360,10 @@ class HybridEstimator:
             m = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
             return None if self._edges_alone(frame, m) else m
 
-        stands_out = image_test(self._view, frame, self.config.start_contrast, self._print,
-                                self.config.start_print_margin)
-        return confirmed_start(m, fit, self.config, depth_search, stands_out)
+        c = self.config  # a start from the memory's keypoints has its own bar (memory_start_quality)
+        stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin)
+        return confirmed_start(m, fit, c if m.source != MEMORY_SOURCE else replace(c, start_quality=c.memory_start_quality),
+                               depth_search, stands_out)
 
     def _edges_alone(self, frame: Frame, m: Measurement) -> bool:
         """Whether the fit ``m`` in ``frame`` stands on its edges alone in a lit scene: no start, nor a take-up (a start too)."""

@@ -153,6 +153,12 @@ class HybridConfig:
             (the space suite's hybrid as accurate without it, and a third faster). False: the CNN alone.
         learn_after: frames a track must have run since its (re)start before the memory learns from
             it, at fits reaching ``start_sure_quality`` whose cues all vouch (``resume_cue_quality``).
+        memory_start_quality: ``start_quality`` for a start from the memory's answer: the pose its
+            keypoints gave already agrees with dozens of points on the part, so the tracker need only
+            hold it as an established track holds a frame (``keep_quality``'s 0.4) — under a hand
+            holding the part, a right fit scores 0.5–0.6. ViSP's MegaPose cube with its print: within
+            5° / 2 cm 257 → 289 of 376 frames, trusted > 10° off 10 → 2 (0.45: the same); the
+            detection cube 218 → 219, none > 10° off either way.
         check_on_rejection: a tracker measurement refused by the gate calls a CNN check at once; when
             the CNN pose and the edge fit started from it both agree with the refused measurement
             (``disagreement_chi2``), the motion model was wrong, not the tracker (a sudden change
@@ -195,6 +201,7 @@ class HybridConfig:
     reacquire_deg: float | None = None
     keypoint_memory: bool = True
     learn_after: int = 10
+    memory_start_quality: float = 0.4
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "confirm_frames",
@@ -219,8 +226,9 @@ class HybridConfig:
             v = getattr(self, name)
             if v is not None and not 0 <= v <= 1:
                 raise ValueError(f"{name}: expected a tracker quality in [0, 1] or None, got {v}")
-        if not 0 <= self.start_quality <= 1:
-            raise ValueError(f"start_quality: expected a tracker quality in [0, 1], got {self.start_quality}")
+        for name in ("start_quality", "memory_start_quality"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name}: expected a tracker quality in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.switch_quality_margin <= 1:
             raise ValueError(f"switch_quality_margin: expected a quality difference in [0, 1], got {self.switch_quality_margin}")
         if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:

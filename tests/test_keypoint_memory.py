@@ -16,7 +16,7 @@ from hybridpose.geometry import Camera, Pose, rotvec_to_matrix
 from hybridpose.hybrid_config import HybridConfig
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import ObjectModel
-from hybridpose.regressors.keypoint_memory import LEARN_STEP_DEG, KeypointMemory
+from hybridpose.regressors.keypoint_memory import LEARN_STEP_DEG, SOURCE, KeypointMemory
 from hybridpose.render import Appearance, Renderer
 from hybridpose.render.appearance import clutter_background
 
@@ -153,3 +153,50 @@ def test_on_black_space_the_hybrid_keeps_no_memory(printed_cube):
                           registry.create("fusion", "ukf"))
     est.step(Frame(rgb, CAM, 0.0, 0))
     assert est.memory is None and est.regressor_calls == 1
+
+
+class ScriptedMemory:
+    """A memory that finds the part at ``pose`` on every frame and learns nothing."""
+
+    def __init__(self, pose):
+        self.pose = pose
+
+    def find(self, frame, roi=None):
+        return Measurement(self.pose, np.diag([1e-4] * 3 + [1e-6] * 3), 0.5, SOURCE, frame.timestamp)
+
+    def wants(self, pose):
+        return False
+
+
+class HalfSureTracker:
+    """Fits any start to ``pose`` with quality 0.5: a right fit of a part a hand holds up."""
+
+    lost_quality, tells_covered, object = None, False, None
+
+    def __init__(self, pose):
+        self.pose = pose
+
+    def init(self, frame, pose):
+        pass
+
+    def reset(self):
+        pass
+
+    def track(self, frame, prior=None, **options):
+        return Measurement(self.pose, np.diag([1e-6] * 3 + [1e-8] * 3), 0.5, "tracker:half-sure", frame.timestamp)
+
+
+@pytest.mark.parametrize("bar, starts", [(None, True), (0.62, False)])
+def test_a_start_from_the_memory_needs_the_tracker_only_to_hold_it(bar, starts):
+    """The memory's pose already agrees with dozens of points on the part: a fit of 0.5 (under the
+    CNN's start bar) starts from it by default (``memory_start_quality``), not with the CNN's bar."""
+    config = HybridConfig(check_period=0) if bar is None else HybridConfig(check_period=0, memory_start_quality=bar)
+    assert HybridConfig().memory_start_quality < 0.5 < HybridConfig().start_quality
+    est = HybridEstimator(HalfSureTracker(POSE), Blind(), registry.create("fusion", "ukf"), config)
+    black = np.zeros((CAM.height, CAM.width, 3), np.uint8)
+    assert est.step(Frame(black, CAM, 0.0, 0)).status == "init" and est.memory is None
+    est.memory = ScriptedMemory(POSE)
+    est.step(Frame(black, CAM, 1 / 30, 1))
+    assert (est.status == "tracking") == starts
+    with pytest.raises(ValueError, match="memory_start_quality"):
+        HybridConfig(memory_start_quality=1.5)

@@ -48,6 +48,7 @@ BOX_MARGIN_PX = 24
 SAME_POINT_M = 0.004
 LEARN_STEP_DEG = 15.0        # a frame is learned where it sees the part from this far from every stored view
 MAX_VIEWS = 48               # the most views kept (the print's and the learned ones); SIFT handles ±30° tilt
+SOURCE = "regressor:keypoints"  # the memory's answers' Measurement.source
 PIXEL_SIGMA = 1.5            # px: the noise of a matched keypoint, for the answer's covariance
 MIN_SIGMA_DEG, MIN_SIGMA_M = 1.0, 0.003  # the answer's covariance floor: a PnP on one face's points is surer
                                          # than the pose it gives when the print was learned off by a degree
@@ -159,7 +160,7 @@ class KeypointMemory:
         floor = np.r_[np.full(3, np.radians(MIN_SIGMA_DEG) ** 2), np.full(3, MIN_SIGMA_M ** 2)]
         covariance = covariance + np.diag(floor)
         inliers = int(result.inliers.sum())
-        return Measurement(result.pose, covariance, min(1.0, inliers / (4 * MIN_INLIERS)), "regressor:keypoints",
+        return Measurement(result.pose, covariance, min(1.0, inliers / (4 * MIN_INLIERS)), SOURCE,
                            frame.timestamp)
 
     # --- helpers -----------------------------------------------------------------------------------

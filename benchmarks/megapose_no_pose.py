@@ -22,9 +22,13 @@ exactly: the hybrid's frames within 5° and 2 cm of the reference itself, the pr
 (which face is which: the labelled first pose is the one its print shows). Writes
 ``results/megapose_no_pose.json`` and the ``megapose-no-pose`` block of ``RESULTS.md`` (the detection
 cube: ``detection_cube_no_pose``, ``detection-cube-no-pose``); the table also gives the median edge
-distance (px) of the hybrid's trusted frames. A mesh with its
-print (``--mesh``: an OBJ whose ``.mtl`` names ``color.jpg``) is rendered printed by ``fit``, and the
-hybrid given it checks its starts against the print and starts at the pose the print shows.
+distance (px) of the hybrid's trusted frames. Each network's hybrid runs on the cube's shape alone
+(its print stripped, as a plain CAD model gives it) and, where the video's model carries its print
+(ViSP's MegaPose ``cube.obj`` beside its ``.mtl``; ``--mesh`` names another), on the printed model: the
+hybrid then checks its starts against the print, starts at the pose the print shows, and its keypoint
+memory holds the print from the first frame (the memory alone, the print's keypoints with nothing
+learned, is scored as the network is). ``--memory on,off`` runs each hybrid with and without its
+keypoint memory (``HybridConfig.keypoint_memory``).
 """
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ _BUILTIN_MODULES: dict[str, tuple[str, ...]] = {
     "trajectory": ("hybridpose.render.trajectories",),
     "tracker": ("hybridpose.trackers.edges", "hybridpose.trackers.klt", "hybridpose.trackers.rapid",
                 "hybridpose.trackers.combined"),
-    "regressor": ("hybridpose.regressors.predictor",),
+    "regressor": ("hybridpose.regressors.predictor", "hybridpose.regressors.no_network"),
     "fusion": ("hybridpose.fusion.ukf", "hybridpose.fusion.passthrough", "hybridpose.fusion.isam2"),
 }
 

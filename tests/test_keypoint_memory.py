@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from hybridpose import registry
-from hybridpose.core import LOST_COVARIANCE, Frame, Measurement
+from hybridpose.core import Frame, Measurement
 from hybridpose.edges import ModelView
 from hybridpose.estimator import HybridEstimator
 from hybridpose.geometry import Camera, Pose, rotvec_to_matrix
@@ -89,23 +89,13 @@ def test_a_plain_model_is_found_again_from_the_views_it_learned(printed_cube):
     assert _near(memory.find(_frame(printed_cube, moved, seed=2, index=1)), moved)
 
 
-class Blind:
-    """A regressor that never finds the part."""
-
-    name = "blind"
-    hybrid_config = {}
-
-    def predict(self, frame, roi=None):
-        return Measurement(None, LOST_COVARIANCE, 0.0, "regressor:blind", frame.timestamp)
-
-
 @pytest.mark.parametrize("memory", [True, False])
 def test_the_hybrid_asks_the_memory_before_the_cnn(printed_cube, memory):
-    """A printed part with a CNN that never finds it: the print's memory starts the track; without
+    """A printed part and no network at all (``none``): the print's memory starts the track; without
     the memory nothing does."""
     frames = [_frame(printed_cube, turned(POSE, [0.0, 0.6 * k, 0.0]), index=k)
               for k in range(3)]
-    est = HybridEstimator(registry.create("tracker", "combined", object=printed_cube), Blind(),
+    est = HybridEstimator(registry.create("tracker", "combined", object=printed_cube), registry.create("regressor", "none"),
                           registry.create("fusion", "ukf"), HybridConfig(keypoint_memory=memory))
     estimates = [est.step(f) for f in frames]
     if memory:
@@ -125,7 +115,9 @@ def test_the_hybrid_learns_only_where_the_track_is_sure(printed_cube):
     frames = [_frame(printed_cube, turned(POSE, [0.0, 0.6 * k, 0.0]), index=k)
               for k in range(5)]
 
-    class Oracle(Blind):
+    class Oracle:
+        hybrid_config = {}
+
         def predict(self, frame, roi=None):
             truth = turned(POSE, [0.0, 0.6 * frame.index, 0.0])
             return Measurement(truth, np.diag([1e-3] * 3 + [1e-5] * 3), 1.0, "regressor:oracle", frame.timestamp)
@@ -149,7 +141,7 @@ def test_on_black_space_the_hybrid_keeps_no_memory(printed_cube):
     dark = np.zeros((CAM.height, CAM.width, 3), np.uint8)
     with Renderer(printed_cube, CAM) as r:
         rgb = r.render(POSE, appearance=Appearance(background=dark, **LIGHT)).rgb
-    est = HybridEstimator(registry.create("tracker", "combined", object=printed_cube), Blind(),
+    est = HybridEstimator(registry.create("tracker", "combined", object=printed_cube), registry.create("regressor", "none"),
                           registry.create("fusion", "ukf"))
     est.step(Frame(rgb, CAM, 0.0, 0))
     assert est.memory is None and est.regressor_calls == 1
@@ -192,7 +184,8 @@ def test_a_start_from_the_memory_needs_the_tracker_only_to_hold_it(bar, starts):
     CNN's start bar) starts from it by default (``memory_start_quality``), not with the CNN's bar."""
     config = HybridConfig(check_period=0) if bar is None else HybridConfig(check_period=0, memory_start_quality=bar)
     assert HybridConfig().memory_start_quality < 0.5 < HybridConfig().start_quality
-    est = HybridEstimator(HalfSureTracker(POSE), Blind(), registry.create("fusion", "ukf"), config)
+    est = HybridEstimator(HalfSureTracker(POSE), registry.create("regressor", "none"), registry.create("fusion", "ukf"),
+                          config)
     black = np.zeros((CAM.height, CAM.width, 3), np.uint8)
     assert est.step(Frame(black, CAM, 0.0, 0)).status == "init" and est.memory is None
     est.memory = ScriptedMemory(POSE)
@@ -200,3 +193,39 @@ def test_a_start_from_the_memory_needs_the_tracker_only_to_hold_it(bar, starts):
     assert (est.status == "tracking") == starts
     with pytest.raises(ValueError, match="memory_start_quality"):
         HybridConfig(memory_start_quality=1.5)
+
+
+def _write_obj(obj: ObjectModel, folder) -> str:
+    """``obj`` as an OBJ with its print (``.mtl`` naming a PNG), as a CAD tool exports a printed part."""
+    cv2.imwrite(str(folder / "print.png"), cv2.cvtColor(obj.texture, cv2.COLOR_RGB2BGR))
+    (folder / "part.mtl").write_text("newmtl Material\nKd 1 1 1\nmap_Kd print.png\n")
+    lines = ["mtllib part.mtl", *(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in obj.mesh.vertices)]
+    lines += [f"vt {u:.9g} {v:.9g}" for u, v in obj.face_uv.reshape(-1, 2)]
+    lines.append("usemtl Material")
+    lines += [f"f {a + 1}/{3 * k + 1} {b + 1}/{3 * k + 2} {c + 1}/{3 * k + 3}" for k, (a, b, c) in enumerate(obj.mesh.faces)]
+    (folder / "part.obj").write_text("\n".join(lines) + "\n")
+    return str(folder / "part.obj")
+
+
+def test_track_finds_a_printed_part_with_no_network(printed_cube, tmp_path):
+    """``hybridpose track --regressor none`` on a printed part's mesh file: its print alone starts the track."""
+    import csv
+    import json
+
+    from hybridpose.cli import main
+
+    (tmp_path / "png").mkdir()
+    poses = [turned(POSE, [0.0, 0.8 * k, 0.0]) for k in range(4)]
+    for k, pose in enumerate(poses):
+        rgb = _frame(printed_cube, pose, index=k).image
+        cv2.imwrite(str(tmp_path / "png" / f"{k:06d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    (tmp_path / "camera.json").write_text(json.dumps(CAM.to_dict()))
+    rc = main(["track", str(tmp_path / "png"), "--object", _write_obj(printed_cube, tmp_path), "--camera",
+               str(tmp_path / "camera.json"), "--regressor", "none", "--out", str(tmp_path / "run")])
+    assert rc == 0
+    with open(tmp_path / "run" / "poses.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert "regressor:keypoints" in rows[0]["sources"] and rows[-1]["status"] == "tracking"
+    last = Pose.from_quat_t([float(rows[-1][k]) for k in ("qw", "qx", "qy", "qz")],
+                            [float(rows[-1][k]) for k in ("tx_m", "ty_m", "tz_m")])
+    assert rotation_error_deg(last, poses[-1]) < 2.0 and np.linalg.norm(last.t - poses[-1].t) < 0.005

@@ -44,6 +44,8 @@ def _regressor(name, truss, tmp_path, tiny_keypoints):
         return create("regressor", "default", object=truss, threads=1)
     if name == "keypoints":
         return create("regressor", "keypoints", checkpoint=tiny_keypoints, object=truss, threads=1)
+    if name == "none":
+        return create("regressor", "none", object=truss)
     from hybridpose.regressors.models import build_model
     from hybridpose.regressors.checkpoints import save_checkpoint
 
@@ -80,6 +82,8 @@ def test_every_regressor_keeps_the_measurement_contract(name, truss, view, tmp_p
     _check(reg.predict(black), name, black)
     if name == "default":
         assert not m.lost and rotation_error_deg(m.pose, truth) < 5.0
+    if name == "none":
+        assert m.lost  # no network: the hybrid's keypoint memory alone finds the part
     for bad in ((0, 0, -5, 10), (1000, 1000, 10, 10), (np.nan, 0, 10, 10)):
         with pytest.raises(ValueError, match="roi"):
             reg.predict(frame, roi=bad)

@@ -115,11 +115,12 @@ def score_memory(frames, obj, reference) -> dict | None:
     """The keypoint memory of a printed ``obj`` (its print alone, nothing learned) on every
     ``CNN_EVERY``-th frame with a reference, as :func:`score_cnn` scores the network; None for a plain part."""
     from hybridpose.edges import ModelView
+    from hybridpose.edges.print_match import PrintView
     from hybridpose.regressors.keypoint_memory import KeypointMemory
 
     if obj.texture is None:
         return None
-    memory = KeypointMemory.from_print(ModelView(obj), frames[0].camera)
+    memory = KeypointMemory.from_print(PrintView(ModelView(obj)), frames[0].camera)
     return score_cnn(memory.find, frames, obj, reference)
 
 

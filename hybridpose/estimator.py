@@ -150,7 +150,7 @@ class HybridEstimator:
         # the start's image test slides the model's edges across the frame; a tracker without a CAD
         # model (a user's own backend) leaves nothing to slide
         self._view = ModelView(self.object) if self.object is not None else None
-        self._print = print_view(self._view)  # a printed part's print checks its starts
+        self._print = print_view(self._view)  # a printed part's print: checks its starts, seeds its memory
         self.reset()
 
     @classmethod
@@ -196,7 +196,7 @@ class HybridEstimator:
         self.camera = check_next_frame(frame, self.camera, self.last_timestamp)
         if self._frames == 0 and self.config.keypoint_memory and self._view is not None \
                 and dark_share(to_gray8(frame.image)) < SPACE_DARK_SHARE:
-            self.memory = KeypointMemory.for_part(self._view, frame.camera)
+            self.memory = KeypointMemory.for_part(self._view, frame.camera, self._print)
         timings = {"tracker": 0.0, "regressor": 0.0, "fusion": 0.0}
         t_start = time.perf_counter()
         frame = frame.undistorted()  # once for the tracker and the CNN, which both model a pinhole

@@ -6,11 +6,11 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
-import trimesh
 
 from hybridpose import registry
 from hybridpose.core import Frame, Measurement
 from hybridpose.edges import ModelView
+from hybridpose.edges.print_match import PrintView
 from hybridpose.estimator import HybridEstimator
 from hybridpose.geometry import Camera, Pose, rotvec_to_matrix
 from hybridpose.hybrid_config import HybridConfig
@@ -25,7 +25,7 @@ LIGHT = dict(ambient=0.8, fill_lights=(((0.0, 0.0, 1.0), 0.4),))
 
 
 @pytest.fixture(scope="module")
-def printed_cube():
+def printed_cube(print_on_cube):
     """A 6-cm cube whose faces are unwrapped into the six cells of a 3 × 2 print of smoothed noise and
     blobs (a print with corners and texture everywhere, as a label or a photo has)."""
     rng = np.random.default_rng(7)
@@ -33,15 +33,7 @@ def printed_cube():
     for _ in range(60):
         centre = (int(rng.integers(0, 768)), int(rng.integers(0, 512)))
         cv2.circle(image, centre, int(rng.integers(6, 30)), tuple(int(c) for c in rng.integers(0, 255, 3)), -1)
-    mesh = trimesh.creation.box((0.06, 0.06, 0.06))
-    uv = np.zeros((len(mesh.faces), 3, 2))
-    for k, normal in enumerate(np.asarray(mesh.face_normals)):
-        axis = int(np.argmax(np.abs(normal)))
-        cell = 2 * axis + (normal[axis] > 0)
-        a, b = [i for i in range(3) if i != axis]
-        local = (mesh.vertices[mesh.faces[k]][:, [a, b]] + 0.03) / 0.06
-        uv[k] = (np.c_[(cell % 3 + local[:, 0]) / 3, (cell // 3 + local[:, 1]) / 2]) * 0.98 + 0.01
-    return ObjectModel("printed-cube", mesh, symmetries=(), texture=image, face_uv=uv)
+    return print_on_cube(image, symmetries=())
 
 
 def _frame(obj, pose, seed=1, index=0):
@@ -65,7 +57,7 @@ def turned(pose: Pose, deg, shift_m=(0.0, 0.0, 0.0)) -> Pose:
 
 
 def test_a_printed_part_is_found_in_clutter_from_its_print_alone(printed_cube):
-    memory = KeypointMemory.for_part(ModelView(printed_cube), CAM)
+    memory = KeypointMemory.for_part(ModelView(printed_cube), CAM, PrintView(ModelView(printed_cube)))
     assert memory.views > 20 and memory.points > 500
     m = memory.find(_frame(printed_cube, POSE))
     assert _near(m, POSE) and m.source == "regressor:keypoints" and 0 < m.quality <= 1
@@ -78,7 +70,7 @@ def test_a_printed_part_is_found_in_clutter_from_its_print_alone(printed_cube):
 def test_a_plain_model_is_found_again_from_the_views_it_learned(printed_cube):
     """The CAD model carries no print, the part does: the memory starts empty and learns its look."""
     plain = ObjectModel("cube", printed_cube.mesh, symmetries=())
-    memory = KeypointMemory.for_part(ModelView(plain), CAM)
+    memory = KeypointMemory.for_part(ModelView(plain), CAM, None)
     first = _frame(printed_cube, POSE)
     assert memory.views == 0 and memory.find(first) is None
     assert memory.learn(first, POSE) > 30 and memory.views == 1

@@ -92,10 +92,7 @@ class PrintView:
         step = max(1, len(xs) // MAX_PIXELS)
         ys, xs = ys[::step], xs[::step]
         f = ids[ys, xs].astype(np.int64)
-        # the pixel and its two neighbours (their lifts only measure how many texels a pixel covers)
-        lifted = [self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(np.float64), ids=ids)
-                  for dx, dy in ((0, 0), (1, 0), (0, 1))]
-        points, ok = [X for X, _ in lifted], lifted[0][1]
+        points, ok = self._lifted(pose, camera, xs, ys, ids)
         seen = (to_gray(frame.image) if gray is None else gray)[ys, xs].astype(np.float64)
         out = []
         for b in branches:
@@ -114,12 +111,19 @@ class PrintView:
         if len(xs) == 0:
             return out
         f = ids[ys, xs].astype(np.int64)
-        lifted = [self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(np.float64), ids=ids)
-                  for dx, dy in ((0, 0), (1, 0), (0, 1))]
-        ok = lifted[0][1] & np.isfinite(self.maps[f, 0, 0])
-        values = self._printed(f, [X for X, _ in lifted])
+        points, ok = self._lifted(pose, camera, xs, ys, ids)
+        ok &= np.isfinite(self.maps[f, 0, 0])
+        values = self._printed(f, points)
         out[ys[ok], xs[ok]] = np.clip(values[ok], 0, 255).astype(np.uint8)
         return out
+
+    def _lifted(self, pose: Pose, camera, xs: np.ndarray, ys: np.ndarray, ids: np.ndarray) -> tuple[list, np.ndarray]:
+        """The model points seen at pixels (``xs``, ``ys``) (N,) and at their right and lower
+        neighbours (three (N, 3) arrays: the neighbours only measure how many texels a pixel covers),
+        and where the pixel itself sees the part (N,) bool; ``ids``: the pose's facet-id raster."""
+        lifted = [self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(np.float64), ids=ids)
+                  for dx, dy in ((0, 0), (1, 0), (0, 1))]
+        return [X for X, _ in lifted], lifted[0][1]
 
     def _printed(self, f: np.ndarray, points: list) -> np.ndarray:
         """The grey print (N,) float at the model points ``points`` (the pixel's and its two

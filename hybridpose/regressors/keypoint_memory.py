@@ -80,13 +80,13 @@ class KeypointMemory:
         self._all_points = np.zeros((0, 3))
 
     @classmethod
-    def from_print(cls, view: ModelView, camera: Camera, directions: int = 26, fill: float = 0.5,
+    def from_print(cls, printed: PrintView, camera: Camera, directions: int = 26, fill: float = 0.5,
                    **kw) -> KeypointMemory:
-        """A memory holding the part's print seen from ``directions`` directions spread over the sphere,
-        at the distance where the part spans ``fill`` of ``camera``'s shorter side (SIFT finds its
-        keypoints again from about half to twice that size). Raises ValueError where the object
-        carries no print that maps onto its facets."""
-        printed = PrintView(view)
+        """A memory holding the print of ``printed``'s part (its :class:`~hybridpose.edges.print_match.
+        PrintView`) seen from ``directions`` directions spread over the sphere, at the distance where the
+        part spans ``fill`` of ``camera``'s shorter side (SIFT finds its keypoints again from about half
+        to twice that size)."""
+        view = printed.view
         memory = cls(view, **kw)
         distance = view.object.diameter * camera.K[0, 0] / (fill * min(camera.width, camera.height))
         for direction in _sphere(directions):
@@ -95,15 +95,11 @@ class KeypointMemory:
         return memory
 
     @classmethod
-    def for_part(cls, view: ModelView, camera: Camera, **kw) -> KeypointMemory:
+    def for_part(cls, view: ModelView, camera: Camera, printed: PrintView | None, **kw) -> KeypointMemory:
         """The memory of ``view``'s object for ``camera``: holding its print (:meth:`from_print`) where
-        it carries one that maps onto its facets, else empty until it learns."""
-        if view.object.texture is not None:
-            try:
-                return cls.from_print(view, camera, **kw)
-            except ValueError:  # no facet maps affinely onto the print (a curved unwrap)
-                pass
-        return cls(view, **kw)
+        ``printed`` gives it (the caller's :class:`~hybridpose.edges.print_match.PrintView`, made once:
+        :func:`hybridpose.starts.print_view`), else empty until it learns."""
+        return cls(view, **kw) if printed is None else cls.from_print(printed, camera, **kw)
 
     @property
     def views(self) -> int:

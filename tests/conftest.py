@@ -4,9 +4,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np
 import pytest
+import trimesh
 
 from hybridpose.geometry import Camera
-from hybridpose.objects import load_object
+from hybridpose.objects import ObjectModel, load_object
 
 
 @pytest.fixture(scope="session")
@@ -53,3 +54,21 @@ def truss_depth_views(truss, camera):
             pose = Pose.from_rotvec_t(rng.normal(size=3), np.r_[rng.uniform(-0.05, 0.05, 2), rng.uniform(0.6, 1.0)])
             views.append((pose, r.render(pose, rng=0).depth))
     return views
+
+
+@pytest.fixture(scope="session")
+def print_on_cube():
+    """A function: the 6-cm cube with ``image`` ((h, w, 3) uint8 RGB) printed on it, each face one cell
+    of the image's 3 × 2 grid; keyword arguments go to :class:`~hybridpose.objects.ObjectModel`."""
+    def make(image, **kw):
+        mesh = trimesh.creation.box((0.06, 0.06, 0.06))
+        uv = np.zeros((len(mesh.faces), 3, 2))
+        for k, normal in enumerate(np.asarray(mesh.face_normals)):
+            axis = int(np.argmax(np.abs(normal)))
+            cell = 2 * axis + (normal[axis] > 0)
+            a, b = [i for i in range(3) if i != axis]
+            local = (mesh.vertices[mesh.faces[k]][:, [a, b]] + 0.03) / 0.06          # 0..1 across the face
+            uv[k] = (np.c_[(cell % 3 + local[:, 0]) / 3, (cell // 3 + local[:, 1]) / 2]) * 0.98 + 0.01
+        return ObjectModel("printed-cube", mesh, texture=image, face_uv=uv, **kw)
+
+    return make

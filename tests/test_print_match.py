@@ -18,20 +18,11 @@ CAM = Camera.default().scaled((320, 240))
 
 
 @pytest.fixture(scope="module")
-def printed_cube():
+def printed_cube(print_on_cube):
     """A 6-cm cube whose faces are unwrapped into the six cells of a 3 × 2 print of random blocks."""
     rng = np.random.default_rng(4)
-    mesh = trimesh.creation.box((0.06, 0.06, 0.06))
     image = cv2.resize(rng.integers(0, 255, (12, 18, 3)).astype(np.uint8), (384, 256), interpolation=cv2.INTER_NEAREST)
-    uv = np.zeros((len(mesh.faces), 3, 2))
-    for k, normal in enumerate(np.asarray(mesh.face_normals)):
-        axis = int(np.argmax(np.abs(normal)))
-        cell = 2 * axis + (normal[axis] > 0)
-        a, b = [i for i in range(3) if i != axis]
-        corners = mesh.vertices[mesh.faces[k]]
-        local = (corners[:, [a, b]] + 0.03) / 0.06          # 0..1 across the face
-        uv[k] = (np.c_[(cell % 3 + local[:, 0]) / 3, (cell // 3 + local[:, 1]) / 2]) * 0.98 + 0.01
-    return ObjectModel("printed-cube", mesh, texture=image, face_uv=uv)
+    return print_on_cube(image)
 
 
 def _frame(obj, pose, background):

@@ -68,6 +68,45 @@ def test_a_hand_held_sequence_reads_back_as_it_was_drawn(tmp_path):
         render_handheld_dataset(tmp_path / "d", cube, camera, HandheldSpec(frames=12, seed=5, size_px=60.0))
 
 
+@pytest.mark.parametrize("printed", [True, False])
+def test_the_scene_keeps_the_part_as_drawn_with_its_print(tmp_path, printed):
+    """models/part.obj reads back as the part the frames show: a printed part's print correlates with
+    the frame at the true pose (PrintView, an independent reader of the texture coordinates), not at a
+    pose 1 cm aside; a plain part carries none."""
+    from hybridpose.core import Frame
+    from hybridpose.datasets.handheld import PART_FILE, part_model, render_handheld_dataset
+    from hybridpose.edges import ModelView
+    from hybridpose.edges.print_match import PrintView
+    from hybridpose.geometry import Pose
+    from hybridpose.render.handheld import handheld_sequence
+
+    camera = Camera(320, 240, 300.0, 300.0, 160.0, 120.0)
+    spec = HandheldSpec(frames=3, seed=2, background="clutter", printed=printed, size_px=120.0, blur=False, noise=False)
+    cube = load_object("cube")
+    scene = render_handheld_dataset(tmp_path / "d", cube, camera, spec)
+    assert (tmp_path / "d" / PART_FILE).is_file()
+    part = part_model(scene)
+    assert np.allclose(part.bbox_min, cube.bbox_min) and len(part.symmetries) == len(cube.symmetries)
+    if not printed:
+        assert part.texture is None
+        return
+    view = PrintView(ModelView(part))
+    for f in handheld_sequence(spec, cube, camera):
+        frame = Frame(f.image, camera, f.timestamp, f.index)
+        assert view.score(frame, f.pose) > 0.8
+        assert view.score(frame, Pose(f.pose.R, f.pose.t + [0.01, 0.0, 0.0])) < 0.5
+    (tmp_path / "d" / PART_FILE).unlink()
+    with pytest.raises(FileNotFoundError, match="scene_dir: .*part.obj not found"):
+        part_model(scene)
+
+
+def test_save_object_refuses_another_format(tmp_path):
+    from hybridpose.objects import save_object
+
+    with pytest.raises(ValueError, match="path: expected a .obj"):
+        save_object(load_object("cube"), tmp_path / "cube.ply")
+
+
 def test_bench_runs_the_realistic_suite_and_says_what_it_left_out(tmp_path, capsys):
     from hybridpose.cli import main
 

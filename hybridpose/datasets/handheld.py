@@ -1,7 +1,9 @@
 """Hand-held scenes (:mod:`hybridpose.render.handheld`) written as BOP sequences, for ``hybridpose
 bench --suite realistic`` and for users' own evaluations: the same layout as the space sequences
 (``rgb/``, masks, ``scene_gt.json``, ``scene_gt_info.json`` with ``visib_fract``, ``scene_meta.json``
-with each frame's timestamp and image motion), no depth (zeros)."""
+with each frame's timestamp and image motion), no depth (zeros); and the part as drawn,
+``models/part.obj`` in metres, with its print (``part.mtl``, ``part.png``) where it is printed — what
+a user's textured mesh of a printed part gives the tracker (:func:`part_model`)."""
 from __future__ import annotations
 
 import shutil
@@ -12,8 +14,10 @@ import numpy as np
 
 from ..geometry import Camera
 from ..io import atomic_write_json
-from ..objects import ObjectModel
+from ..objects import ObjectModel, load_object, save_object
 from .bop import BopScene, BopSceneWriter, write_camera_json, write_models
+
+PART_FILE = Path("models") / "part.obj"
 from .generate import claim_folder
 
 # scikit-image's sample photos of scenes (rooms, people, street, textures), cut into backgrounds and prints
@@ -45,23 +49,36 @@ def render_handheld_dataset(out, obj: ObjectModel, camera: Camera, spec, photos=
     is refused (ValueError naming ``out``). The sequence is drawn whole (seconds), so an interrupted
     render starts it again."""
     from ..render.appearance import PhotoBackgrounds
-    from ..render.handheld import handheld_sequence
+    from ..render.handheld import handheld_scene
 
     out = Path(out)
     pictures = PhotoBackgrounds(photos) if photos is not None else None
     claim_folder(out, {"kind": "handheld", "object": obj.name, "camera": camera.to_dict(), "spec": asdict(spec),
                        "photos": None if pictures is None else [p.name for p in pictures.files]})
     scene_dir = out / "test" / "000000"
-    if (scene_dir / "scene_meta.json").is_file() and len(BopScene(scene_dir).image_ids) == spec.frames:
+    if ((scene_dir / "scene_meta.json").is_file() and len(BopScene(scene_dir).image_ids) == spec.frames
+            and (out / PART_FILE).is_file()):
         return scene_dir
     write_models(out, obj)
     write_camera_json(out, camera)
     writer = BopSceneWriter(scene_dir, camera, load=False)
-    frames = handheld_sequence(spec, obj, camera, pictures)
+    scene = handheld_scene(spec, obj, camera, pictures)
+    frames = scene.frames
     for f in frames:
         writer.write(f.index, f.image, np.zeros(f.image.shape[:2]), f.mask, f.mask_visib, f.pose, obj.vertices)
     writer.flush()
+    save_object(scene.part, out / PART_FILE)
     # last: its presence marks the sequence whole
     atomic_write_json(scene_dir / "scene_meta.json", {"fps": spec.fps, "frames": {
         str(f.index): {"timestamp_s": f.timestamp, "motion_px": round(f.motion_px, 3)} for f in frames}})
     return scene_dir
+
+
+def part_model(scene_dir) -> ObjectModel:
+    """The part a hand-held scene (``scene_dir``: its ``test/000000`` folder, as
+    :func:`render_handheld_dataset` returns it) was drawn with: its mesh in metres, and its print where
+    it is printed. FileNotFoundError naming the file where the dataset predates it."""
+    path = Path(scene_dir).parent.parent / PART_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"scene_dir: {path} not found; render the scene again (render_handheld_dataset)")
+    return load_object(path)

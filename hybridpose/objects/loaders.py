@@ -120,3 +120,41 @@ def load_object(name_or_path, scale: float = 1.0, name: str | None = None, symme
             stacklevel=2,
         )
     return model
+
+
+def save_object(obj: ObjectModel, path) -> Path:
+    """``obj`` as a Wavefront OBJ in metres at ``path`` (``.obj``), with its print beside it (``.mtl``
+    and ``.png`` of the same stem) where it carries one: :func:`load_object` reads it back with the same
+    geometry, symmetries detected again from the shape, and the same print at each surface point. Each
+    file is written whole or not at all (temporary file, then rename). Returns ``path``."""
+    from PIL import Image
+
+    from ..io import atomic_write_bytes
+
+    path = Path(path)
+    if path.suffix.lower() != ".obj":
+        raise ValueError(f"path: expected a .obj file name, got {str(path)!r}")
+    if obj.texture is None:
+        mesh = obj.mesh
+    else:
+        # one vertex per face corner: a corner's texture coordinates are its face's, not its vertex's
+        corners = np.asarray(obj.vertices)[np.asarray(obj.mesh.faces)].reshape(-1, 3)
+        mesh = trimesh.Trimesh(corners, np.arange(len(corners)).reshape(-1, 3), process=False)
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.asarray(obj.face_uv).reshape(-1, 2),
+                                                    image=Image.fromarray(obj.texture))
+    text, files = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=obj.texture is not None,
+                                                  return_texture=True, mtl_name=f"{path.stem}.mtl")
+    # trimesh names the print after the material (material_0.png): named after the model, two models
+    # printed differently share a folder
+    images = [name for name in files if not name.endswith(".mtl")]
+    for name in images:
+        files[f"{path.stem}{Path(name).suffix}"] = files.pop(name)
+    for name in [n for n in files if n.endswith(".mtl")]:
+        text_mtl = files[name].decode()
+        for old in images:
+            text_mtl = text_mtl.replace(old, f"{path.stem}{Path(old).suffix}")
+        files[name] = text_mtl.encode()
+    for name, data in files.items():  # the print and its material first: the .obj names them
+        atomic_write_bytes(path.parent / name, data)
+    atomic_write_bytes(path, text.encode())
+    return path

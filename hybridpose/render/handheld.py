@@ -8,11 +8,13 @@ photo), shaded by a room light; the background is a photo or procedural clutter 
 turns with the camera: a rotation homography); the hand is a skin-toned palm and fingers. What the
 MuJoCo space renderer cannot give: a print on the part, a lit, busy background, hand-held motion.
 
-:func:`handheld_sequence` draws one seeded sequence; :class:`HandheldSpec` says what it holds.
+:func:`handheld_sequence` draws one seeded sequence; :class:`HandheldSpec` says what it holds;
+:func:`handheld_scene` also gives the part as drawn — a printed one as a model that carries its print
+(:attr:`ObjectModel.texture`), as a user's textured mesh of a printed part would.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -158,6 +160,20 @@ def _face_frames(view: ModelView) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([e1, e2], 1), offsets
 
 
+def printed_part(obj: ObjectModel, print_rgb: np.ndarray) -> ObjectModel:
+    """``obj`` carrying ``print_rgb`` ((H, W, 3) uint8 RGB) as :func:`handheld_sequence` draws it on
+    its faces: each facet shows the print at ``PRINT_PX_PER_M`` from its own offset, the print repeating
+    every W − 1 and H − 1 texels (the period :class:`~hybridpose.edges.PrintView` reads texture
+    coordinates outside [0, 1] with). ``face_uv`` in OBJ's convention (``v`` up from the bottom row)."""
+    view = ModelView(obj)
+    axes, offsets = _face_frames(view)
+    h, w = print_rgb.shape[:2]
+    facet = view.facet_of  # (M,) each triangle's facet id
+    uv_px = np.einsum("mkj,mcj->mck", axes[facet], view.triangles) * PRINT_PX_PER_M + (offsets[facet] * [w, h])[:, None]
+    face_uv = np.stack([uv_px[..., 0] / (w - 1), 1.0 - uv_px[..., 1] / (h - 1)], axis=-1)
+    return replace(obj, texture=np.ascontiguousarray(print_rgb, dtype=np.uint8), face_uv=face_uv)
+
+
 class _Part:
     """Draws the part at a pose: printed from ``print_rgb`` (H, W, 3) or plain ``colour``."""
 
@@ -165,6 +181,11 @@ class _Part:
         self.view = ModelView(obj)
         self.print_rgb, self.colour, self.light = print_rgb, colour, light_obj
         self.axes, self.offsets = _face_frames(self.view)
+        # the print's pyramid: a pixel sees many texels of it (a face 90 px across shows 340), and a
+        # camera's lens and pixels average them; one texel a pixel aliases into detail no camera shows
+        self.levels = [] if print_rgb is None else [np.float32(print_rgb)]
+        while self.levels and min(self.levels[-1].shape[:2]) > 16:
+            self.levels.append(cv2.pyrDown(self.levels[-1]))
 
     def draw(self, image: np.ndarray, camera: Camera, pose: Pose) -> np.ndarray:
         """Draws into ``image``; returns the part's (H, W) bool mask."""
@@ -174,18 +195,40 @@ class _Part:
             return ids > 0
         facet = ids[ys, xs]
         X, ok = self.view.lift(pose, camera, np.c_[xs, ys].astype(float), ids=ids)
-        if self.print_rgb is None:
-            colour = np.broadcast_to(self.colour, (len(xs), 3)).astype(np.float64)
-        else:
-            h, w = self.print_rgb.shape[:2]
-            uv = np.einsum("nkj,nj->nk", self.axes[facet], X) * PRINT_PX_PER_M + self.offsets[facet] * [w, h]
-            u = np.mod(uv[:, 0], w - 1).astype(int)
-            v = np.mod(uv[:, 1], h - 1).astype(int)
-            colour = self.print_rgb[v, u].astype(np.float64)
+        colour = (np.broadcast_to(self.colour, (len(xs), 3)).astype(np.float64) if self.print_rgb is None
+                  else self._printed(camera, pose, xs, ys, facet, X, ids))
         shade = 0.45 + 0.55 * np.clip(self.view.plane_normal[facet] @ self.light, 0.0, 1.0)
         keep = ok
         image[ys[keep], xs[keep]] = np.clip(colour[keep] * shade[keep, None], 0, 255).astype(np.uint8)
         return ids > 0
+
+    def _printed(self, camera: Camera, pose: Pose, xs, ys, facet, X, ids) -> np.ndarray:
+        """(N, 3) the print's colour at pixels (``xs``, ``ys``) seeing model points ``X`` on ``facet``:
+        from the pyramid level whose texel matches the pixel's footprint (the texels between it and its
+        right and lower neighbours), bilinear; the print repeats every W − 1 and H − 1 texels."""
+        h, w = self.print_rgb.shape[:2]
+
+        def texel(points):
+            uv = np.einsum("nkj,nj->nk", self.axes[facet], points) * PRINT_PX_PER_M + self.offsets[facet] * [w, h]
+            return np.mod(uv, [w - 1, h - 1])
+
+        uv = texel(X)
+        right, below = (texel(self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(float), ids=ids)[0])
+                        for dx, dy in ((1, 0), (0, 1)))
+        du, dv = right - uv, below - uv
+        # a neighbour across the print's repeat seam jumps by a period: measure the step the short way
+        du -= np.round(du / [w - 1, h - 1]) * [w - 1, h - 1]
+        dv -= np.round(dv / [w - 1, h - 1]) * [w - 1, h - 1]
+        footprint = np.sqrt(np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0]))
+        level = np.clip(np.round(np.log2(np.maximum(np.nan_to_num(footprint, nan=1.0), 1.0))), 0,
+                        len(self.levels) - 1).astype(int)
+        colour = np.zeros((len(xs), 3))
+        for lv in np.unique(level):
+            sel = level == lv
+            at = (uv[sel] + 0.5) / 2.0 ** lv - 0.5  # level lv's texel i covers level 0's [2^lv i, 2^lv (i + 1))
+            colour[sel] = cv2.remap(self.levels[lv], at[:, 0].astype(np.float32)[None], at[:, 1].astype(np.float32)[None],
+                                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)[0]
+        return colour
 
 
 def _hand(image: np.ndarray, centre: np.ndarray, scale: float, angle: float, rgb) -> np.ndarray:
@@ -205,12 +248,27 @@ def _hand(image: np.ndarray, centre: np.ndarray, scale: float, angle: float, rgb
     return mask > 0
 
 
+@dataclass(frozen=True)
+class HandheldScene:
+    """:func:`handheld_scene`'s answer: the ``frames`` and the ``part`` as drawn (for a printed part,
+    the model carrying its print: :func:`printed_part`; else the model given)."""
+
+    frames: list[HandheldFrame]
+    part: ObjectModel
+
+
 def handheld_sequence(spec: HandheldSpec, obj: ObjectModel, camera: Camera,
                       photos: PhotoBackgrounds | None = None) -> list[HandheldFrame]:
     """Render ``spec`` of ``obj`` seen through ``camera`` (its pinhole; no distortion drawn).
 
     ``photos``: the photos the background (``"photo"``) and the print are cut from; without them both
     are procedural clutter (:func:`~hybridpose.render.appearance.clutter_background`)."""
+    return handheld_scene(spec, obj, camera, photos).frames
+
+
+def handheld_scene(spec: HandheldSpec, obj: ObjectModel, camera: Camera,
+                   photos: PhotoBackgrounds | None = None) -> HandheldScene:
+    """:func:`handheld_sequence`'s frames and the part as drawn (:class:`HandheldScene`)."""
     rng = np.random.default_rng(spec.seed)
     W, H = camera.width, camera.height
 
@@ -259,4 +317,4 @@ def handheld_sequence(spec: HandheldSpec, obj: ObjectModel, camera: Camera,
             image = jpeg(image, int(rng.integers(75, 96)))
         out.append(HandheldFrame(np.ascontiguousarray(image), pose, visible, motion, k / spec.fps, k, mask, mask_visib))
         prev_uv = uv
-    return out
+    return HandheldScene(out, obj if print_rgb is None else printed_part(obj, print_rgb))

@@ -45,7 +45,8 @@ A start (init, reinit) may be put on probation (``confirm_frames``): not trusted
 
 In a lit scene, wherever the CNN would run, the part's keypoint memory (``keypoint_memory``) answers
 first where it can: its print, where its model carries one, and its look in this video, learned where
-the track was sure (``learn_after``); its answers are confirmed as the CNN's are.
+the track was sure (``learn_after``); its answers are confirmed as the CNN's are. There the fusion's
+motion model is a hand's, which stops and turns within a few frames (``handheld_accel_rad_s2``).
 
 For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose
 nearest the track (or, while lost, nearest the previous answer): the CNN may give any of the poses that
@@ -77,7 +78,7 @@ from .metrics import rotation_error_deg
 from .objects import ObjectModel
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE
 from .regressors.keypoint_memory import KeypointMemory
-from .starts import confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view
+from .starts import CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -92,22 +93,6 @@ class _Counters:
     rejections: int = 0
     tracker_losses: int = 0
     last_cnn: Measurement | None = None
-
-
-@dataclass(frozen=True)
-class CnnCheck:
-    """A CNN check of a track: the CNN's answer, the tracker's fit from it, whether they disagree with
-    the fused pose (the CNN's pose beyond the gate or ``disagreement_deg``, or the fit from it landing
-    elsewhere and matching the image better than the track) and whether the fit stayed with the CNN."""
-
-    cnn: Measurement
-    fit: Measurement
-    disagrees: bool
-    stayed: bool
-
-    def backed_by(self, track: Measurement, margin: float) -> bool:
-        """Whether the ``track`` measurement fits the image better than the fit from the CNN by ``margin``."""
-        return not track.lost and track.quality >= self.fit.quality + margin
 
 
 class HybridEstimator:
@@ -151,6 +136,7 @@ class HybridEstimator:
         # model (a user's own backend) leaves nothing to slide
         self._view = ModelView(self.object) if self.object is not None else None
         self._print = print_view(self._view)  # a printed part's print: checks its starts, seeds its memory
+        self._own_motion_noise = getattr(fusion, "motion_noise", None)  # set off black space, back on it
         self.reset()
 
     @classmethod
@@ -194,9 +180,8 @@ class HybridEstimator:
     def step(self, frame: Frame) -> Estimate:
         """Estimate the pose in ``frame`` (frames in time order, one camera)."""
         self.camera = check_next_frame(frame, self.camera, self.last_timestamp)
-        if self._frames == 0 and self.config.keypoint_memory and self._view is not None \
-                and dark_share(to_gray8(frame.image)) < SPACE_DARK_SHARE:
-            self.memory = KeypointMemory.for_part(self._view, frame.camera, self._print)
+        if self._frames == 0:
+            self._meet_scene(frame)
         timings = {"tracker": 0.0, "regressor": 0.0, "fusion": 0.0}
         t_start = time.perf_counter()
         frame = frame.undistorted()  # once for the tracker and the CNN, which both model a pinhole
@@ -427,6 +412,17 @@ class HybridEstimator:
         if self.tracker.tells_covered:
             return None, capped(self.config.keep_covered_quality)
         return capped(self.config.keep_quality), None
+
+    def _meet_scene(self, frame: Frame) -> None:
+        """At a video's first frame, off black space: the part's keypoint memory (``keypoint_memory``)
+        and a hand's motion model (``handheld_accel_rad_s2``); on black space neither."""
+        own = self._own_motion_noise
+        lit = dark_share(to_gray8(frame.image)) < SPACE_DARK_SHARE
+        if self.config.keypoint_memory and self._view is not None and lit:
+            self.memory = KeypointMemory.for_part(self._view, frame.camera, self._print)
+        if own is not None and self.config.handheld_accel_rad_s2 is not None:  # a fusion that lets it be set
+            c = self.config
+            self.fusion.motion_noise = (c.handheld_accel_rad_s2, c.handheld_accel_m_s2) if lit else own
 
     def _cnn_search_px(self) -> float | None:
         """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` (None where 0: the

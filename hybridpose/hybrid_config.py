@@ -159,6 +159,12 @@ class HybridConfig:
             holding the part, a right fit scores 0.5–0.6. ViSP's MegaPose cube with its print: within
             5° / 2 cm 257 → 289 of 376 frames, trusted > 10° off 10 → 2 (0.45: the same); the
             detection cube 218 → 219, none > 10° off either way.
+        handheld_accel_rad_s2, handheld_accel_m_s2: the fusion's motion model off black space (the
+            first frame less than ``SPACE_DARK_SHARE`` dark, as for ``keypoint_memory``): white-
+            acceleration densities (rad/s², m/s² per √Hz; :attr:`Fusion.motion_noise`) for a camera or
+            a part moved by hand, which stops and turns within a few frames where a spacecraft drifts.
+            With the fusion's space defaults (0.5, 0.5) its gate refuses the tracker's right fit after a
+            stop, and the track coasts off on the old motion. None: the fusion's own everywhere.
         check_on_rejection: a tracker measurement refused by the gate calls a CNN check at once; when
             the CNN pose and the edge fit started from it both agree with the refused measurement
             (``disagreement_chi2``), the motion model was wrong, not the tracker (a sudden change
@@ -202,6 +208,8 @@ class HybridConfig:
     keypoint_memory: bool = True
     learn_after: int = 10
     memory_start_quality: float = 0.4
+    handheld_accel_rad_s2: float | None = 10.0
+    handheld_accel_m_s2: float = 3.0
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "confirm_frames",
@@ -244,6 +252,9 @@ class HybridConfig:
             raise ValueError(f"start_contrast: expected a share of edge samples in [0, 1] (0: off), got {self.start_contrast}")
         if not 0 <= self.start_sure_quality <= 1:
             raise ValueError(f"start_sure_quality: expected a tracker quality in [0, 1], got {self.start_sure_quality}")
+        if self.handheld_accel_rad_s2 is not None and not (self.handheld_accel_rad_s2 > 0 and self.handheld_accel_m_s2 > 0):
+            raise ValueError(f"handheld_accel_rad_s2, handheld_accel_m_s2: expected positive densities (or None for the "
+                             f"first), got {self.handheld_accel_rad_s2}, {self.handheld_accel_m_s2}")
         if not self.cnn_search_px >= 0:
             raise ValueError(f"cnn_search_px: expected ≥ 0 pixels, got {self.cnn_search_px}")
         if not 0 <= self.check_roi_margin <= 2:

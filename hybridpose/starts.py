@@ -10,6 +10,7 @@ there, or None where the tracker refuses that start (nothing of the model matche
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -154,3 +155,19 @@ def slid_starts(pose: Pose, step: float, span: float) -> list[Pose]:
     k_max = int(span / step + 1e-9) if step > 0 else 0
     factors = [1.0] + [1.0 + sign * k * step for k in range(1, k_max + 1) for sign in (-1, 1)]
     return [pose if f == 1.0 else Pose(pose.R, pose.t * f) for f in factors]
+
+
+@dataclass(frozen=True)
+class CnnCheck:
+    """A CNN check of a track: the CNN's answer, the tracker's fit from it, whether they disagree with
+    the fused pose (the CNN's pose beyond the gate or ``disagreement_deg``, or the fit from it landing
+    elsewhere and matching the image better than the track) and whether the fit stayed with the CNN."""
+
+    cnn: Measurement
+    fit: Measurement
+    disagrees: bool
+    stayed: bool
+
+    def backed_by(self, track: Measurement, margin: float) -> bool:
+        """Whether the ``track`` measurement fits the image better than the fit from the CNN by ``margin``."""
+        return not track.lost and track.quality >= self.fit.quality + margin

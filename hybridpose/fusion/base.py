@@ -89,6 +89,19 @@ class Fusion(ABC):
         self.last_mahalanobis2: float = float("nan")
 
     # --- public API --------------------------------------------------------------------------------
+    @property
+    def motion_noise(self) -> tuple[float, float]:
+        """(``angular_accel_rad_s2``, ``linear_accel_m_s2``): the white-acceleration densities of the
+        motion model; set it to change them from the next prediction on (ValueError unless both positive)."""
+        return self.angular_accel_rad_s2, self.linear_accel_m_s2
+
+    @motion_noise.setter
+    def motion_noise(self, value: tuple[float, float]) -> None:
+        angular, linear = (float(v) for v in value)
+        if not (angular > 0 and linear > 0 and np.isfinite(angular) and np.isfinite(linear)):
+            raise ValueError(f"motion_noise: expected (rad/s² per √Hz, m/s² per √Hz) both positive, got {value!r}")
+        self.angular_accel_rad_s2, self.linear_accel_m_s2 = angular, linear
+
     def reset(self, pose: Pose, covariance: np.ndarray, timestamp: float, twist: np.ndarray | None = None) -> None:
         """Start a new belief: ``pose`` (``T_cam_obj``) with its (6, 6) ``[ω, v]`` covariance at
         ``timestamp`` (s), twist ``twist`` (6,) (rad/s, m/s; default zero, with

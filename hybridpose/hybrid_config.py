@@ -164,7 +164,8 @@ class HybridConfig:
             acceleration densities (rad/s², m/s² per √Hz; :attr:`Fusion.motion_noise`) for a camera or
             a part moved by hand, which stops and turns within a few frames where a spacecraft drifts.
             With the fusion's space defaults (0.5, 0.5) its gate refuses the tracker's right fit after a
-            stop, and the track coasts off on the old motion. None: the fusion's own everywhere.
+            stop, and the track coasts off on the old motion; at 10 rad/s² it let a fit jump 25° to a
+            wrong pose after one refused frame (ViSP's detection cube). None: the fusion's own everywhere.
         check_on_rejection: a tracker measurement refused by the gate calls a CNN check at once; when
             the CNN pose and the edge fit started from it both agree with the refused measurement
             (``disagreement_chi2``), the motion model was wrong, not the tracker (a sudden change
@@ -208,7 +209,7 @@ class HybridConfig:
     keypoint_memory: bool = True
     learn_after: int = 10
     memory_start_quality: float = 0.4
-    handheld_accel_rad_s2: float | None = 10.0
+    handheld_accel_rad_s2: float | None = 3.0
     handheld_accel_m_s2: float = 3.0
 
     def __post_init__(self) -> None:

@@ -124,16 +124,17 @@ def score_memory(frames, obj, reference) -> dict | None:
     return score_cnn(memory.find, frames, obj, reference)
 
 
-def score_hybrid(regressor: str, frames, obj, reference, tracker: str = "combined", memory: bool = True) -> dict:
-    """The hybrid (``tracker`` + the fitted network + isam2; with its keypoint memory or not) from no
-    initial pose over ``frames``, against ``reference``."""
+def score_hybrid(regressor: str, frames, obj, reference, tracker: str = "combined", memory: bool = True,
+                 config: dict | None = None) -> dict:
+    """The hybrid (``tracker`` + the fitted network + isam2; with its keypoint memory or not; ``config``:
+    more :class:`HybridConfig` fields changed) from no initial pose over ``frames``, against ``reference``."""
     from hybridpose.edges import ModelView
     from hybridpose.edges.image_distance import edge_distances_px
     from hybridpose.estimator import HybridEstimator
     from hybridpose.metrics import nearest_equivalent, rotation_error_deg
 
     est = HybridEstimator.from_names(object=obj, tracker=tracker, regressor=regressor, fusion="isam2",
-                                     config=None if memory else {"keypoint_memory": False})
+                                     config={**(config or {}), **({} if memory else {"keypoint_memory": False})})
     view = ModelView(obj)
     held = wrong = trusted = exact = 0
     first, ms, scored, edge_px = None, [], 0, []

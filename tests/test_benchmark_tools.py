@@ -132,3 +132,20 @@ def test_the_own_object_tuning_sequences_never_share_a_seed_with_the_reported_on
     kinds = {(t, o) for t, o, _ in report}
     assert kinds == {(t, o) for t, o, _ in tuning} == set(own_object.KINDS)
     assert all(sum((t, o) == kind for t, o, _ in tuning) == 5 for kind in kinds)
+
+
+def test_the_no_pose_hand_held_table_pools_wrong_frames_and_counts_sequences_that_never_start():
+    import handheld_no_pose
+
+    def row(seed, held, wrong, first):
+        return {"kind": "printed-cube-photo", "seed": seed, "network": "no network", "model": "print", "memory": True,
+                "frames": 90, "held_scored": held, "wrong": wrong, "first_pose": first, "ms_per_frame": 50.0,
+                "memory_alone": {"in_basin": 3, "frames": 18}}
+
+    rows = [row(1, 90, 0, 0), row(2, 45, 2, 10), row(3, 0, 0, None), row(4, 81, 1, 30)]
+    line = handheld_no_pose.table(rows)[-1]
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[:4] == ["printed-cube-photo", "no network", "shape and print", "on"]
+    median, p10, worst = (float(v.strip(" %")) for v in cells[4].split("/"))
+    assert median == pytest.approx(np.median([100, 50, 0, 90])) and worst == 0 and 0 <= p10 <= median
+    assert cells[5] == "3 of 360" and cells[6] == "10 / 30 (1 never)" and cells[7] == "12 of 72"

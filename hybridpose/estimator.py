@@ -337,6 +337,7 @@ class HybridEstimator:
 
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
         """The start the CNN measurement ``m`` gives in ``frame`` (:func:`~hybridpose.starts.confirmed_start`)."""
+
         def fit(start: Pose) -> Measurement | None:
             try:
                 self._timed(timings, "tracker", self.tracker.init, frame, start)

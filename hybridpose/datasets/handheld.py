@@ -16,9 +16,9 @@ from ..geometry import Camera
 from ..io import atomic_write_json
 from ..objects import ObjectModel, load_object, save_object
 from .bop import BopScene, BopSceneWriter, write_camera_json, write_models
-
-PART_FILE = Path("models") / "part.obj"
 from .generate import claim_folder
+
+PART_FILE = Path("models") / "part.obj"  # the part as drawn, in the dataset's folder
 
 # scikit-image's sample photos of scenes (rooms, people, street, textures), cut into backgrounds and prints
 SAMPLE_PHOTOS = ("astronaut.png", "coffee.png", "chelsea.png", "motorcycle_left.png", "motorcycle_right.png",

@@ -132,9 +132,7 @@ class PrintView:
         h, w = self.levels[0].shape
         texels = [np.einsum("nk,nkj->nj", np.c_[X, np.ones(len(X))], np.nan_to_num(self.maps[f])) * (w, h)
                   for X in points]
-        du, dv = texels[1] - texels[0], texels[2] - texels[0]
-        footprint = np.sqrt(np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0]))
-        level = np.clip(np.round(np.log2(np.maximum(footprint, 1.0))), 0, len(self.levels) - 1).astype(int)
+        level = footprint_level(texels[1] - texels[0], texels[2] - texels[0], len(self.levels))
         # OBJ's v counts up from the print's bottom row; coordinates outside [0, 1] repeat it
         u, v = np.mod(texels[0][:, 0] / w, 1.0), 1.0 - np.mod(texels[0][:, 1] / h, 1.0)
         printed = np.zeros(len(f), np.float64)
@@ -162,6 +160,14 @@ class PrintView:
             total += float((a * b).sum() / denom) * sel.sum()
             weight += int(sel.sum())
         return total / weight if weight else float("nan")
+
+
+def footprint_level(du: np.ndarray, dv: np.ndarray, levels: int) -> np.ndarray:
+    """(N,) int: the level of a print's pyramid (``levels`` of them, each half the last) whose texel
+    matches a pixel's footprint — ``du``, ``dv`` (N, 2): the texels between the pixel and its right and
+    lower neighbours (the footprint's area, as its side; level 0 where it is undefined)."""
+    footprint = np.sqrt(np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0]))
+    return np.clip(np.round(np.log2(np.maximum(np.nan_to_num(footprint, nan=1.0), 1.0))), 0, levels - 1).astype(int)
 
 
 @dataclass(frozen=True)

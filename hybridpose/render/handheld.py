@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from ..edges import ModelView
+from ..edges.print_match import footprint_level
 from ..geometry import Camera, Pose
 from ..objects import ObjectModel
 from .appearance import PhotoBackgrounds, clutter_background
@@ -160,6 +161,12 @@ def _face_frames(view: ModelView) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([e1, e2], 1), offsets
 
 
+def _print_texels(axes: np.ndarray, offsets: np.ndarray, facet: np.ndarray, points: np.ndarray, size) -> np.ndarray:
+    """(N, 2) where the model points ``points`` (N, 3) on facets ``facet`` (N,) lie on a print of
+    ``size`` (W, H) texels, before it repeats (:func:`_face_frames`' axes and offsets, ``PRINT_PX_PER_M``)."""
+    return np.einsum("nkj,nj->nk", axes[facet], points) * PRINT_PX_PER_M + offsets[facet] * np.asarray(size, float)
+
+
 def printed_part(obj: ObjectModel, print_rgb: np.ndarray) -> ObjectModel:
     """``obj`` carrying ``print_rgb`` ((H, W, 3) uint8 RGB) as :func:`handheld_sequence` draws it on
     its faces: each facet shows the print at ``PRINT_PX_PER_M`` from its own offset, the print repeating
@@ -168,8 +175,8 @@ def printed_part(obj: ObjectModel, print_rgb: np.ndarray) -> ObjectModel:
     view = ModelView(obj)
     axes, offsets = _face_frames(view)
     h, w = print_rgb.shape[:2]
-    facet = view.facet_of  # (M,) each triangle's facet id
-    uv_px = np.einsum("mkj,mcj->mck", axes[facet], view.triangles) * PRINT_PX_PER_M + (offsets[facet] * [w, h])[:, None]
+    facet = np.repeat(view.facet_of, 3)  # each triangle corner's facet id
+    uv_px = _print_texels(axes, offsets, facet, view.triangles.reshape(-1, 3), (w, h)).reshape(-1, 3, 2)
     face_uv = np.stack([uv_px[..., 0] / (w - 1), 1.0 - uv_px[..., 1] / (h - 1)], axis=-1)
     return replace(obj, texture=np.ascontiguousarray(print_rgb, dtype=np.uint8), face_uv=face_uv)
 
@@ -209,8 +216,7 @@ class _Part:
         h, w = self.print_rgb.shape[:2]
 
         def texel(points):
-            uv = np.einsum("nkj,nj->nk", self.axes[facet], points) * PRINT_PX_PER_M + self.offsets[facet] * [w, h]
-            return np.mod(uv, [w - 1, h - 1])
+            return np.mod(_print_texels(self.axes, self.offsets, facet, points, (w, h)), [w - 1, h - 1])
 
         uv = texel(X)
         right, below = (texel(self.view.lift(pose, camera, np.c_[xs + dx, ys + dy].astype(float), ids=ids)[0])
@@ -219,9 +225,7 @@ class _Part:
         # a neighbour across the print's repeat seam jumps by a period: measure the step the short way
         du -= np.round(du / [w - 1, h - 1]) * [w - 1, h - 1]
         dv -= np.round(dv / [w - 1, h - 1]) * [w - 1, h - 1]
-        footprint = np.sqrt(np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0]))
-        level = np.clip(np.round(np.log2(np.maximum(np.nan_to_num(footprint, nan=1.0), 1.0))), 0,
-                        len(self.levels) - 1).astype(int)
+        level = footprint_level(du, dv, len(self.levels))
         colour = np.zeros((len(xs), 3))
         for lv in np.unique(level):
             sel = level == lv

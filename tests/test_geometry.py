@@ -7,8 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from hybridpose.metrics import rotation_error_deg
 from hybridpose.geometry import (
-    Camera, Pose, matrix_to_quat_wxyz, matrix_to_rotvec, quat_angle_between, quat_multiply, quat_slerp,
+    Camera, Pose, matrix_to_quat_wxyz, matrix_to_rotvec, mirrored_tilt, quat_angle_between, quat_multiply, quat_slerp,
     quat_wxyz_to_matrix, random_quat, rotvec_to_matrix, rotvec_to_quat, se3_exp, se3_log,
 )
 
@@ -292,3 +293,30 @@ def test_image_box_bounds_cv2_projections_and_refuses_points_behind_the_camera(r
     # the box is not clipped to the image, and a point at or behind the camera plane gives none
     assert cam.image_box(pts, Pose(np.eye(3), [3.0, 0.0, 0.8]))[0] > cam.width
     assert cam.image_box(pts, Pose(np.eye(3), [0.0, 0.0, 0.1])) is None
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(5.0, 30.0), st.floats(0.0, 2 * np.pi), st.floats(-0.1, 0.1), st.floats(-0.1, 0.1))
+def test_mirrored_tilt_is_the_other_solution_of_planar_pose(tilt_deg, azimuth, x_m, y_m):
+    """Oracle: OpenCV's IPPE, which returns both poses of a square seen through its four corners."""
+    K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
+    square = np.array([[-0.05, -0.05, 0], [0.05, -0.05, 0], [0.05, 0.05, 0], [-0.05, 0.05, 0]])
+    axis = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+    truth = Pose.from_rotvec_t(np.radians(tilt_deg) * axis, [x_m, y_m, 1.0])
+    uv = cv2.projectPoints(square, cv2.Rodrigues(truth.R)[0], truth.t, K, None)[0]
+    _, rvecs, tvecs, _ = cv2.solvePnPGeneric(square, uv, K, None, flags=cv2.SOLVEPNP_IPPE)
+    solutions = [Pose(cv2.Rodrigues(r)[0], t.ravel()) for r, t in zip(rvecs, tvecs)]
+    other = max(solutions, key=lambda p: rotation_error_deg(p, truth))
+    mirrored = mirrored_tilt(truth, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    assert rotation_error_deg(mirrored, other) < 0.05
+    sight = truth.t / np.linalg.norm(truth.t)
+    tilt_from_sight = np.degrees(np.arccos(-(truth.R @ [0.0, 0.0, -1.0]) @ sight))
+    assert rotation_error_deg(mirrored, truth) == pytest.approx(2 * tilt_from_sight, abs=1e-6)
+    # the centre stays put; IPPE moves it along the line of sight by the perspective's share
+    np.testing.assert_allclose(mirrored.t, truth.t, atol=1e-12)
+    assert np.linalg.norm(other.t - truth.t) < 0.01
+
+
+def test_mirrored_tilt_of_a_face_seen_head_on_is_the_pose_itself():
+    head_on = Pose.from_rotvec_t([0.0, 0.0, 0.3], [0.0, 0.0, 1.0])
+    assert mirrored_tilt(head_on, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]).allclose(head_on, atol=1e-9)

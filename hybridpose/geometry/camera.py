@@ -12,6 +12,7 @@ import numpy as np
 
 from .checks import as_array, as_points3d, as_rgb_image
 from .pose import Pose
+from .rotations import rotvec_to_matrix
 
 _MIN_DEPTH_M = 1e-6  # points nearer the camera plane project to infinity: refused
 
@@ -247,6 +248,27 @@ def shifted_in_image(pose: Pose, camera: Camera, dx_px: float, dy_px: float) -> 
     the same view of the object, elsewhere in the image."""
     K = camera.K
     return Pose.from_rotvec_t([-dy_px / K[1, 1], dx_px / K[0, 0], 0.0], np.zeros(3)) @ pose
+
+
+def mirrored_tilt(pose: Pose, normal_obj, centre_obj) -> Pose:
+    """The other pose of the planar ambiguity: ``pose`` turned about the object's point ``centre_obj``
+    (3,) m so that the plane with normal ``normal_obj`` (3,) (object frame) tilts as far from the line of
+    sight to that point, mirrored about it. A face seen near head-on shows almost the same outline
+    either way (the two solutions of planar pose estimation, e.g. OpenCV's ``SOLVEPNP_IPPE``): the
+    centre's image stays put and the two poses differ by twice the face's tilt. ``pose`` itself where
+    the face is seen exactly head-on or edge-on."""
+    centre_cam = pose.R @ np.asarray(centre_obj, np.float64) + pose.t
+    sight = centre_cam / np.linalg.norm(centre_cam)
+    n = pose.R @ np.asarray(normal_obj, np.float64)
+    n = n / np.linalg.norm(n)
+    mirrored = 2.0 * float(n @ sight) * sight - n
+    axis = np.cross(n, mirrored)
+    sin, cos = float(np.linalg.norm(axis)), float(n @ mirrored)
+    if sin < 1e-9:
+        return pose
+    turn = rotvec_to_matrix(axis / sin * math.atan2(sin, cos))
+    R = turn @ pose.R
+    return Pose(R, centre_cam - R @ np.asarray(centre_obj, np.float64))
 
 
 def save_camera(camera: Camera, path) -> None:

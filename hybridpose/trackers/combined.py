@@ -13,7 +13,11 @@ Each frame:
    time, never below 4), then ``inner`` Gauss–Newton steps over every active cue's equations;
 3. covariance = ``covariance_scale`` × (Σ H)⁻¹ over ``[ω, v]``; quality = the mean of the cues'
    qualities that have a verdict (edges count half on a printed part: the print's edges pull them; a
-   part that shows a print but none of its points here scores 0 for texture).
+   part that shows a print but none of its points here scores 0 for texture);
+4. a plain part's trusted but mediocre fit gets a second look: fitted again from the pose turned about
+   the image axes and from the other pose of the planar ambiguity (its largest face seen near head-on),
+   the best kept where the cues agree with it clearly more — under blur a plain part's outline fits a
+   pose 10–25° off almost as well, and the fit slides into it.
 
 Which cues speak follows what the part and the frame offer, not a flag: texture where the part shows a print
 (corners inside its faces at the initial pose; a plain part's corners are corners of its shading and
@@ -36,7 +40,7 @@ import numpy as np
 from ..core import Frame, covariance_from_information
 from ..edges import ModelView, printed_faces, to_gray, to_gray8
 from ..edges.model_view import ID_SCALE
-from ..geometry import Pose, shifted_in_image
+from ..geometry import Pose, mirrored_tilt, rotvec_to_matrix, shifted_in_image
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
@@ -52,6 +56,19 @@ PATCH_REACH_PX, PATCH_MIN_SCORE = 48, 0.5  # each frame's first, pose-free step:
 # searched at quarter resolution, then ±1 px at half: a masked matchTemplate over the whole reach costs ≈ 0.6 ms
 # at half resolution, 0.05 at quarter; the quarter's answer alone lost a few frames of the plain box (tuning seeds)
 PATCH_SCALE = 0.5
+# a second look at a plain part's trusted but mediocre fit (quality in [lost_quality, SECOND_LOOK_BELOW)) in a
+# track held the frame before: fits again from SECOND_LOOK_TURN_DEG turns about the image axes and, where its
+# largest face (≥ MIRROR_MIN_PIXELS at ID_SCALE) is seen MIRROR_TILT_DEG from head-on, from the mirrored tilt;
+# the best is kept where its quality is SECOND_LOOK_MARGIN higher and at least SECOND_LOOK_FLOOR. It looks where
+# the quality dropped SECOND_LOOK_DROP since the frame before, else after a wait that doubles, up to
+# SECOND_LOOK_MAX_WAIT frames, while looks find nothing better (a plain part whose right fit scores 0.6-0.7
+# would otherwise pay five fits a frame: ViSP's lego square 6.5 -> 22.6 ms). Chosen on the hand-held tuning
+# scenes, plain box, frames trusted > 10 deg off of 1800: none 92; every frame 19 (margin 0.1: 52; below 0.8:
+# 46; the mirrored tilt alone: 66-76; turns about the least-constrained axis instead of the image axes: 71);
+# waits up to 4: 25, up to 16: 56; on the drop alone: 90
+SECOND_LOOK_BELOW, SECOND_LOOK_MARGIN, SECOND_LOOK_FLOOR, SECOND_LOOK_TURN_DEG = 0.7, 0.05, 0.6, 12.0
+SECOND_LOOK_DROP, SECOND_LOOK_MAX_WAIT = 0.1, 4
+MIRROR_TILT_DEG, MIRROR_MIN_PIXELS = (4.0, 40.0), 100
 MAX_STEP_RAD, MAX_STEP_M_SHARE = 0.5, 0.5  # a Gauss–Newton step beyond these (rad; × diameter) is refused
 
 
@@ -92,6 +109,10 @@ class CombinedTracker(Tracker):
         self._sight: Sight | None = None  # the frame being fitted, as the cues see it
         self._init_frame: Frame | None = None  # the frame of the last init
         self._deaf: set[str] = set()  # cues left out of this frame's fit and quality
+        self._held = 0  # frames in a row the fit was trusted, up to this one
+        self._last_quality = 0.0  # the last fit's quality
+        self._since_look = 0  # frames since the last second look
+        self._look_wait = 1  # …and how many to wait before the next (doubles while looks find nothing better)
 
     def _cue(self, name: str):
         return next((c for c in self.cues if c.name == name), None)
@@ -112,6 +133,7 @@ class CombinedTracker(Tracker):
         self._start(frame, gray, pose, ids)
         self._small = _shrunk(gray)
         self._init_frame = frame
+        self._held = 0
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray8 = to_gray8(frame.image)  # to_gray's, kept in uint8 for KLT and corners
@@ -128,9 +150,11 @@ class CombinedTracker(Tracker):
         if pose is None:
             for cue in self.cues:
                 cue.finish(frame, gray, start, False, None)
+            self._held = 0
             return None, None, 0.0
-        H = self._information
         quality = self._quality(frame, gray, pose)
+        pose, quality = self._second_look(sight, pose, start, quality, search_px or self.search_px)
+        H = self._information
         edge_cue = self._cue("edges")
         self.last_sites = edge_cue.sites if edge_cue is not None and edge_cue.active else None
         # what the cues learn from this frame (keyframes, colours) must be the part's: only where every
@@ -151,6 +175,8 @@ class CombinedTracker(Tracker):
         full_ids = _Once(lambda: self.view.facet_ids(pose, frame.camera, scale=1.0))
         for cue in self.cues:
             cue.finish(frame, gray, pose, trusted, full_ids)
+        self._held = self._held + 1 if quality >= self.lost_quality else 0
+        self._last_quality = quality
         return pose, covariance_from_information(H, self.covariance_scale), quality
 
     def _track_wide(self, frame: Frame, start: Pose, search_px: float):
@@ -176,6 +202,10 @@ class CombinedTracker(Tracker):
             texture.correspond(frame, gray, pose, search_px)
             if len(texture.index) >= 6:
                 pose = self._solve(pose, [texture], TEXTURE_PREALIGN_STEPS, frame.camera.K) or pose
+        return self._search_fit(frame, gray, pose, start, search_px)
+
+    def _search_fit(self, frame: Frame, gray: np.ndarray, pose: Pose, start: Pose, search_px: int) -> Pose | None:
+        """``outer`` rounds: every active cue searches from ``pose``, then ``inner`` Gauss–Newton steps."""
         rng = search_px
         for _ in range(self.outer):
             active = [c for c in self.cues if c.active and c.name not in self._deaf]
@@ -186,6 +216,63 @@ class CombinedTracker(Tracker):
                 return None
             rng = max(4, rng // 2)
         return pose
+
+    def _second_look(self, sight: Sight, pose: Pose, start: Pose, quality: float, search_px: int):
+        """(pose, quality): a plain part's mediocre fit tried again from other starts (see
+        ``SECOND_LOOK_BELOW``): the outline of a plain part under blur fits a pose turned 10–25° about an
+        axis across the line of sight almost as well (seen near head-on, the two poses of the planar
+        ambiguity: :func:`~hybridpose.geometry.mirrored_tilt`), and the Gauss–Newton fit slides into it.
+        A printed part's texture points pin the pose; a track not held the frame before has no right
+        pose to slide from. Else ``pose`` and its ``quality`` as they were."""
+        texture = self._cue("texture")
+        self._since_look += 1
+        due = quality < self._last_quality - SECOND_LOOK_DROP or self._since_look >= self._look_wait
+        if ((texture is not None and texture.enabled) or self._held < 1 or sight.frame is self._init_frame
+                or not self.lost_quality <= quality < SECOND_LOOK_BELOW or not due):
+            return pose, quality
+        self._since_look = 0
+        frame, camera, information = sight.frame, sight.frame.camera, self._information
+        best = None
+        for other_start in self._other_starts(pose, camera):
+            ids = self.view.facet_ids(other_start, camera)
+            other = Sight(frame, sight.gray, sight.gray8, other_start, ids,
+                          self.view.visible_index(other_start, camera, margin_px=2, ids=ids))
+            for cue in self.cues:
+                cue.begin(other)
+            fitted = self._search_fit(frame, sight.gray, other_start, start, search_px)
+            if fitted is not None:
+                q = self._quality(frame, sight.gray, fitted)
+                if best is None or q > best[1]:
+                    best = (fitted, q, other, self._information)
+        if best is not None and best[1] >= max(quality + SECOND_LOOK_MARGIN, SECOND_LOOK_FLOOR):
+            pose, quality, kept, self._information = best
+            self._look_wait = 1
+        else:
+            kept, self._information = sight, information
+            self._look_wait = min(2 * self._look_wait, SECOND_LOOK_MAX_WAIT)
+        for cue in self.cues:
+            cue.begin(kept)
+        self._sight = kept
+        self._quality(frame, sight.gray, pose)  # the cues' verdicts (and the edge sites) of the pose kept
+        return pose, quality
+
+    def _other_starts(self, pose: Pose, camera) -> list[Pose]:
+        """``pose`` turned ±``SECOND_LOOK_TURN_DEG`` about the camera's x and y axes through the part's
+        centre and, where its largest face is seen near head-on, mirrored about the line of sight."""
+        centre = self.object.bbox_corners.mean(0)
+        centre_cam = pose.R @ centre + pose.t
+        starts = []
+        for rotvec in np.radians(SECOND_LOOK_TURN_DEG) * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0.0]]):
+            R = rotvec_to_matrix(rotvec) @ pose.R
+            starts.append(Pose(R, centre_cam - R @ centre))
+        counts = np.bincount(self.view.facet_ids(pose, camera).ravel())
+        counts[0] = 0
+        face = int(np.argmax(counts))
+        normal = self.view.plane_normal[face]
+        tilt = np.degrees(np.arccos(np.clip(abs((pose.R @ normal) @ centre_cam) / np.linalg.norm(centre_cam), 0, 1)))
+        if counts[face] >= MIRROR_MIN_PIXELS and MIRROR_TILT_DEG[0] <= tilt <= MIRROR_TILT_DEG[1]:
+            starts.insert(0, mirrored_tilt(pose, normal, centre))
+        return starts
 
     def _in_front(self, pose: Pose) -> bool:
         """Whether the whole part lies in front of the camera at ``pose`` (a fit that slid behind it is lost)."""

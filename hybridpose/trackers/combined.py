@@ -67,7 +67,9 @@ PATCH_SCALE = 0.5
 # 46; the mirrored tilt alone: 66-76; turns about the least-constrained axis instead of the image axes: 71);
 # waits up to 4: 25, up to 16: 56; on the drop alone: 90
 SECOND_LOOK_BELOW, SECOND_LOOK_MARGIN, SECOND_LOOK_FLOOR, SECOND_LOOK_TURN_DEG = 0.7, 0.05, 0.6, 12.0
-SECOND_LOOK_DROP, SECOND_LOOK_MAX_WAIT = 0.1, 4
+SECOND_LOOK_DROP, SECOND_LOOK_MAX_WAIT = 0.1, 4  # when to look: the comment above
+# under 4 deg the mirrored pose lies within the fit's own reach; with the mirror alone, tilts up to 20 deg
+# only (not 40) left 73-81 frames > 10 deg off of 1800 where 40 left 66-76; a face under 100 px (ID_SCALE) is no plane to mirror
 MIRROR_TILT_DEG, MIRROR_MIN_PIXELS = (4.0, 40.0), 100
 MAX_STEP_RAD, MAX_STEP_M_SHARE = 0.5, 0.5  # a Gauss–Newton step beyond these (rad; × diameter) is refused
 

@@ -221,3 +221,18 @@ def test_track_finds_a_printed_part_with_no_network(printed_cube, tmp_path):
     last = Pose.from_quat_t([float(rows[-1][k]) for k in ("qw", "qx", "qy", "qz")],
                             [float(rows[-1][k]) for k in ("tx_m", "ty_m", "tz_m")])
     assert rotation_error_deg(last, poses[-1]) < 2.0 and np.linalg.norm(last.t - poses[-1].t) < 0.005
+
+
+def test_the_same_print_gives_the_same_matches(printed_cube):
+    """FLANN's KD-trees split at random: two memories of the same print must still match a frame's
+    keypoints to the same points (a benchmark's figures otherwise move from one run to the next)."""
+    frame = _frame(printed_cube, POSE)
+    memories = [KeypointMemory.for_part(ModelView(printed_cube), CAM, PrintView(ModelView(printed_cube)))
+                for _ in range(2)]
+    for memory in memories:
+        memory.find(frame)  # builds its index
+    uv, descriptors = memories[0]._detect(cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY), None)
+    (uv_a, X_a), (uv_b, X_b) = (m._matches(uv, descriptors) for m in memories)
+    assert len(uv_a) > 50
+    np.testing.assert_array_equal(uv_a, uv_b)
+    np.testing.assert_array_equal(X_a, X_b)

@@ -53,6 +53,7 @@ SAME_POINT_M = 0.004
 LEARN_STEP_DEG = 15.0        # a frame is learned where it sees the part from this far from every stored view
 MAX_VIEWS = 48               # the most views kept (the print's and the learned ones); SIFT handles ±30° tilt
 SOURCE = "regressor:keypoints"  # the memory's answers' Measurement.source
+FLANN_SEED = 0                # the KD-trees' random splits (see _build_index)
 PIXEL_SIGMA = 1.5            # px: the noise of a matched keypoint, for the answer's covariance
 MIN_SIGMA_DEG, MIN_SIGMA_M = 1.0, 0.003  # the answer's covariance floor: a PnP on one face's points is surer
                                          # than the pose it gives when the print was learned off by a degree
@@ -200,7 +201,10 @@ class KeypointMemory:
 
     def _build_index(self) -> None:
         self._all_points = np.concatenate(self._views.points)
-        # FLANN's KD-trees: a brute-force match of 1 500 keypoints against thousands costs ~0.1 s
+        # FLANN's KD-trees: a brute-force match of 1 500 keypoints against thousands costs ~0.1 s. Their
+        # random splits draw from OpenCV's generator: seeded, the same views give the same matches (unseeded,
+        # the print's keypoints alone moved from 6 to 4 of 18 frames in basin between two builds)
+        cv2.setRNGSeed(FLANN_SEED)
         self._index = cv2.flann_Index(np.concatenate(self._views.descriptors), {"algorithm": 1, "trees": 4})
 
     def _matches(self, uv: np.ndarray, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -111,8 +111,7 @@ class CombinedTracker(Tracker):
         self._sight: Sight | None = None  # the frame being fitted, as the cues see it
         self._init_frame: Frame | None = None  # the frame of the last init
         self._deaf: set[str] = set()  # cues left out of this frame's fit and quality
-        self._held = 0  # frames in a row the fit was trusted, up to this one
-        self._last_quality = 0.0  # the last fit's quality
+        self._last_quality = 0.0  # the last fit's quality (0 after init or a failed fit): was the track held
         self._since_look = 0  # frames since the last second look
         self._look_wait = 1  # …and how many to wait before the next (doubles while looks find nothing better)
 
@@ -135,7 +134,7 @@ class CombinedTracker(Tracker):
         self._start(frame, gray, pose, ids)
         self._small = _shrunk(gray)
         self._init_frame = frame
-        self._held = 0
+        self._last_quality = 0.0
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray8 = to_gray8(frame.image)  # to_gray's, kept in uint8 for KLT and corners
@@ -152,7 +151,7 @@ class CombinedTracker(Tracker):
         if pose is None:
             for cue in self.cues:
                 cue.finish(frame, gray, start, False, None)
-            self._held = 0
+            self._last_quality = 0.0
             return None, None, 0.0
         quality = self._quality(frame, gray, pose)
         pose, quality = self._second_look(sight, pose, start, quality, search_px or self.search_px)
@@ -177,7 +176,6 @@ class CombinedTracker(Tracker):
         full_ids = _Once(lambda: self.view.facet_ids(pose, frame.camera, scale=1.0))
         for cue in self.cues:
             cue.finish(frame, gray, pose, trusted, full_ids)
-        self._held = self._held + 1 if quality >= self.lost_quality else 0
         self._last_quality = quality
         return pose, covariance_from_information(H, self.covariance_scale), quality
 
@@ -229,7 +227,8 @@ class CombinedTracker(Tracker):
         texture = self._cue("texture")
         self._since_look += 1
         due = quality < self._last_quality - SECOND_LOOK_DROP or self._since_look >= self._look_wait
-        if ((texture is not None and texture.enabled) or self._held < 1 or sight.frame is self._init_frame
+        held = self._last_quality >= self.lost_quality  # the frame before
+        if ((texture is not None and texture.enabled) or not held or sight.frame is self._init_frame
                 or not self.lost_quality <= quality < SECOND_LOOK_BELOW or not due):
             return pose, quality
         self._since_look = 0

@@ -69,8 +69,7 @@ from .contracts import check_backend
 from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status, check_next_frame
 from .edges import ModelView, to_gray8
 from .edges.silhouette import SPACE_DARK_SHARE, dark_share
-from .fusion.base import measured_twist, nearest_equivalent_measurement
-from .fusion.base import pose_mahalanobis2 as _mahalanobis2
+from .fusion.base import measured_twist, nearest_equivalent_measurement, pose_mahalanobis2 as _mahalanobis2
 from .geometry import Camera, Pose
 from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
@@ -78,7 +77,8 @@ from .metrics import rotation_error_deg
 from .objects import ObjectModel
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE
 from .regressors.keypoint_memory import KeypointMemory
-from .starts import CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view
+from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view,
+                     unsure_in_light)
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -337,16 +337,19 @@ class HybridEstimator:
 
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
         """The start the CNN measurement ``m`` gives in ``frame`` (:func:`~hybridpose.starts.confirmed_start`)."""
+        c = self.config  # a start from the memory's keypoints has its own bar (memory_start_quality)
+        plain_bar = c.plain_start_quality if m.source != MEMORY_SOURCE and self._print is None else 0.0
 
         def fit(start: Pose) -> Measurement | None:
             try:
                 self._timed(timings, "tracker", self.tracker.init, frame, start)
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 return None
-            m = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
-            return None if self._edges_alone(frame, m) else m
+            f = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
+            cues = getattr(self.tracker, "cue_qualities", None)
+            unsure = self._view is not None and unsure_in_light(cues, frame, self._view, f, plain_bar)
+            return None if unsure or self._edges_alone(frame, f) else f
 
-        c = self.config  # a start from the memory's keypoints has its own bar (memory_start_quality)
         stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin)
         return confirmed_start(m, fit, c if m.source != MEMORY_SOURCE else replace(c, start_quality=c.memory_start_quality),
                                depth_search, stands_out)

@@ -133,10 +133,23 @@ def edges_alone_in_clutter(cue_qualities: dict | None, frame: Frame, view: Model
     edges as a right pose does, so off black space another cue must speak too (the texture cue cannot
     on the frame a start is checked on; the region cue where the part's colours stand out). On black
     space the edges alone decide; a tracker without cues is not judged here."""
-    if not cue_qualities:
+    if not cue_qualities or {name for name, q in cue_qualities.items() if np.isfinite(q)} != {"edges"}:
         return False
-    if {name for name, q in cue_qualities.items() if np.isfinite(q)} != {"edges"}:
-        return False
+    return lit_around(frame, view, pose)
+
+
+def unsure_in_light(cue_qualities: dict | None, frame: Frame, view: ModelView, fit: Measurement, bar: float) -> bool:
+    """Whether a start's ``fit`` in ``frame``, by a tracker that reports its cues' verdicts
+    (``cue_qualities``), scores below ``bar`` in a lit scene: a plain part's start there needs
+    :attr:`~hybridpose.hybrid_config.HybridConfig.plain_start_quality` (a network's pose at the wrong
+    distance fits a smaller cube inside a face of the real one, or in the clutter, almost as well)."""
+    return bool(cue_qualities) and not fit.lost and fit.quality < bar and lit_around(frame, view, fit.pose)
+
+
+def lit_around(frame: Frame, view: ModelView, pose: Pose) -> bool:
+    """Whether the scene around the part's outline at ``pose`` in ``frame`` is lit (a desk, a photo, the
+    Earth), not black space (:func:`~hybridpose.edges.fit.dark_surround`); False where none of the
+    model shows."""
     samples = view.visible_samples(pose, frame.camera, margin_px=2)
     return len(samples.index) > 0 and not dark_surround(to_gray(frame.image), samples.uv)
 

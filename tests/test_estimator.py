@@ -751,6 +751,31 @@ def test_off_black_space_a_take_up_that_only_the_edges_vouch_for_is_refused(trus
     assert ("tracking" in statuses[18:]) == resumes
 
 
+class PlainUnsure(ScriptedTracker):
+    """Fits the truth, its edge and region cues speaking, at quality 0.7 before frame 4 and 0.85 from there."""
+
+    def track(self, frame, prior=None, **options):
+        m = super().track(frame, prior, **options)
+        self.cue_qualities = {"edges": 0.75, "region": 0.65}
+        return m if frame.index >= 4 else replace(m, quality=0.7)
+
+
+@pytest.mark.parametrize("grey, bar, first", [(120, None, 4), (0, None, 0), (120, 0.0, 0)])
+def test_a_plain_parts_start_in_a_lit_scene_needs_plain_start_quality(truss, grey, bar, first):
+    """A plain part (no print to check a start against) in a lit scene starts only at a fit of
+    ``plain_start_quality`` (a network's pose at the wrong distance fits a smaller cube inside a face of
+    the real one almost as well); on black space, or with the bar at 0, ``start_quality`` decides."""
+    assert HybridConfig().start_quality < 0.7 < HybridConfig().plain_start_quality <= 0.85
+    options = {} if bar is None else {"plain_start_quality": bar}
+    est = HybridEstimator(PlainUnsure(object=truss), OracleRegressor(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, start_contrast=0, **options))
+    poses = [est.step(replace(frame(k), image=np.full((CAM.height, CAM.width, 3), grey, np.uint8))).pose
+             for k in range(6)]
+    assert [p is not None for p in poses].index(True) == first
+    with pytest.raises(ValueError, match="plain_start_quality"):
+        HybridConfig(plain_start_quality=1.5)
+
+
 def test_restarts_close_together_are_not_trusted_until_tracking_settles():
     """A tracker that loses the object every few frames: each loss ends in a CNN restart; with
     settle_frames the frames right after a restart that follows another closely are reported lost."""

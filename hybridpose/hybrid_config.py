@@ -162,12 +162,14 @@ class HybridConfig:
         plain_start_quality: ``start_quality`` for a start of a part with no print to check it against
             (a plain CAD model), fitted by a tracker that reports its cues (``combined``) in a lit scene
             (not black space): a network's pose at the wrong distance (×0.65–4) fits a smaller cube inside
-            a face of the real one, on a square of its print or in the clutter, at 0.63–0.82, where right
-            starts mostly fit at 0.8 and more. Hand-held printed cube, the shape alone, tuning seeds
-            (frames trusted > 10° off / held within 5° and 2 cm, of 1800, photos and behind a hand):
+            a face of the real one, on a square of its print or in the clutter, at 0.6–0.82, where right
+            starts on renders mostly fit at 0.8 and more. Hand-held printed cube, the shape alone, tuning
+            seeds (frames trusted > 10° off / held within 5° and 2 cm, of 1800, photos and behind a hand):
             without it 241 / 251 and 205 / 343; at 0.75: 86 / 301 and 55 / 438; at 0.8: 17 / 301 and
-            17 / 328. A start from the memory keeps ``memory_start_quality``; on black space, or with
-            ``edges``, ``start_quality`` decides.
+            17 / 328. Not 0.8: on real footage right starts fit lower (ViSP's detection cube: 0.63–0.8;
+            its first right start, at 0.76, never came at 0.8 and the hybrid held 0 of 261 frames
+            instead of 233). A start from the memory keeps ``memory_start_quality``; on black space, or
+            with ``edges``, ``start_quality`` decides.
         handheld_accel_rad_s2, handheld_accel_m_s2: the fusion's motion model off black space (the
             first frame less than ``SPACE_DARK_SHARE`` dark, as for ``keypoint_memory``): white-
             acceleration densities (rad/s², m/s² per √Hz; :attr:`Fusion.motion_noise`) for a camera or
@@ -218,7 +220,7 @@ class HybridConfig:
     keypoint_memory: bool = True
     learn_after: int = 10
     memory_start_quality: float = 0.4
-    plain_start_quality: float = 0.8
+    plain_start_quality: float = 0.75
     handheld_accel_rad_s2: float | None = 3.0
     handheld_accel_m_s2: float = 3.0
 

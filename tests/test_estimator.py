@@ -765,7 +765,7 @@ def test_a_plain_parts_start_in_a_lit_scene_needs_plain_start_quality(truss, gre
     """A plain part (no print to check a start against) in a lit scene starts only at a fit of
     ``plain_start_quality`` (a network's pose at the wrong distance fits a smaller cube inside a face of
     the real one almost as well); on black space, or with the bar at 0, ``start_quality`` decides."""
-    assert HybridConfig().start_quality < 0.7 < HybridConfig().plain_start_quality <= 0.85
+    assert HybridConfig().start_quality < 0.7 < HybridConfig().plain_start_quality < 0.85
     options = {} if bar is None else {"plain_start_quality": bar}
     est = HybridEstimator(PlainUnsure(object=truss), OracleRegressor(), registry.create("fusion", "ukf"),
                           HybridConfig(check_period=0, start_contrast=0, **options))

@@ -187,6 +187,28 @@ def test_a_start_from_the_memory_needs_the_tracker_only_to_hold_it(bar, starts):
         HybridConfig(memory_start_quality=1.5)
 
 
+class HalfSureCues(HalfSureTracker):
+    """:class:`HalfSureTracker` reporting its cues' verdicts, as ``combined`` does."""
+
+    cue_qualities = {"edges": 0.5, "region": 0.5}
+
+
+def test_a_plain_parts_start_from_the_memory_keeps_the_memory_bar_in_a_lit_scene(printed_cube):
+    """``plain_start_quality`` holds the network's starts of a plain part in a lit scene, not the memory's:
+    its pose already agrees with dozens of keypoints on the part."""
+    plain = replace(printed_cube, texture=None, face_uv=None)
+    tracker = HalfSureCues(POSE)
+    tracker.object = plain
+    est = HybridEstimator(tracker, registry.create("regressor", "none"), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, start_contrast=0))
+    assert HybridConfig().memory_start_quality < 0.5 < HybridConfig().plain_start_quality
+    grey = np.full((CAM.height, CAM.width, 3), 120, np.uint8)
+    assert est.step(Frame(grey, CAM, 0.0, 0)).status == "init"
+    est.memory = ScriptedMemory(POSE)
+    est.step(Frame(grey, CAM, 1 / 30, 1))
+    assert est.status == "tracking"
+
+
 def _write_obj(obj: ObjectModel, folder) -> str:
     """``obj`` as an OBJ with its print (``.mtl`` naming a PNG), as a CAD tool exports a printed part."""
     cv2.imwrite(str(folder / "print.png"), cv2.cvtColor(obj.texture, cv2.COLOR_RGB2BGR))

@@ -77,8 +77,7 @@ from .metrics import rotation_error_deg
 from .objects import ObjectModel
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE
 from .regressors.keypoint_memory import KeypointMemory
-from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view,
-                     unsure_in_light)
+from .starts import CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view, unsure_in_light
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -132,8 +131,7 @@ class HybridEstimator:
         self.object: ObjectModel | None = tracker.object
         self.regressor_calls = 0  # since construction: the CNN's share of the work
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
-        # the start's image test slides the model's edges across the frame; a tracker without a CAD
-        # model (a user's own backend) leaves nothing to slide
+        # the start's image test slides the model's edges across the frame (none without a CAD model: a user's backend)
         self._view = ModelView(self.object) if self.object is not None else None
         self._print = print_view(self._view)  # a printed part's print: checks its starts, seeds its memory
         self._own_motion_noise = getattr(fusion, "motion_noise", None)  # set off black space, back on it
@@ -170,6 +168,7 @@ class HybridEstimator:
         self._frames = 0  # frames stepped since reset (the one being stepped: not yet counted)
         self._restarts: list[int] = []  # frame counts at which fusion and tracker restarted
         self._first_start = False  # whether the last restart was the first start since reset
+        self.best_start_fit = 0.0  # the best quality a start's fit reached since reset (why a run never started)
         self.camera: Camera | None = None
         self.last_timestamp: float | None = None
         self._n = _Counters()
@@ -346,6 +345,7 @@ class HybridEstimator:
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 return None
             f = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
+            self.best_start_fit = max(self.best_start_fit, f.quality if f.pose is not None else 0.0)
             cues = getattr(self.tracker, "cue_qualities", None)
             unsure = self._view is not None and unsure_in_light(cues, frame, self._view, f, plain_bar)
             return None if unsure or self._edges_alone(frame, f) else f

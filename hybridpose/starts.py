@@ -162,6 +162,19 @@ def cues_vouch(cue_qualities: dict | None, bar: float) -> bool:
     return all(q >= bar for q in cue_qualities.values() if np.isfinite(q))
 
 
+def never_started_text(best_fit: float, config: HybridConfig) -> str:
+    """What a run from no initial pose that never started tells its user: ``best_fit``, the best quality a
+    start's fit reached (:attr:`~hybridpose.estimator.HybridEstimator.best_start_fit`), against the bars of
+    ``config``, and what to do."""
+    if best_fit <= 0:
+        return ("the hybrid never started: no network pose gave a fit of the model at all (is the part in view, "
+                "and are --object and --camera the right ones?); give --init-pose FILE, the first frame's pose")
+    return (f"the hybrid never started: the best fit from a network pose scored {best_fit:.2f} where a start needs "
+            f"{config.start_quality:g} (start_quality; a plain part in a lit scene {config.plain_start_quality:g}, "
+            "plain_start_quality) and a pose the image singles out; give --init-pose FILE (the first frame's pose), "
+            "or a fit that finds the part in these frames (hybridpose fit --video)")
+
+
 def slid_starts(pose: Pose, step: float, span: float) -> list[Pose]:
     """``pose``, then ``pose`` with its distance scaled by 1 ± k·``step`` (k = 1, 2, …, up to
     ``span``), nearest first: a CNN pose's largest error is its depth."""

@@ -27,6 +27,7 @@ from .core import Estimate, Frame, Measurement
 from .edges.silhouette import SPACE_DARK_SHARE, dark_share
 from .geometry import Camera, Pose, as_rgb_image
 from .io import atomic_write_json, atomic_write_text, read_json
+from .starts import never_started_text
 from .viz import SITE_LEGEND, draw_edge_sites, draw_wireframe, put_label
 
 log = logging.getLogger(__name__)
@@ -319,6 +320,7 @@ class RunResult:
     out: Path
     interrupted: bool = False  # stopped by the user (Ctrl-C): the outputs hold the frames done
     first_frame_ms: float = float("nan")
+    note: str = ""  # what the user should hear of the run (a hybrid that never started: why, and what to do)
 
 
 def _run(frames: Iterator[Frame], step: Callable[[Frame], tuple], out, fields: list[str], max_frames: int | None,
@@ -409,9 +411,12 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
     last edge fit of the frame (:func:`with_sites`). ``poses.csv`` adds the 1-σ of the pose
     (``SIGMA_FIELDS``), status, sources and ms."""
     obj = estimator.object
+    started = []
 
     def step(frame: Frame):
         e = estimator.step(frame)
+        if e.pose is not None and not started:
+            started.append(frame.index)
         cells = [*_sigma_cells(e.pose, e.covariance), e.status, "+".join(e.sources), f"{e.timings_ms['total']:.2f}"]
         overlay = draw_estimate(frame, obj, e, f"#{frame.index}")
         if draw_sites:
@@ -419,7 +424,10 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
         return (e, e.pose, e.status != "lost", e.status == "lost", e.status == "reinit", e.timings_ms["total"], cells,
                 overlay)
 
-    return _run(frames, step, out, HYBRID_FIELDS, max_frames, progress, on_frame)
+    res = _run(frames, step, out, HYBRID_FIELDS, max_frames, progress, on_frame)
+    if started or res.frames == 0:
+        return res
+    return replace(res, note=never_started_text(getattr(estimator, "best_start_fit", 0.0), estimator.config))
 
 
 def draw_tracking(frame: Frame, obj, m: Measurement, label: str, pose: Pose | None = None) -> np.ndarray:

@@ -265,6 +265,21 @@ def test_track_without_an_initial_pose_runs_the_hybrid(clip, tmp_path, capsys):
     assert np.all(np.linalg.eigvalsh(cov) > 0) and len(COV_FIELDS) == 21 and "cov_rx_tz" in COV_FIELDS
 
 
+def test_a_hybrid_that_never_started_says_why_and_what_to_do(clip, tmp_path, capsys):
+    """A run from no initial pose whose starts the image never confirmed ends saying the best fit's quality
+    against the bars, and what to give instead."""
+    root, truth = clip
+    rc = main(["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
+               "--out", str(tmp_path / "never"), "--max-frames", "3", "--hybrid-option", "start_quality=1.0"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "track: the hybrid never started: the best fit from a network pose scored 0." in out
+    assert "a start needs 1 (start_quality" in out and "--init-pose FILE" in out
+    from hybridpose.hybrid_config import HybridConfig
+    from hybridpose.starts import never_started_text
+
+    assert "no network pose gave a fit of the model at all" in never_started_text(0.0, HybridConfig())
+
+
 def test_tracker_options_reach_the_tracker(clip, tmp_path, capsys):
     root, _ = clip
     args = ["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),

@@ -19,7 +19,6 @@ def cmd_track(args) -> int:
     from ..objects import load_object
     from ..registry import create, get
     from ..tracking import chosen_tracker, first_frame, load_pose, read_frames, track_sequence
-
     from ..hybrid_config import HybridConfig, changes_text
     from ..regressors.options import KeypointOptions
 
@@ -59,8 +58,7 @@ def cmd_track(args) -> int:
         close_bars()
         write_run_record(res, args, obj, camera, policy={"fields": asdict(est.config), "changed": policy})
         print(f"track: {res.frames} frames with the hybrid ({args.tracker} + {args.regressor} + {args.fusion}"
-              f"{'; policy ' + policy if policy else ''}; "
-              f"{_cost(res)}, {res.lost} lost, {res.reinits} re-initialised) → "
+              f"{'; policy ' + policy if policy else ''}; {_cost(res)}, {res.lost} lost, {res.reinits} re-initialised) → "
               f"{res.video}, {res.out / 'poses.csv'}, {res.out / 'scene_gt.json'}, {res.out / 'run.json'}")
         return _finished(res)
     from ..threads import set_threads
@@ -96,6 +94,8 @@ def _cost(res) -> str:
 
 def _finished(res) -> int:
     """The exit status of a track run: 0, or 130 (as a shell reports Ctrl-C) where the user stopped it."""
+    if res.note:
+        print(f"track: {res.note}")
     if res.interrupted:
         print(f"track: stopped by the user after {res.frames} frames; the outputs hold those frames")
         return 130

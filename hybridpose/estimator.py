@@ -77,7 +77,8 @@ from .metrics import rotation_error_deg
 from .objects import ObjectModel
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE
 from .regressors.keypoint_memory import KeypointMemory
-from .starts import CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view, unsure_in_light
+from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view,
+                     start_refused_in_light)
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -347,8 +348,7 @@ class HybridEstimator:
             f = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
             self.best_start_fit = max(self.best_start_fit, f.quality if f.pose is not None else 0.0)
             cues = getattr(self.tracker, "cue_qualities", None)
-            unsure = self._view is not None and unsure_in_light(cues, frame, self._view, f, plain_bar)
-            return None if unsure or self._edges_alone(frame, f) else f
+            return None if self._view is not None and start_refused_in_light(cues, frame, self._view, f, plain_bar) else f
 
         stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin)
         return confirmed_start(m, fit, c if m.source != MEMORY_SOURCE else replace(c, start_quality=c.memory_start_quality),

@@ -133,17 +133,24 @@ def edges_alone_in_clutter(cue_qualities: dict | None, frame: Frame, view: Model
     edges as a right pose does, so off black space another cue must speak too (the texture cue cannot
     on the frame a start is checked on; the region cue where the part's colours stand out). On black
     space the edges alone decide; a tracker without cues is not judged here."""
-    if not cue_qualities or {name for name, q in cue_qualities.items() if np.isfinite(q)} != {"edges"}:
-        return False
-    return lit_around(frame, view, pose)
+    return _edges_alone(cue_qualities) and lit_around(frame, view, pose)
 
 
-def unsure_in_light(cue_qualities: dict | None, frame: Frame, view: ModelView, fit: Measurement, bar: float) -> bool:
+def start_refused_in_light(cue_qualities: dict | None, frame: Frame, view: ModelView, fit: Measurement,
+                           plain_bar: float) -> bool:
     """Whether a start's ``fit`` in ``frame``, by a tracker that reports its cues' verdicts
-    (``cue_qualities``), scores below ``bar`` in a lit scene: a plain part's start there needs
-    :attr:`~hybridpose.hybrid_config.HybridConfig.plain_start_quality` (a network's pose at the wrong
-    distance fits a smaller cube inside a face of the real one, or in the clutter, almost as well)."""
-    return bool(cue_qualities) and not fit.lost and fit.quality < bar and lit_around(frame, view, fit.pose)
+    (``cue_qualities``), is refused for what a lit scene asks more than black space: the edges alone
+    vouch for it (:func:`edges_alone_in_clutter`), or it scores below ``plain_bar`` — a plain part's
+    start there needs :attr:`~hybridpose.hybrid_config.HybridConfig.plain_start_quality` (a network's
+    pose at the wrong distance fits a smaller cube inside a face of the real one, or in the clutter,
+    almost as well)."""
+    return (bool(cue_qualities) and not fit.lost and (_edges_alone(cue_qualities) or fit.quality < plain_bar)
+            and lit_around(frame, view, fit.pose))
+
+
+def _edges_alone(cue_qualities: dict | None) -> bool:
+    """Whether the edges are the only cue with a verdict (NaN: none) among ``cue_qualities``."""
+    return bool(cue_qualities) and {name for name, q in cue_qualities.items() if np.isfinite(q)} == {"edges"}
 
 
 def lit_around(frame: Frame, view: ModelView, pose: Pose) -> bool:
@@ -160,19 +167,6 @@ def cues_vouch(cue_qualities: dict | None, bar: float) -> bool:
     if not cue_qualities or bar <= 0:
         return True
     return all(q >= bar for q in cue_qualities.values() if np.isfinite(q))
-
-
-def never_started_text(best_fit: float, config: HybridConfig) -> str:
-    """What a run from no initial pose that never started tells its user: ``best_fit``, the best quality a
-    start's fit reached (:attr:`~hybridpose.estimator.HybridEstimator.best_start_fit`), against the bars of
-    ``config``, and what to do."""
-    if best_fit <= 0:
-        return ("the hybrid never started: no network pose gave a fit of the model at all (is the part in view, "
-                "and are --object and --camera the right ones?); give --init-pose FILE, the first frame's pose")
-    return (f"the hybrid never started: the best fit from a network pose scored {best_fit:.2f} where a start needs "
-            f"{config.start_quality:g} (start_quality; a plain part in a lit scene {config.plain_start_quality:g}, "
-            "plain_start_quality) and a pose the image singles out; give --init-pose FILE (the first frame's pose), "
-            "or a fit that finds the part in these frames (hybridpose fit --video)")
 
 
 def slid_starts(pose: Pose, step: float, span: float) -> list[Pose]:

@@ -26,8 +26,8 @@ import numpy as np
 from .core import Estimate, Frame, Measurement
 from .edges.silhouette import SPACE_DARK_SHARE, dark_share
 from .geometry import Camera, Pose, as_rgb_image
+from .hybrid_config import HybridConfig
 from .io import atomic_write_json, atomic_write_text, read_json
-from .starts import never_started_text
 from .viz import SITE_LEGEND, draw_edge_sites, draw_wireframe, put_label
 
 log = logging.getLogger(__name__)
@@ -411,12 +411,12 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
     last edge fit of the frame (:func:`with_sites`). ``poses.csv`` adds the 1-σ of the pose
     (``SIGMA_FIELDS``), status, sources and ms."""
     obj = estimator.object
-    started = []
+    started = False
 
     def step(frame: Frame):
+        nonlocal started
         e = estimator.step(frame)
-        if e.pose is not None and not started:
-            started.append(frame.index)
+        started = started or e.pose is not None
         cells = [*_sigma_cells(e.pose, e.covariance), e.status, "+".join(e.sources), f"{e.timings_ms['total']:.2f}"]
         overlay = draw_estimate(frame, obj, e, f"#{frame.index}")
         if draw_sites:
@@ -428,6 +428,19 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
     if started or res.frames == 0:
         return res
     return replace(res, note=never_started_text(getattr(estimator, "best_start_fit", 0.0), estimator.config))
+
+
+def never_started_text(best_fit: float, config: HybridConfig) -> str:
+    """What a run from no initial pose that never started tells its user: ``best_fit``, the best quality a
+    start's fit reached (:attr:`~hybridpose.estimator.HybridEstimator.best_start_fit`), against the bars of
+    ``config``, and what to do."""
+    if best_fit <= 0:
+        return ("the hybrid never started: no network pose gave a fit of the model at all (is the part in view, "
+                "and are --object and --camera the right ones?); give --init-pose FILE, the first frame's pose")
+    return (f"the hybrid never started: the best fit from a network pose scored {best_fit:.2f} where a start needs "
+            f"{config.start_quality:g} (start_quality; a plain part in a lit scene {config.plain_start_quality:g}, "
+            "plain_start_quality) and a pose the image singles out; give --init-pose FILE (the first frame's pose), "
+            "or a fit that finds the part in these frames (hybridpose fit --video)")
 
 
 def draw_tracking(frame: Frame, obj, m: Measurement, label: str, pose: Pose | None = None) -> np.ndarray:

@@ -275,7 +275,7 @@ def test_a_hybrid_that_never_started_says_why_and_what_to_do(clip, tmp_path, cap
     assert rc == 0 and "track: the hybrid never started: the best fit from a network pose scored 0." in out
     assert "a start needs 1 (start_quality" in out and "--init-pose FILE" in out
     from hybridpose.hybrid_config import HybridConfig
-    from hybridpose.starts import never_started_text
+    from hybridpose.tracking import never_started_text
 
     assert "no network pose gave a fit of the model at all" in never_started_text(0.0, HybridConfig())
 

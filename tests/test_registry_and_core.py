@@ -87,3 +87,21 @@ def test_a_regressor_is_made_from_a_registered_name_or_a_checkpoint_path_in_one_
         registry.create_regressor(str(tmp_path / "fit" / "best.pt"))
     with pytest.raises(ValueError, match="unknown regressor 'nonesuch'"):
         registry.create_regressor("nonesuch")
+
+
+def test_the_package_and_a_tracker_import_without_torch():
+    # torch costs about three seconds to import; a tracker user, `import hybridpose` and the CLI's help
+    # must not pay it (the networks load it where they are built)
+    import subprocess
+    import sys
+
+    code = ("import sys, hybridpose, hybridpose.estimator, hybridpose.regressors.keypoint_memory\n"
+            "from hybridpose.objects import load_object\n"
+            "from hybridpose.registry import create\n"
+            "create('tracker', 'combined', object=load_object('truss'))\n"
+            "from hybridpose.regressors import PoseRegressor\n"
+            "print('torch' in sys.modules)\n"
+            "from hybridpose.regressors import build_model\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "True"]

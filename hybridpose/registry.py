@@ -23,7 +23,7 @@ _BUILTIN_MODULES: dict[str, tuple[str, ...]] = {
     "trajectory": ("hybridpose.render.trajectories",),
     "tracker": ("hybridpose.trackers.edges", "hybridpose.trackers.klt", "hybridpose.trackers.rapid",
                 "hybridpose.trackers.combined"),
-    "regressor": ("hybridpose.regressors.predictor", "hybridpose.regressors.no_network"),
+    "regressor": ("hybridpose.regressors.no_network", "hybridpose.regressors.predictor"),
     "fusion": ("hybridpose.fusion.ukf", "hybridpose.fusion.passthrough", "hybridpose.fusion.isam2"),
 }
 
@@ -106,13 +106,26 @@ def available(role: str, baselines: bool = False) -> list[str]:
 def get(role: str, name: str) -> Callable[..., Any]:
     """The factory registered as ``name``; ValueError listing the known names otherwise."""
     _check_role(role)
-    _load(role)
-    try:
-        return _factories[role][name]
-    except KeyError:
+    factory = _find(role, name)
+    if factory is None:
         extra = sorted(_baselines[role] & set(_factories[role]))
         raise ValueError(f"unknown {role} {name!r}; available: {', '.join(available(role)) or 'none'}"
-                         + (f" (baselines: {', '.join(extra)})" if extra else "")) from None
+                         + (f" (baselines: {', '.join(extra)})" if extra else ""))
+    return factory
+
+
+def _find(role: str, name: str) -> Callable[..., Any] | None:
+    """The factory of ``name``, the built-in modules of ``role`` imported one at a time until one
+    registers it (the networks' module imports torch, ~3 s, which ``none`` and the trackers do not
+    need), then the plugins; None where nothing registers it."""
+    if name not in _factories[role] and role not in _loaded:
+        for module in _BUILTIN_MODULES[role]:
+            importlib.import_module(module)
+            if name in _factories[role]:
+                break
+        else:
+            _load(role)
+    return _factories[role].get(name)
 
 
 def create(role: str, name: str, **kwargs) -> Any:
@@ -123,7 +136,7 @@ def create(role: str, name: str, **kwargs) -> Any:
 def is_checkpoint_path(name: str) -> bool:
     """Whether a regressor ``name`` means a trained checkpoint file rather than a registered name: not
     registered, and ending in ``.pt`` or naming an existing file."""
-    return name not in available("regressor", baselines=True) and (Path(name).suffix == ".pt" or Path(name).is_file())
+    return _find("regressor", name) is None and (Path(name).suffix == ".pt" or Path(name).is_file())
 
 
 def create_regressor(name: str, **kwargs) -> Any:

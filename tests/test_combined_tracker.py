@@ -231,36 +231,6 @@ def test_a_texture_cue_starved_by_blur_lifts_new_points_on_the_other_cues_joint_
     assert rotation_error_deg(tracker.pose, poses[11]) < 1.0
 
 
-
-@pytest.mark.parametrize("held", [False, True])
-def test_a_texture_cue_that_follows_no_point_lifts_new_ones_only_at_a_fit_the_tracker_holds(held, printed_box,
-                                                                                          monkeypatch):
-    """After a card covered the part, its texture points are gone; lifted again at a fit the tracker
-    calls lost (the texture's vote 0, the other cues each at 0.5-0.6: what a fit 15 deg off in clutter
-    scores), they would carry that fit's error and confirm it on every frame after."""
-    from hybridpose.trackers.combined import CombinedTracker
-
-    frames, poses, obj = printed_box
-    tracker = create("tracker", "combined", object=obj)
-    tracker.init(frames[0], poses[0])
-    texture = next(c for c in tracker.cues if c.name == "texture")
-    for frame in frames[1:6]:
-        image = frame.image.copy()
-        x0, y0, x1, y1 = (int(v) for v in frame.camera.image_box(obj.bbox_corners, poses[frame.index]))
-        image[max(y0 - 10, 0):y1 + 10, max(x0 - 10, 0):x1 + 10] = (90, 120, 60)  # a card in front
-        tracker.track(Frame(image, frame.camera, frame.timestamp, frame.index))
-    assert not texture.active, "the card left texture points to follow"
-    keyframe = texture.kf_pose
-
-    def mediocre(self, frame, gray, pose, *args):
-        self.cue_qualities = {"edges": 0.55, "region": 0.6, "texture": 0.0}
-        return 0.45 if held else 0.37  # the weighted vote; lost below 0.4
-
-    monkeypatch.setattr(CombinedTracker, "_quality", mediocre)
-    m = tracker.track(frames[6])
-    assert m.lost is not held
-    assert (texture.kf_pose is not keyframe) is held, "re-lifted at a lost fit" if not held else "never re-lifted"
-
 def test_the_region_cue_splits_each_line_where_part_turns_to_background():
     from hybridpose.trackers.cues.region import BINS, best_splits, posterior_image
 

@@ -168,15 +168,11 @@ class CombinedTracker(Tracker):
             # a keyframe fixes its pose's error into its points: only where the other cues vouch for it,
             # each of them; a cue starved by blur that still follows a few points (it votes low until it
             # lifts new ones) may also re-key where they vouch together. One that follows none (covered,
-            # or the pose is elsewhere) waits for each of them and for a fit the tracker holds with the
-            # texture's vote at 0: after a hand passed, a fit 11-15 deg off that edges and region in clutter
-            # scored 0.5-0.6 each lifted its points there, and they confirmed it on every frame after.
+            # or the pose is elsewhere) waits for each of them.
             others = {n: q for n, q in self.cue_qualities.items() if n != "texture" and np.isfinite(q)}
             texture.may_keyframe = all(q >= KEYFRAME_CUE_QUALITY for q in others.values())
-            if texture.active:
-                texture.may_rekey_starved = texture.may_keyframe or self._vote(others) >= self.lost_quality
-            else:
-                texture.may_rekey_starved = texture.may_keyframe and quality >= self.lost_quality
+            texture.may_rekey_starved = texture.may_keyframe or (
+                texture.active and self._vote(others) >= self.lost_quality)
         full_ids = _Once(lambda: self.view.facet_ids(pose, frame.camera, scale=1.0))
         for cue in self.cues:
             cue.finish(frame, gray, pose, trusted, full_ids)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import platform
 import subprocess
+import sys
 from importlib import metadata
 from pathlib import Path
 
@@ -39,13 +40,13 @@ def _cpuinfo(path: Path = Path("/proc/cpuinfo")) -> tuple[str, set[str]]:
 
 def describe_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
     """The CPU timings ran on: ``{"cpu_model": str, "cpus": int, "isa": [flags of ISA_FLAGS it has],
-    "torch_cpu_capability": "AVX2" | "AVX512" | ... | None}`` (JSON-ready)."""
+    "torch_cpu_capability": "AVX2" | "AVX512" | ... | None}`` (JSON-ready; torch's where the run loaded
+    torch: a run without a network is not made to import it, ~3 s, for a label)."""
     model, flags = _cpuinfo(cpuinfo)
+    torch = sys.modules.get("torch")
     try:
-        import torch
-
-        capability = torch.backends.cpu.get_cpu_capability()
-    except (ImportError, AttributeError):  # torch absent or older than 2.0
+        capability = None if torch is None else torch.backends.cpu.get_cpu_capability()
+    except AttributeError:  # torch older than 2.0
         capability = None
     return {
         "cpu_model": model or platform.processor() or platform.machine(),

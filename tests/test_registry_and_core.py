@@ -91,7 +91,8 @@ def test_a_regressor_is_made_from_a_registered_name_or_a_checkpoint_path_in_one_
 
 def test_the_package_and_a_tracker_import_without_torch():
     # torch costs about three seconds to import; a tracker user, `import hybridpose`, the CLI's help and
-    # a hybrid with no network (a printed part found by its print) must not pay it (the networks load it)
+    # a hybrid with no network (a printed part found by its print), its run record included, must not
+    # pay it (the networks load it)
     import subprocess
     import sys
 
@@ -100,6 +101,8 @@ def test_the_package_and_a_tracker_import_without_torch():
             "from hybridpose.registry import create\n"
             "create('tracker', 'combined', object=load_object('truss'))\n"
             "hybridpose.HybridEstimator.from_names(object=load_object('truss'), tracker='combined', regressor='none')\n"
+            "from hybridpose.machine import describe_cpu\n"
+            "assert describe_cpu()['torch_cpu_capability'] is None\n"
             "from hybridpose.regressors import PoseRegressor\n"
             "print('torch' in sys.modules)\n"
             "from hybridpose.regressors import build_model\n"

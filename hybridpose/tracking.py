@@ -427,7 +427,7 @@ def run_hybrid_on_frames(frames: Iterator[Frame], estimator, out, max_frames: in
     res = _run(frames, step, out, HYBRID_FIELDS, max_frames, progress, on_frame)
     if started or res.frames == 0:
         return res
-    return replace(res, note=never_started_text(getattr(estimator, "best_start_fit", 0.0), estimator.config))
+    return replace(res, note=never_started_text(estimator.best_start_fit, estimator.config))
 
 
 def never_started_text(best_fit: float, config: HybridConfig) -> str:

@@ -35,7 +35,9 @@ class TrackerContract(Protocol):
     (px) to search from a coarse ``prior`` such as a CNN pose (a backend with a fixed range ignores
     it); ``lost_quality`` / ``covered_lost_quality``, this call's lost threshold in general / where
     it sees the object covered. It returns a :class:`~hybridpose.core.Measurement` whose ``pose`` is
-    None exactly when it is lost.
+    None exactly when it is lost. Optional: ``trial()``, a copy whose fits leave the tracker as it is
+    (:meth:`hybridpose.trackers.base.Tracker.trial`): the estimator fits a frame a second time from
+    a network's pose on it, else on the tracker itself, which then learns that pose's view.
     """
 
     object: ObjectModel | None

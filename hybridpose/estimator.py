@@ -273,8 +273,6 @@ class HybridEstimator:
             self._n.disagreements = 0
             if self._timed(timings, "fusion", self.fusion.update, check.cnn):
                 sources.append(check.cnn.source)
-        # (the trial fit leaves the tracker's own last pose there; harmless: every track call here
-        # passes the fused prediction as its prior)
         return self._estimate(Status.TRACKING, tuple(sources))
 
     def _check(self, frame: Frame, m: Measurement, timings: dict) -> CnnCheck | None:
@@ -287,7 +285,7 @@ class HybridEstimator:
         if c.pose is None:
             return None
         chi2 = self.config.disagreement_chi2
-        fit = self._track_from(frame, c.pose, timings, self._cnn_search_px(), from_cnn=True)
+        fit = self._track_from(frame, c.pose, timings, self._cnn_search_px(), from_cnn=True, trial=True)
         far = (_mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > chi2
                or (self.config.disagreement_deg is not None
                    and rotation_error_deg(fused.pose, c.pose) > self.config.disagreement_deg))
@@ -384,19 +382,21 @@ class HybridEstimator:
 
     def _track_from(self, frame: Frame, start: Pose, timings: dict, search_px: float | None = None,
                     lost_quality: float | None = None, covered_lost_quality: float | None = None,
-                    from_cnn: bool = False) -> Measurement:
+                    from_cnn: bool = False, trial: bool = False) -> Measurement:
         """The tracker's measurement searched from ``start`` (up to ``search_px`` pixels away where the
         tracker can widen its search; lost below ``lost_quality`` where given — below
         ``covered_lost_quality`` where given and the tracker sees the object covered — else below the
         tracker's own threshold; ``from_cnn``: ``start`` is a CNN pose, fitted without the frame's sun
         unless ``sun_in_cnn_fits``); lost where the tracker refuses that start (a prediction coasting
-        while lost can leave the view or pass behind the camera)."""
+        while lost can leave the view or pass behind the camera). ``trial``: a second fit of the frame,
+        on the tracker's throw-away copy where it offers one (``trial()``): the track goes on as before."""
         kw = {k: v for k, v in (("search_px", search_px), ("lost_quality", lost_quality),
                                 ("covered_lost_quality", covered_lost_quality)) if v is not None}
         if from_cnn and not self.config.sun_in_cnn_fits and frame.sun_direction_cam is not None:
             frame = replace(frame, sun_direction_cam=None)
+        tracker = self.tracker.trial if trial and hasattr(self.tracker, "trial") else lambda: self.tracker
         try:
-            return self._timed(timings, "tracker", lambda: self.tracker.track(frame, start, **kw))
+            return self._timed(timings, "tracker", lambda: tracker().track(frame, start, **kw))
         except ValueError:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
 

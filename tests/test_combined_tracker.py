@@ -100,6 +100,29 @@ def test_each_cue_alone_pulls_towards_the_part(modalities, print_on, printed_box
     assert translation_error_m(tracker.pose, poses[1]) < translation_error_m(start, poses[1])
 
 
+def test_a_second_fit_of_a_frame_on_a_trial_leaves_the_track_as_it_was(printed_box):
+    # the hybrid checks a network's pose with a second fit of the frame: on the tracker itself that
+    # fit teaches it the other pose's view (texture points dropped, a keyframe lifted there) and the
+    # next frame starts from it; on a trial the track goes on as if it never happened
+    frames, poses, obj = printed_box
+    wrong = [p.retract(np.r_[np.radians([6.0, -5.0, 4.0]), 0.006, -0.004, 0.0]) for p in poses]
+
+    def track(second_fit_on: str | None) -> list[np.ndarray]:
+        tracker = create("tracker", "combined", object=obj)
+        tracker.init(frames[0], poses[0])
+        out = []
+        for frame in frames[1:10]:
+            out.append(tracker.track(frame).pose.matrix)
+            if second_fit_on is not None and frame.index % 3 == 1:
+                fitter = tracker.trial() if second_fit_on == "trial" else tracker
+                fitter.track(frame, prior=wrong[frame.index], search_px=12)
+        return out
+
+    alone = track(None)
+    assert all(np.array_equal(a, b) for a, b in zip(alone, track("trial")))
+    assert not all(np.allclose(a, b, atol=1e-6) for a, b in zip(alone, track("tracker")))
+
+
 def test_the_part_covered_by_something_else_is_reported_lost(printed_box):
     frames, poses, obj = printed_box
     tracker = create("tracker", "combined", object=obj)

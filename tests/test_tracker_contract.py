@@ -68,6 +68,23 @@ def test_follows_a_slow_tumble_from_the_true_pose(name, truss, tumble):
 
 
 @pytest.mark.parametrize("name", TRACKERS)
+def test_a_fit_on_a_trial_leaves_the_track_as_it_was(name, truss, tumble):
+    def track(with_trials: bool) -> list[np.ndarray]:
+        trk = create("tracker", name, object=truss)
+        trk.init(tumble[0][0], tumble[0][1])
+        out = []
+        for frame, truth, _ in tumble[1:7]:
+            out.append(trk.track(frame).pose.matrix)
+            if with_trials:
+                trial = trk.trial()
+                assert trial.object is trk.object
+                trial.track(frame, prior=truth.retract(np.r_[np.radians([3.0, -2.0, 2.0]), 0.01, 0.0, 0.0]))
+        return out
+
+    assert all(np.array_equal(a, b) for a, b in zip(track(False), track(True)))
+
+
+@pytest.mark.parametrize("name", TRACKERS)
 def test_reports_loss_when_the_arm_covers_the_object(name, truss, covered):
     trk = create("tracker", name, object=truss)
     frame0, pose0, _ = covered[0]

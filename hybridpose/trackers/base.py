@@ -8,15 +8,23 @@ solver produces non-finite numbers reports ``lost`` instead.
 """
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 
 import numpy as np
 
 from ..core import LOST_COVARIANCE, Frame, Measurement
-from ..geometry import Pose
+from ..edges import ModelView
+from ..geometry import Camera, Pose
 from ..objects import ObjectModel
 
 MIN_DEPTH_M = 0.01  # a pose whose object comes nearer the camera than this is no pose
+# how deep :meth:`Tracker.trial` looks through a tracker's members (its cues, their samples, lists of
+# them) for what a trial shares with it instead of copying
+SHARED_SEARCH_DEPTH = 4
+# never changed by a fit, and frames are compared by identity (the frame a track started on): a trial
+# shares these with the tracker it was copied from
+SHARED_TYPES = (Frame, ObjectModel, ModelView, Camera, Pose)
 # where the object is seen covered, a fit below this quality follows the occluder's edges, not the
 # object: the next search keeps the previous pose (the truss wholly behind the arm, its edges left
 # out of the honest quality: fits at 0.02–0.09; half behind it, right fits at 0.2 and more)
@@ -145,6 +153,25 @@ class Tracker(ABC):
         self.pose, self.frame = None, None
         self.covered = self._dark_around = self._dark_scene = False
 
+    def trial(self) -> Tracker:
+        """A copy of this tracker for a fit that must leave its track as it is.
+
+        A fit teaches a tracker what it saw (texture points kept and lifted, keyframes, colour
+        statistics, the pose the next search starts from). A second fit of the same frame from another
+        start — the hybrid checking a network's pose — would teach it that pose's view, wrong or
+        right, and the next frame would follow it. The copy shares what no fit changes
+        (:data:`SHARED_TYPES`: the model and its views, frames, cameras, poses) and is thrown away
+        after its fit.
+        """
+        shared: dict[int, object] = {id(o): o for o in self._trial_shares()}
+        _collect_shared(self, shared, SHARED_SEARCH_DEPTH, set())
+        return copy.deepcopy(self, shared)
+
+    def _trial_shares(self) -> tuple:
+        """Members a :meth:`trial` shares with this tracker beyond :data:`SHARED_TYPES`: those a fit
+        leaves as they are and that cannot be copied (an OpenCV object)."""
+        return ()
+
     # --- for subclasses -------------------------------------------------------------------------
     @abstractmethod
     def _init(self, frame: Frame, pose: Pose) -> None:
@@ -188,3 +215,20 @@ class Tracker(ABC):
             raise TypeError(f"{name}: expected a hybridpose Pose (T_cam_obj), got {type(pose).__name__}")
         if pose.t[2] <= MIN_DEPTH_M:
             raise ValueError(f"{name}: the object is behind the camera (t_z = {pose.t[2]:.3f} m; expected > {MIN_DEPTH_M} m)")
+
+
+def _collect_shared(obj, shared: dict[int, object], depth: int, seen: set[int]) -> None:
+    """Record in ``shared`` (id → object, a :func:`copy.deepcopy` memo) every member of ``obj`` down to
+    ``depth`` levels that a trial shares (:data:`SHARED_TYPES`)."""
+    if id(obj) in seen:
+        return
+    seen.add(id(obj))
+    if isinstance(obj, SHARED_TYPES):
+        shared[id(obj)] = obj
+        return
+    if depth == 0 or isinstance(obj, (np.ndarray, str, bytes, int, float)):
+        return
+    members = (obj if isinstance(obj, (list, tuple, set)) else obj.values() if isinstance(obj, dict)
+               else vars(obj).values() if hasattr(obj, "__dict__") else ())
+    for member in members:
+        _collect_shared(member, shared, depth - 1, seen)

@@ -88,6 +88,11 @@ class RapidTracker(Tracker):
         self._cv = getattr(cv2.rapid, VARIANTS[self.variant])(self._vertices, self._tris)
         self.printed = self.view is not None and printed_faces(self.view, frame, pose)
 
+    def _trial_shares(self) -> tuple:
+        # OpenCV's trackers cannot be copied; OLS and GOS learn their colour histograms on a track's
+        # first compute() only, so a trial's fits leave them as they were
+        return (self._cv,)
+
     def _image(self, frame: Frame) -> np.ndarray:
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
         if self.variant == "rapid":

@@ -258,3 +258,38 @@ def test_the_same_print_gives_the_same_matches(printed_cube):
     assert len(uv_a) > 50
     np.testing.assert_array_equal(uv_a, uv_b)
     np.testing.assert_array_equal(X_a, X_b)
+
+
+def test_the_prints_colours_point_at_the_part_in_clutter(printed_cube):
+    from hybridpose.regressors.print_colours import PrintColours
+
+    colours = PrintColours(printed_cube.texture)
+    for seed, pose in ((1, POSE), (2, turned(POSE, (0, 40, 0), (0.04, 0.02, 0.05)))):
+        frame = _frame(printed_cube, pose, seed=seed)
+        x, y, w, h = colours.box(frame.image)
+        centre = CAM.project(printed_cube.bbox_corners.mean(0)[None], pose)[0]
+        assert x <= centre[0] <= x + w and y <= centre[1] <= y + h
+        assert w * h < CAM.width * CAM.height
+    # a frame of one colour singles nothing out
+    assert colours.box(np.full((CAM.height, CAM.width, 3), 90, np.uint8)) is None
+    with pytest.raises(ValueError, match="texture"):
+        PrintColours(printed_cube.texture[..., 0])
+
+
+def test_where_the_whole_frame_gives_nothing_the_memory_looks_where_the_prints_colours_stand_out(printed_cube, monkeypatch):
+    memory = KeypointMemory.for_part(ModelView(printed_cube), CAM, PrintView(ModelView(printed_cube)))
+    frame = _frame(printed_cube, POSE)
+    looked, find = [], memory._find
+
+    def whole_frame_blind(f, roi):
+        looked.append(roi)
+        return None if roi is None else find(f, roi)
+
+    monkeypatch.setattr(memory, "_find", whole_frame_blind)
+    m = memory.find(frame)
+    assert looked[0] is None and looked[1] is not None and len(looked) == 2
+    assert _near(m, POSE)
+    # a caller's own region is searched as given, nowhere else
+    looked.clear()
+    memory.find(frame, (0, 0, 50, 50))
+    assert looked == [(0, 0, 50, 50)]

@@ -31,6 +31,7 @@ from ..edges.silhouette import LIT_PIXEL_GREY
 from ..edges.print_match import PrintView
 from ..geometry import Camera, Pose
 from .keypoint_pnp import solve_pnp
+from .print_colours import PrintColours
 
 # Lowe's ratio test: the best match's distance below this share of the nearest match to another point
 MATCH_RATIO = 0.8
@@ -83,6 +84,7 @@ class KeypointMemory:
         self._views = _Views([], [], [], [])
         self._index = None  # cv2.flann_Index over every stored descriptor, built when first needed
         self._all_points = np.zeros((0, 3))
+        self._colours = None  # the print's colours (from_print): where to look again when the frame gives nothing
 
     @classmethod
     def from_print(cls, printed: PrintView, camera: Camera, directions: int = 26, fill: float = 0.5,
@@ -93,6 +95,7 @@ class KeypointMemory:
         to twice that size)."""
         view = printed.view
         memory = cls(view, **kw)
+        memory._colours = PrintColours(view.object.texture)
         distance = view.object.diameter * camera.K[0, 0] / (fill * min(camera.width, camera.height))
         for direction in _sphere(directions):
             pose = _facing(direction, distance)
@@ -135,7 +138,17 @@ class KeypointMemory:
 
     def find(self, frame: Frame, roi: tuple[float, float, float, float] | None = None) -> Measurement | None:
         """The part's pose in ``frame`` from its keypoints (within ``roi`` = (x, y, w, h) px where given),
-        or None where fewer than ``MIN_INLIERS`` matches agree on one."""
+        or None where fewer than ``MIN_INLIERS`` matches agree on one. With no ``roi`` and nothing found
+        in the whole frame, a memory holding a print looks again where the print's colours stand out
+        (:class:`~hybridpose.regressors.print_colours.PrintColours`): there a smooth print's few
+        keypoints are not outnumbered by the clutter's."""
+        found = self._find(frame, roi)
+        if found is None and roi is None and self._colours is not None and self._views.descriptors:
+            box = self._colours.box(frame.image)
+            found = None if box is None else self._find(frame, box)
+        return found
+
+    def _find(self, frame: Frame, roi: tuple[float, float, float, float] | None) -> Measurement | None:
         if self._index is None:
             if not self._views.descriptors:
                 return None

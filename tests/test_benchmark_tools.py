@@ -149,3 +149,15 @@ def test_the_no_pose_hand_held_table_pools_wrong_frames_and_counts_sequences_tha
     median, p10, worst = (float(v.strip(" %")) for v in cells[4].split("/"))
     assert median == pytest.approx(np.median([100, 50, 0, 90])) and worst == 0 and 0 <= p10 <= median
     assert cells[5] == "3 of 360" and cells[6] == "10 / 30 (1 never)" and cells[7] == "12 of 72"
+
+
+def test_the_no_pose_hand_held_benchmark_takes_more_tuning_seeds_and_keeps_the_reports():
+    import handheld_no_pose
+
+    names = [e.name for e in handheld_no_pose.scene_entries("tuning", ("printed-cube-photo",), "121-123,130")]
+    assert names == [f"printed-cube-photo_s{s}" for s in (121, 122, 123, 130)]
+    assert len(handheld_no_pose.scene_entries("tuning")) == 40  # 101-120 of both kinds
+    with pytest.raises(ValueError, match="--seeds"):
+        handheld_no_pose.scene_entries("tuning", seeds="5")  # a report seed
+    with pytest.raises(SystemExit, match="only with --split tuning"):
+        handheld_no_pose.main(["--seeds", "121"])

@@ -12,10 +12,10 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
   error), confirms it (not lost, not by its edges alone off black space where it reports its cues,
   and its fit stands out from its own view slid across the image: clutter matches a wrong outline
-  as well as its neighbours, ``start_contrast``); the tracker's fit
-  starts the fusion — or, where that fit is not convincing (``start_sure_quality``), a clearly better
-  one from the start turned a few degrees (a local minimum of the object's edges lies next to the
-  truth). Every start (init, reinit) does so.
+  as well as its neighbours, ``start_contrast``); the tracker's fit starts the fusion — or, where that
+  fit is not convincing (``start_sure_quality``), a clearly better one from the start turned a few
+  degrees (a local minimum of the object's edges lies next to the truth); where the part's print is
+  known, moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
   gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where
   the tracker sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``:
@@ -29,10 +29,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   check whose CNN pose the edges cannot fit at all (typically its end-for-end twin) while the track
   fits better does not count. A CNN pose that agrees is fused. A tracker measurement the gate refuses
   calls a check at once; where the CNN and the edges from its pose vouch for it, the fusion (not the
-  tracker) was wrong and starts over there. Where the tracker loses the object from the prediction,
-  an established track (``retry_after``) tries once more from the tracker's previous pose and, found
-  there, starts the fusion over from that fit: a hand-held camera stops where a constant-velocity
-  model runs on.
+  tracker) was wrong and starts over there. Where the tracker loses the object from the prediction, an
+  established track (``retry_after``) tries once more from the tracker's previous pose and, found there,
+  starts the fusion over from that fit: a hand-held camera stops where a constant-velocity model runs on.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
   fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
   consecutive answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the
@@ -77,8 +76,8 @@ from .metrics import rotation_error_deg
 from .objects import ObjectModel
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE
 from .regressors.keypoint_memory import KeypointMemory
-from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_view,
-                     start_refused_in_light)
+from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_climber,
+                     print_view, start_refused_in_light)
 from .threads import set_threads
 
 # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -349,8 +348,9 @@ class HybridEstimator:
             return None if self._view is not None and start_refused_in_light(cues, frame, self._view, f, plain_bar) else f
 
         stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin)
+        climb = print_climber(fit, self._print, frame, self.object, c.start_print_turn_deg)
         return confirmed_start(m, fit, c if m.source != MEMORY_SOURCE else replace(c, start_quality=c.memory_start_quality),
-                               depth_search, stands_out)
+                               depth_search, stands_out, climb)
 
     def _edges_alone(self, frame: Frame, m: Measurement) -> bool:
         """Whether the fit ``m`` in ``frame`` stands on its edges alone in a lit scene: no start, nor a take-up (a start too)."""

@@ -102,6 +102,10 @@ class HybridConfig:
             uncertainty (``disagreement_chi2``) starts the track instead (0: off). Right starts
             mostly score 0.8 and more: on the tuning seeds a third of the starts tried the six extra
             fits, about 0.2 ms a frame amortised.
+        start_print_turn_deg: a start of a part whose print is known climbs the print's score
+            (:func:`~hybridpose.starts.print_climb`): its pose turned by this much about each camera axis
+            through the part's centre, the best turn by the print fitted again while the print scores
+            it higher (0: off). Hand-held tuning scenes: see docs/decisions.md.
         start_contrast: a start's fit must also stand out from its own view slid across the image
             (:class:`~hybridpose.edges.distinct.PlacementContrast`): the share of the model's edges
             that land on image edges at the fit must beat the share at the same view slid a part's
@@ -208,6 +212,7 @@ class HybridConfig:
     restart_unconfirmed: bool = False
     start_turn_deg: float = 4.0
     start_sure_quality: float = 0.8
+    start_print_turn_deg: float = 3.0
     start_contrast: float = 0.3
     start_print_margin: float = 0.2
     cnn_search_px: float = 12.0
@@ -255,8 +260,9 @@ class HybridConfig:
         if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:
             raise ValueError(f"start_depth_step, start_depth_span: expected relative distances in [0, 1), got "
                              f"{self.start_depth_step}, {self.start_depth_span}")
-        if not 0 <= self.start_turn_deg <= 45:
-            raise ValueError(f"start_turn_deg: expected degrees in [0, 45] (0: off), got {self.start_turn_deg}")
+        for name in ("start_turn_deg", "start_print_turn_deg"):
+            if not 0 <= getattr(self, name) <= 45:
+                raise ValueError(f"{name}: expected degrees in [0, 45] (0: off), got {getattr(self, name)}")
         if not 0 <= self.resume_cue_quality <= 1:
             raise ValueError(f"resume_cue_quality: expected a cue quality in [0, 1] (0: off), got {self.resume_cue_quality}")
         if not 0 <= self.start_print_margin <= 2:

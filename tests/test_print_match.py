@@ -9,7 +9,7 @@ import trimesh
 from hybridpose.core import Frame
 from hybridpose.edges import ModelView
 from hybridpose.edges.print_match import PrintView, print_agreement
-from hybridpose.geometry import Camera, Pose
+from hybridpose.geometry import Camera, Pose, rotvec_to_matrix
 from hybridpose.objects import ObjectModel
 from hybridpose.render import Appearance, Renderer
 from hybridpose.render.appearance import clutter_background
@@ -102,3 +102,30 @@ def test_the_equivalent_poses_scored_from_one_raster_are_those_scored_one_by_one
     frame = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(3)))
     one_by_one = [view.score(frame, pose @ S) for S in view.branches]
     assert np.allclose(view.branch_scores(frame, pose), one_by_one, atol=1e-9, equal_nan=True)
+
+
+def test_a_start_a_few_degrees_off_climbs_the_prints_score_to_the_pose_it_shows(printed_cube):
+    """A start 8° off that the tracker confirms as it stands (a fit that moves nothing, as the model's
+    edges may): turned 3° at a time where the print scores the turn higher, it ends within 3° of the
+    truth; a right start stays within a step of it; 0° leaves the start as it was."""
+    from hybridpose.core import Measurement
+    from hybridpose.metrics import rotation_error_deg
+    from hybridpose.starts import print_climb, print_climber, print_view
+
+    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
+    frame = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5)))
+    printed, centre = print_view(ModelView(printed_cube)), printed_cube.bbox_corners.mean(0)
+    covariance = np.diag([1e-4, 2e-4, 3e-4, 1e-6, 2e-6, 3e-6])
+
+    def fit(p):
+        return Measurement(p, covariance, 0.9, "tracker", 0.0)
+
+    axis = np.array([0.6, -0.3, 0.74]) / np.linalg.norm([0.6, -0.3, 0.74])
+    R = rotvec_to_matrix(np.radians(8.0) * axis) @ pose.R
+    off = Pose(R, pose.R @ centre + pose.t - R @ centre)  # turned about the cube's centre: the same place in the image
+    climbed = print_climb(fit(off), fit, printed, frame, centre, 3.0)
+    assert rotation_error_deg(climbed.pose, pose) < 3.0 < rotation_error_deg(off, pose)
+    assert rotation_error_deg(print_climb(fit(pose), fit, printed, frame, centre, 3.0).pose, pose) <= 3.0 + 1e-6
+    start = fit(off)
+    assert print_climb(start, fit, printed, frame, centre, 0.0) is start
+    assert print_climber(fit, None, frame, printed_cube, 3.0) is None  # no print, no climb

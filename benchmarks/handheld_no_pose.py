@@ -158,7 +158,7 @@ def main(argv=None) -> None:
     if not kinds or set(kinds) - set(KINDS):
         raise SystemExit(f"--kinds: expected some of {', '.join(KINDS)}, got {args.kinds!r}")
     if args.seeds is not None and args.split != "tuning":
-        raise SystemExit("--seeds: only with --split tuning (the report's seeds are the published figures')")
+        raise SystemExit("--seeds: only with --split tuning (the report's seeds make the published figures)")
     try:
         chosen = scene_entries(args.split, kinds, args.seeds)
     except ValueError as exc:

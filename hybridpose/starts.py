@@ -19,7 +19,7 @@ from .edges import ModelView, placement_contrast, to_gray
 from .edges.fit import dark_surround
 from .edges.print_match import PrintView, print_agreement
 from .fusion.base import equivalent_measurement, pose_mahalanobis2
-from .geometry import Pose, rotvec_to_matrix
+from .geometry import Pose, rotvec_to_matrix, turned_about
 from .hybrid_config import HybridConfig
 
 Fit = Callable[[Pose], "Measurement | None"]
@@ -81,12 +81,14 @@ def print_climb(first: Measurement, fit: Fit, print_view: PrintView, frame: Fram
     error (hand-held tuning scenes: a network's start 12° off held 6–12° off with every texture point
     agreeing). The print's score peaks at the truth: 0.85 at fits within 3°, 0.60 at fits over 6° off
     (median), and some 3° turn of a fit over 6° off raises it by more than 0.05 two times in three."""
+    if turn_deg <= 0:
+        return first
     gray = to_gray(frame.image)
     current, score = first, print_view.score(frame, first.pose, gray)
-    if turn_deg <= 0 or not np.isfinite(score):
+    if not np.isfinite(score):
         return first
     for _ in range(PRINT_CLIMB_STEPS):
-        turns = [_turned_about(current.pose, sign * np.radians(turn_deg) * axis, centre)
+        turns = [turned_about(current.pose, sign * np.radians(turn_deg) * axis, centre)
                  for axis in np.eye(3) for sign in (-1.0, 1.0)]
         scores = np.nan_to_num([print_view.score(frame, p, gray) for p in turns], nan=-1.0)
         if scores.max() < score + PRINT_CLIMB_GAIN:
@@ -106,12 +108,6 @@ def print_climber(fit: Fit, print_view: PrintView | None, frame: Frame, obj, tur
         return None
     centre = obj.bbox_corners.mean(0)
     return lambda first: print_climb(first, fit, print_view, frame, centre, turn_deg)
-
-
-def _turned_about(pose: Pose, rotvec: np.ndarray, centre: np.ndarray) -> Pose:
-    """``pose`` turned by ``rotvec`` (rad, camera axes) about the object point ``centre`` (which stays put)."""
-    R = rotvec_to_matrix(rotvec) @ pose.R
-    return Pose(R, pose.R @ centre + pose.t - R @ centre)
 
 
 def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, config: HybridConfig) -> Measurement:

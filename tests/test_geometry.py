@@ -320,3 +320,19 @@ def test_mirrored_tilt_is_the_other_solution_of_planar_pose(tilt_deg, azimuth, x
 def test_mirrored_tilt_of_a_face_seen_head_on_is_the_pose_itself():
     head_on = Pose.from_rotvec_t([0.0, 0.0, 0.3], [0.0, 0.0, 1.0])
     assert mirrored_tilt(head_on, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]).allclose(head_on, atol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=9, max_size=9))
+def test_a_pose_turned_about_an_object_point_keeps_that_point_in_place(v):
+    """Oracle: scipy's rotation of the camera-frame points about the point's camera position."""
+    from hybridpose.geometry import turned_about
+
+    pose = Pose.from_rotvec_t(v[:3], [0.1 * v[3], 0.1 * v[4], 0.5 + 0.2 * abs(v[5])])
+    centre, rotvec = 0.05 * np.array(v[6:]), 0.3 * np.array(v[:3][::-1])
+    got = turned_about(pose, rotvec, centre)
+    turn = Rotation.from_rotvec(rotvec)
+    c_cam = pose.R @ centre + pose.t
+    points = np.array([[0.03, -0.02, 0.01], [-0.04, 0.05, 0.02], centre])
+    expected = turn.apply((points @ pose.R.T + pose.t) - c_cam) + c_cam
+    np.testing.assert_allclose(points @ got.R.T + got.t, expected, atol=1e-12)

@@ -11,6 +11,7 @@ from .camera import (
     projection_jacobian,
     save_camera,
     shifted_in_image,
+    turned_about,
 )
 from .camera_files import NoImageSize, load_camera
 from .checks import as_points3d, as_rgb_image, as_rotation_matrix, as_unit_direction, as_unit_quat, read_only
@@ -33,7 +34,7 @@ from .rotations import (
 from .se3 import se3_exp, se3_log, so3_left_jacobian
 
 __all__ = [
-    "Camera", "Pose", "load_camera", "mirrored_tilt", "shifted_in_image", "NoImageSize", "save_camera", "parse_size", "projection_jacobian", "line_jacobian",
+    "Camera", "Pose", "load_camera", "mirrored_tilt", "shifted_in_image", "turned_about", "NoImageSize", "save_camera", "parse_size", "projection_jacobian", "line_jacobian",
     "as_points3d", "as_rgb_image", "as_rotation_matrix", "as_unit_direction", "as_unit_quat", "read_only",
     "matrix_to_quat_wxyz", "matrix_to_rotvec", "quat_angle_between", "quat_canonical", "quat_conjugate",
     "quat_multiply", "quat_slerp", "quat_to_rotvec", "quat_wxyz_to_matrix", "random_quat",

@@ -250,6 +250,15 @@ def shifted_in_image(pose: Pose, camera: Camera, dx_px: float, dy_px: float) -> 
     return Pose.from_rotvec_t([-dy_px / K[1, 1], dx_px / K[0, 0], 0.0], np.zeros(3)) @ pose
 
 
+def turned_about(pose: Pose, rotvec, centre_obj) -> Pose:
+    """``pose`` turned by ``rotvec`` (3,) rad about the camera's axes through the object's point
+    ``centre_obj`` (3,) m, which stays where it was in the camera frame (and so in the image)."""
+    centre_obj = np.asarray(centre_obj, np.float64)
+    centre_cam = pose.R @ centre_obj + pose.t
+    R = rotvec_to_matrix(np.asarray(rotvec, np.float64)) @ pose.R
+    return Pose(R, centre_cam - R @ centre_obj)
+
+
 def mirrored_tilt(pose: Pose, normal_obj, centre_obj) -> Pose:
     """The other pose of the planar ambiguity: ``pose`` turned about the object's point ``centre_obj``
     (3,) m so that the plane with normal ``normal_obj`` (3,) (object frame) tilts as far from the line of
@@ -266,9 +275,7 @@ def mirrored_tilt(pose: Pose, normal_obj, centre_obj) -> Pose:
     sin, cos = float(np.linalg.norm(axis)), float(n @ mirrored)
     if sin < 1e-9:
         return pose
-    turn = rotvec_to_matrix(axis / sin * math.atan2(sin, cos))
-    R = turn @ pose.R
-    return Pose(R, centre_cam - R @ np.asarray(centre_obj, np.float64))
+    return turned_about(pose, axis / sin * math.atan2(sin, cos), centre_obj)
 
 
 def save_camera(camera: Camera, path) -> None:

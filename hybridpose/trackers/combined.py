@@ -40,7 +40,7 @@ import numpy as np
 from ..core import Frame, covariance_from_information
 from ..edges import ModelView, printed_faces, to_gray, to_gray8
 from ..edges.model_view import ID_SCALE
-from ..geometry import Pose, mirrored_tilt, rotvec_to_matrix, shifted_in_image
+from ..geometry import Pose, mirrored_tilt, shifted_in_image, turned_about
 from ..objects import ObjectModel
 from ..registry import register
 from .base import Tracker
@@ -262,10 +262,8 @@ class CombinedTracker(Tracker):
         centre and, where its largest face is seen near head-on, mirrored about the line of sight."""
         centre = self.object.bbox_corners.mean(0)
         centre_cam = pose.R @ centre + pose.t
-        starts = []
-        for rotvec in np.radians(SECOND_LOOK_TURN_DEG) * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0.0]]):
-            R = rotvec_to_matrix(rotvec) @ pose.R
-            starts.append(Pose(R, centre_cam - R @ centre))
+        starts = [turned_about(pose, rotvec, centre)
+                  for rotvec in np.radians(SECOND_LOOK_TURN_DEG) * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0.0]])]
         counts = np.bincount(self.view.facet_ids(pose, camera).ravel())
         counts[0] = 0
         face = int(np.argmax(counts))

@@ -32,15 +32,15 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   tracker) was wrong and starts over there. Where the tracker loses the object from the prediction, an
   established track (``retry_after``) tries once more from the tracker's previous pose and, found there,
   starts the fusion over from that fit: a hand-held camera stops where a constant-velocity model runs on.
-- **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The
-  fusion keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two
-  consecutive answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the
-  tracker, started from the latest, confirms it (under the arm the CNN can repeat the same wrong
-  answer, but the edges do not match); then everything restarts from the tracker's fit
-  (**reinit**). Meanwhile the tracker also tries from the prediction each frame and takes up again by
-  itself when its fit is good and inside the gate (``tracker_resumes``).
+- **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The fusion
+  keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two consecutive
+  answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the tracker, started from
+  the latest, confirms it (under the arm the CNN can repeat the same wrong answer, but the edges do not
+  match); then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
+  from the prediction each frame and takes up again when its fit is good and inside the gate.
 
-A start (init, reinit) may be put on probation (``confirm_frames``): not trusted until it has held.
+A start (init, reinit) may be put on probation (``confirm_frames``): not trusted until it has held. A
+printed part's tracked pose where its print does not show (``track_print_floor``) is reported lost.
 
 In a lit scene, wherever the CNN would run, the part's keypoint memory (``keypoint_memory``) answers
 first where it can: its print, where its model carries one, and its look in this video, learned where
@@ -74,9 +74,8 @@ from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
-from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE
-from .regressors.keypoint_memory import KeypointMemory
-from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_climber,
+from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE, KeypointMemory
+from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_climber, print_fails,
                      print_view, start_refused_in_light)
 from .threads import set_threads
 
@@ -108,9 +107,8 @@ class HybridEstimator:
             defaults with the fields the regressor recommends (``regressor.hybrid_config``: a part's
             fitted network carries ``reacquire_deg=20``); a mapping of fields: those recommended
             values with these changed (``{"reacquire_deg": None}`` turns the recommendation off).
-        threads: CPU threads for the per-frame work (:func:`hybridpose.threads.set_threads`, set for the
-            process): None (default) takes ``HYBRIDPOSE_THREADS`` or 1, which holds up where other work
-            keeps the cores busy.
+        threads: CPU threads for the per-frame work (:func:`hybridpose.threads.set_threads`, set for the process):
+            None (default) takes ``HYBRIDPOSE_THREADS`` or 1, which holds up where other work keeps the cores busy.
 
     ``step(frame)`` returns an :class:`~hybridpose.core.Estimate` per frame: pose (``T_cam_obj``,
     metres; None until the CNN first finds the object), 6×6 covariance, body twist, status, the
@@ -187,7 +185,9 @@ class HybridEstimator:
         state = {Status.INIT: self._initialise, Status.LOST: self._reacquire, Status.TRACKING: self._track}
         estimate = state[self.status](frame, timings)
         self._frames += 1
-        if estimate.status in (Status.TRACKING, Status.REINIT) and self._unsettled():
+        unsettled = estimate.status in (Status.TRACKING, Status.REINIT) and self._unsettled()
+        if unsettled or (estimate.status == Status.TRACKING  # the track goes on, not trusted where its print does not show
+                         and print_fails(self._print, frame, estimate.pose, self.config.track_print_floor)):
             estimate = replace(estimate, status=Status.LOST)
         estimate = self._on_probation(estimate, frame)
         self.last_timestamp = frame.timestamp

@@ -121,6 +121,13 @@ class HybridConfig:
             its own faces, where the edges and region cues confirmed it (0: off). The start is then
             the pose the print singles out: a printed part's pose is its own, not any of its shape's
             look-alikes (which face is which).
+        track_print_floor: for a part that carries its print, a tracked pose whose print correlates
+            with the image (:meth:`~hybridpose.edges.print_match.PrintView.score`) less than this is
+            reported ``lost``, not trusted; the track goes on, and is trusted again where the print
+            shows (0: off). A print without corners gives the texture cue nothing to hold: where the
+            hand turns, the outline and colours slide onto the print's own strong edges, 10-20° off,
+            at the quality of a right fit, while the print at that pose correlates near 0 (right
+            fits: 0.3-0.95). Hand-held tuning scenes: see docs/decisions.md.
         cnn_search_px: how far (px) a tracker fit started from a CNN pose (a start, a check) searches
             for the model's edges, where the tracker can widen its search (``track(..., search_px=)``;
             0: the tracker's own frame-to-frame range). A CNN pose lies further from the truth than
@@ -215,6 +222,7 @@ class HybridConfig:
     start_print_turn_deg: float = 3.0
     start_contrast: float = 0.3
     start_print_margin: float = 0.2
+    track_print_floor: float = 0.15
     cnn_search_px: float = 12.0
     sun_in_cnn_fits: bool = True
     keep_quality: float | None = 0.4

@@ -27,6 +27,7 @@ Fit = Callable[[Pose], "Measurement | None"]
 # this many times: from starts 0-14° off on hand-held tuning scenes, fits > 6° off 19 -> 10 after the
 # climb, fits < 3° off left within 3° (99 %)
 PRINT_CLIMB_GAIN, PRINT_CLIMB_STEPS = 0.02, 6
+WATCH_PIXELS = 1000  # pixels a tracked pose's print score compares (print_fails): a verdict, not a start's choice
 # a start's image test: None where the image does not single the pose out; else the symmetry S of the
 # object whose ``pose @ S`` the image shows (the identity but for a printed part, whose print tells
 # which of the shape's equivalent poses is its own)
@@ -127,6 +128,16 @@ def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, confi
                     and pose_mahalanobis2(m.pose, m.covariance, other.pose, other.covariance) <= config.disagreement_chi2):
                 best = other
     return best
+
+
+def print_fails(print_view: PrintView | None, frame: Frame, pose: Pose | None, floor: float) -> bool:
+    """Whether ``pose`` (a tracked part's) shows too little of the part's print (``print_view``;
+    None: no print, never): its :meth:`~hybridpose.edges.print_match.PrintView.score`, on
+    ``WATCH_PIXELS`` pixels, below ``floor`` (0: off). A score of too few pixels is no verdict."""
+    if print_view is None or floor <= 0 or pose is None:
+        return False
+    score = print_view.score(frame, pose, max_pixels=WATCH_PIXELS)
+    return bool(np.isfinite(score) and score < floor)
 
 
 def print_view(view: ModelView | None) -> PrintView | None:

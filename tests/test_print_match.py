@@ -129,3 +129,73 @@ def test_a_start_a_few_degrees_off_climbs_the_prints_score_to_the_pose_it_shows(
     start = fit(off)
     assert print_climb(start, fit, printed, frame, centre, 0.0) is start
     assert print_climber(fit, None, frame, printed_cube, 3.0) is None  # no print, no climb
+
+
+def test_a_tracked_pose_that_does_not_show_the_print_fails_the_watch(printed_cube):
+    """The right pose and one 3° off show the print; the pose turned 20° about the cube's centre (the
+    same place in the image, where the outline alone may fit) does not. No print, a floor of 0 or no
+    pose give no verdict."""
+    from hybridpose.starts import print_fails, print_view
+
+    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
+    frame = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5)))
+    printed = print_view(ModelView(printed_cube))
+    assert not print_fails(printed, frame, pose, 0.15)
+    assert not print_fails(printed, frame, _turned_about_centre(printed_cube, pose, 3.0), 0.15)
+    off = _turned_about_centre(printed_cube, pose, 20.0)
+    assert print_fails(printed, frame, off, 0.15)
+    assert not print_fails(None, frame, off, 0.15) and not print_fails(printed, frame, off, 0.0)
+    assert not print_fails(printed, frame, None, 0.15)
+
+
+def test_the_hybrid_does_not_trust_a_track_that_slid_off_its_print(printed_cube):
+    """A tracker that slides 2° a frame about the image's vertical through the part, fully confident,
+    and a fusion that follows it (no CNN checks): the hybrid keeps tracking but stops trusting the
+    track where its pose no longer shows the part's print; with the watch off it trusts every frame."""
+    from hybridpose import HybridConfig, HybridEstimator, registry
+    from hybridpose.core import Measurement
+    from hybridpose.metrics import rotation_error_deg
+
+    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
+    image = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5))).image
+    covariance = np.diag([np.radians(0.5) ** 2] * 3 + [0.001 ** 2] * 3)
+
+    class Sliding:
+        lost_quality, tells_covered, object = None, False, printed_cube
+
+        def init(self, frame, start):
+            pass
+
+        def reset(self):
+            pass
+
+        def track(self, frame, prior=None, **options):
+            off = 2.0 * max(frame.index - 2, 0)
+            return Measurement(_turned_about_centre(printed_cube, pose, off), covariance, 0.85, "tracker:sliding",
+                               frame.timestamp)
+
+    class Truth:
+        hybrid_config = {}
+
+        def predict(self, frame, roi=None):
+            return Measurement(pose, covariance * 4, 0.9, "regressor:truth", frame.timestamp)
+
+    def statuses(floor):
+        config = HybridConfig(check_period=0, probation_frames=0, start_contrast=0, keypoint_memory=False,
+                              track_print_floor=floor)
+        est = HybridEstimator(Sliding(), Truth(), registry.create("fusion", "ukf"), config)
+        out = [est.step(Frame(image, CAM, k / 30.0, k)) for k in range(16)]
+        return [(e.status, rotation_error_deg(e.pose, pose)) for e in out]
+
+    watched = statuses(HybridConfig().track_print_floor)
+    assert watched[0][0] == "init" and all(s == "tracking" for s, _ in watched[1:4])
+    assert all(err < 15.0 for s, err in watched if s in ("init", "tracking"))  # the print fades 12-16° off
+    assert any(s == "lost" for s, _ in watched) and max(err for _, err in watched) > 20.0
+    assert all(s == "tracking" for s, _ in statuses(0.0)[1:])
+
+
+def _turned_about_centre(obj, pose, deg):
+    """``pose`` turned ``deg`` about the camera's y axis through ``obj``'s centre."""
+    centre = obj.bbox_corners.mean(0)
+    R = rotvec_to_matrix(np.radians(deg) * np.array([0.0, 1.0, 0.0])) @ pose.R
+    return Pose(R, pose.R @ centre + pose.t - R @ centre)

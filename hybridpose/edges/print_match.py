@@ -71,25 +71,35 @@ class PrintView:
             perm[ids] = ids[np.argmin(np.linalg.norm(seen[:, None] - centroids[ids][None], axis=2), axis=1)]
             self._facets_of_branch.append(perm)
 
-    def score(self, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> float:
+    def score(self, frame: Frame, pose: Pose, gray: np.ndarray | None = None, max_pixels: int = MAX_PIXELS) -> float:
         """Pixel-weighted mean over the visible facets of the correlation (−1..1) between the grey
-        image (``gray``: (H, W) float32, computed when None) and the grey print at ``pose``; NaN where
-        fewer than ``MIN_FACET_PIXELS`` pixels of any mapped facet show."""
-        return float(self.branch_scores(frame, pose, gray, branches=[0])[0])
+        image (``gray``: (H, W) float32, computed when None) and the grey print at ``pose``, over at
+        most ``max_pixels`` pixels (evenly spaced); NaN where fewer than ``MIN_FACET_PIXELS`` pixels of
+        any mapped facet show."""
+        return float(self.branch_scores(frame, pose, gray, branches=[0], max_pixels=max_pixels)[0])
 
-    def branch_scores(self, frame: Frame, pose: Pose, gray: np.ndarray | None = None, branches=None) -> np.ndarray:
+    def branch_scores(self, frame: Frame, pose: Pose, gray: np.ndarray | None = None, branches=None,
+                      max_pixels: int = MAX_PIXELS) -> np.ndarray:
         """:meth:`score` of ``pose @ S`` for each ``S`` of :attr:`branches` (indices ``branches``; all
         where None), from one raster of ``pose``: the pixel that sees point ``X`` at ``pose`` sees
         ``S⁻¹ X`` at ``pose @ S``, on the facet ``S⁻¹`` takes ``X``'s to."""
         camera = frame.camera
         branches = range(len(self.branches)) if branches is None else branches
         ids = self.view.facet_ids(pose, camera, scale=1.0)
+        # within the part's box only (grown past the border test's reach: the same pixels as the whole
+        # frame's); a full frame's mask and np.nonzero cost more than the comparison itself
+        bx, by, bw, bh = cv2.boundingRect((ids > 0).astype(np.uint8))
+        if bw == 0:
+            return np.full(len(branches), np.nan)
+        pad = BORDER_PX + 1
+        x0, y0 = max(bx - pad, 0), max(by - pad, 0)
+        box = ids[y0:by + bh + pad, x0:bx + bw + pad]
         k = np.ones((2 * BORDER_PX + 1,) * 2, np.uint8)
-        inner = (ids > 0) & (cv2.dilate(ids, k) == cv2.erode(ids, k))
-        ys, xs = np.nonzero(inner)
+        ys, xs = np.nonzero((box > 0) & (cv2.dilate(box, k) == cv2.erode(box, k)))
         if len(xs) == 0:
             return np.full(len(branches), np.nan)
-        step = max(1, len(xs) // MAX_PIXELS)
+        ys, xs = ys + y0, xs + x0
+        step = max(1, len(xs) // max_pixels)
         ys, xs = ys[::step], xs[::step]
         f = ids[ys, xs].astype(np.int64)
         points, ok = self._lifted(pose, camera, xs, ys, ids)

@@ -275,6 +275,8 @@ class HybridConfig:
             raise ValueError(f"resume_cue_quality: expected a cue quality in [0, 1] (0: off), got {self.resume_cue_quality}")
         if not 0 <= self.start_print_margin <= 2:
             raise ValueError(f"start_print_margin: expected a correlation difference in [0, 2] (0: off), got {self.start_print_margin}")
+        if not 0 <= self.track_print_floor <= 1:
+            raise ValueError(f"track_print_floor: expected a correlation in [0, 1] (0: off), got {self.track_print_floor}")
         if not 0 <= self.start_contrast <= 1:
             raise ValueError(f"start_contrast: expected a share of edge samples in [0, 1] (0: off), got {self.start_contrast}")
         if not 0 <= self.start_sure_quality <= 1:

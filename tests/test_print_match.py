@@ -192,6 +192,8 @@ def test_the_hybrid_does_not_trust_a_track_that_slid_off_its_print(printed_cube)
     assert all(err < 15.0 for s, err in watched if s in ("init", "tracking"))  # the print fades 12-16° off
     assert any(s == "lost" for s, _ in watched) and max(err for _, err in watched) > 20.0
     assert all(s == "tracking" for s, _ in statuses(0.0)[1:])
+    with pytest.raises(ValueError, match="track_print_floor: expected a correlation in"):
+        HybridConfig(track_print_floor=1.5)
 
 
 def _turned_about_centre(obj, pose, deg):

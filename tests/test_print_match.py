@@ -9,7 +9,7 @@ import trimesh
 from hybridpose.core import Frame
 from hybridpose.edges import ModelView
 from hybridpose.edges.print_match import PrintView, print_agreement
-from hybridpose.geometry import Camera, Pose, rotvec_to_matrix
+from hybridpose.geometry import Camera, Pose, turned_about
 from hybridpose.objects import ObjectModel
 from hybridpose.render import Appearance, Renderer
 from hybridpose.render.appearance import clutter_background
@@ -121,8 +121,7 @@ def test_a_start_a_few_degrees_off_climbs_the_prints_score_to_the_pose_it_shows(
         return Measurement(p, covariance, 0.9, "tracker", 0.0)
 
     axis = np.array([0.6, -0.3, 0.74]) / np.linalg.norm([0.6, -0.3, 0.74])
-    R = rotvec_to_matrix(np.radians(8.0) * axis) @ pose.R
-    off = Pose(R, pose.R @ centre + pose.t - R @ centre)  # turned about the cube's centre: the same place in the image
+    off = turned_about(pose, np.radians(8.0) * axis, centre)  # about the cube's centre: the same place in the image
     climbed = print_climb(fit(off), fit, printed, frame, centre, 3.0)
     assert rotation_error_deg(climbed.pose, pose) < 3.0 < rotation_error_deg(off, pose)
     assert rotation_error_deg(print_climb(fit(pose), fit, printed, frame, centre, 3.0).pose, pose) <= 3.0 + 1e-6
@@ -198,6 +197,4 @@ def test_the_hybrid_does_not_trust_a_track_that_slid_off_its_print(printed_cube)
 
 def _turned_about_centre(obj, pose, deg):
     """``pose`` turned ``deg`` about the camera's y axis through ``obj``'s centre."""
-    centre = obj.bbox_corners.mean(0)
-    R = rotvec_to_matrix(np.radians(deg) * np.array([0.0, 1.0, 0.0])) @ pose.R
-    return Pose(R, pose.R @ centre + pose.t - R @ centre)
+    return turned_about(pose, np.radians(deg) * np.array([0.0, 1.0, 0.0]), obj.bbox_corners.mean(0))

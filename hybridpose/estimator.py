@@ -44,8 +44,9 @@ printed part's tracked pose where its print does not show (``track_print_floor``
 
 In a lit scene, wherever the CNN would run, the part's keypoint memory (``keypoint_memory``) answers
 first where it can: its print, where its model carries one, and its look in this video, learned where
-the track was sure (``learn_after``); its answers are confirmed as the CNN's are. There the fusion's
-motion model is a hand's, which stops and turns within a few frames (``handheld_accel_rad_s2``).
+the track was sure (``learn_after``); its answers are confirmed as the CNN's are. Where neither finds a
+printed part at init, every few frames it is started from poses all round it where its print's colours
+stand out (``colour_start_every``). There the fusion's motion model is a hand's (``handheld_accel_rad_s2``).
 
 For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose
 nearest the track (or, while lost, nearest the previous answer): the CNN may give any of the poses that
@@ -74,6 +75,7 @@ from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
+from .regressors.colour_starts import ColourStarts
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE, KeypointMemory
 from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_climber, print_fails,
                      print_view, start_refused_in_light)
@@ -172,6 +174,7 @@ class HybridEstimator:
         self._n = _Counters()
         self.last_tracker = None
         self.memory: KeypointMemory | None = None  # the part's look, made at the first frame (none on black space)
+        self.colour_starts: ColourStarts | None = None  # a printed part's last-resort starts (the same)
         self.tracker.reset()
 
     def step(self, frame: Frame) -> Estimate:
@@ -204,6 +207,12 @@ class HybridEstimator:
     def _initialise(self, frame: Frame, timings: dict) -> Estimate:
         m = self._cnn(frame, None, timings)
         fit = self._confirmed(frame, m, timings, depth_search=True)
+        every = self.config.colour_start_every
+        if fit is None and self.colour_starts is not None and every and self._frames % every == 0:
+            # the last resort, where nothing else found the part: poses all round it where its print's colours stand out
+            for m in self._timed(timings, "regressor", self.colour_starts.candidates, frame):
+                if (fit := self._confirmed(frame, m, timings, depth_search=True)) is not None:
+                    break
         if fit is None:
             return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status=Status.INIT)
         self._restart(frame, fit, timings)
@@ -300,9 +309,8 @@ class HybridEstimator:
             self.last_tracker = m
             vouched = cues_vouch(getattr(self.tracker, "cue_qualities", None), self.config.resume_cue_quality)
             if not m.lost and vouched and not self._edges_alone(frame, m) and self._timed(timings, "fusion", self.fusion.update, m):
-                # inside the gate: taken up, but the fusion starts over from the fit — the twist
-                # coasted through the loss is a guess, and after one update its spread still lets the
-                # next CNN check pull the track off by centimetres
+                # inside the gate: taken up, but the fusion starts over from the fit — the twist coasted through the
+                # loss is a guess, and after one update its spread still lets the next CNN check pull the track off by cm
                 return self._take_up(frame, m, timings)
         self._n.since_check += 1
         if self._n.since_check < self.config.lost_check_period:
@@ -316,18 +324,16 @@ class HybridEstimator:
             motion = self.fusion.initial_twist_covariance * dt**2
             cap = self.config.reacquire_deg
             if (_mahalanobis2(previous.pose, previous.covariance + motion, m.pose, m.covariance) <= self.config.reacquire_chi2
-                    and (cap is None or rotation_error_deg(previous.pose, m.pose) <= cap)):
-                fit = self._confirmed(frame, m, timings)
-                if fit is not None:
-                    self._restart(frame, fit, timings)
-                    self.status = Status.TRACKING
-                    return self._estimate(Status.REINIT, (m.source, fit.source))
+                    and (cap is None or rotation_error_deg(previous.pose, m.pose) <= cap)
+                    and (fit := self._confirmed(frame, m, timings)) is not None):
+                self._restart(frame, fit, timings)
+                self.status = Status.TRACKING
+                return self._estimate(Status.REINIT, (m.source, fit.source))
         return self._estimate(Status.LOST, ())
 
     # --- helpers -----------------------------------------------------------------------------------
     def _declare_lost(self, frame: Frame, timings: dict) -> Estimate:
-        self.status = Status.LOST
-        self._n = _Counters()
+        self.status, self._n = Status.LOST, _Counters()
         # the CNN starts looking at once; its answer here is the first of the two that must agree
         self._n.last_cnn = self._cnn(frame, None, timings, near=self.fusion.estimate.pose)
         return self._estimate(Status.LOST, ())
@@ -366,16 +372,14 @@ class HybridEstimator:
         return self._estimate(Status.TRACKING, (m.source,))
 
     def _retries(self, previous: Measurement | None) -> bool:
-        """Whether a fit lost from the prediction is tried again from the tracker's ``previous`` pose:
-        the track has run ``retry_after`` frames since its last (re)start (a younger one may be a
-        wrong start that a second chance would keep alive)."""
+        """Whether a fit lost from the prediction is tried again from the tracker's ``previous`` pose: the track has
+        run ``retry_after`` frames since its last (re)start (a younger one may be a wrong start a second chance keeps alive)."""
         after = self.config.retry_after
         return (after is not None and previous is not None and previous.pose is not None
                 and self._n.since_start >= after)
 
     def _vouched(self, m: Measurement, c: Measurement, fit: Measurement) -> bool:
-        """True when the CNN pose ``c`` and the tracker's fit started from it both agree with the
-        tracker measurement ``m`` (``disagreement_chi2``, both covariances)."""
+        """Whether the CNN pose ``c`` and the tracker's fit from it both agree with the tracker's ``m`` (``disagreement_chi2``)."""
         chi2 = self.config.disagreement_chi2
         return (fit.pose is not None and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= chi2
                 and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
@@ -401,41 +405,37 @@ class HybridEstimator:
             return Measurement(None, LOST_COVARIANCE, 0.0, "tracker:refused", frame.timestamp)
 
     def _keep_quality(self) -> tuple[float | None, float | None]:
-        """The tracker's lost thresholds for the next frame-to-frame fit (in general, where it sees
-        the object covered), once the track has run ``keep_after`` frames since its start; else None
-        (the tracker's own). A tracker that tells when the object is covered (``tells_covered``) keeps
-        its own threshold in general and gets ``keep_covered_quality`` where covered; any other gets
-        ``keep_quality``; neither above its own (``lost_quality``)."""
+        """The tracker's lost thresholds for the next frame-to-frame fit (in general, where it sees the object
+        covered), once the track has run ``keep_after`` frames since its start; else None (the tracker's own). A
+        tracker that tells when the object is covered (``tells_covered``) keeps its own threshold in general and
+        gets ``keep_covered_quality`` where covered; any other ``keep_quality``; neither above its own (``lost_quality``)."""
         if self._n.since_start < self.config.keep_after:
             return None, None
         own = self.tracker.lost_quality
-
-        def capped(q: float | None) -> float | None:
-            return q if q is None or own is None else min(q, float(own))
-
+        capped = lambda q: q if q is None or own is None else min(q, float(own))  # noqa: E731
         if self.tracker.tells_covered:
             return None, capped(self.config.keep_covered_quality)
         return capped(self.config.keep_quality), None
 
     def _meet_scene(self, frame: Frame) -> None:
-        """At a video's first frame, off black space: the part's keypoint memory (``keypoint_memory``)
-        and a hand's motion model (``handheld_accel_rad_s2``); on black space neither."""
+        """At a video's first frame, off black space: the part's keypoint memory (``keypoint_memory``), a printed
+        part's colour starts (``colour_start_every``) and a hand's motion model (``handheld_accel_rad_s2``); on black space none."""
         own = self._own_motion_noise
         lit = dark_share(to_gray8(frame.image)) < SPACE_DARK_SHARE
         if self.config.keypoint_memory and self._view is not None and lit:
             self.memory = KeypointMemory.for_part(self._view, frame.camera, self._print)
+        if self.config.colour_start_every and self._print is not None and lit:
+            self.colour_starts = ColourStarts(self.object)
         if own is not None and self.config.handheld_accel_rad_s2 is not None:  # a fusion that lets it be set
             c = self.config
             self.fusion.motion_noise = (c.handheld_accel_rad_s2, c.handheld_accel_m_s2) if lit else own
 
     def _cnn_search_px(self) -> float | None:
-        """The search range (px) of a fit from a CNN pose: ``cnn_search_px`` (None where 0: the
-        tracker's own frame-to-frame range; a tracker with a fixed range ignores it)."""
+        """A fit's search range (px) from a CNN pose: ``cnn_search_px`` (None where 0: the tracker's own)."""
         return self.config.cnn_search_px if self.config.cnn_search_px > 0 else None
 
     def _restart(self, frame: Frame, m: Measurement, timings: dict, twist: np.ndarray | None = None) -> None:
-        """Fusion and tracker start over from ``m``, the tracker's fit from a CNN pose, with body twist
-        ``twist`` (6,) rad/s, m/s."""
+        """Fusion and tracker start over from ``m`` (the tracker's fit), with body twist ``twist`` (6,) rad/s, m/s."""
         # by default the twist starts again from zero with the fusion's initial uncertainty: one
         # estimated through a drift or a loss is not worth keeping
         self._timed(timings, "fusion", self.fusion.reset, m.pose, m.covariance, frame.timestamp, twist)

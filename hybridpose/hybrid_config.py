@@ -162,6 +162,12 @@ class HybridConfig:
             CNN's are. Never on black space (the first frame at least ``SPACE_DARK_SHARE`` dark, as
             ``track`` tells it): a plain part's keypoints there are its shading, which the sun moves
             (the space suite's hybrid as accurate without it, and a third faster). False: the CNN alone.
+        colour_start_every: while the hybrid has no pose (``init``) and neither the memory nor the CNN
+            gives a start, every this many frames a part that carries its print is also started from
+            poses all around it placed where its print's colours stand out (:class:`~hybridpose.
+            regressors.colour_starts.ColourStarts`, 32 for a cube), each through the start checks, the
+            first accepted taken: a dark or smooth print the memory's keypoints miss. Seconds of fits
+            each time on a CPU core, hence not every frame. Off black space only, as the memory; 0: never.
         learn_after: frames a track must have run since its (re)start before the memory learns from
             it, at fits reaching ``start_sure_quality`` whose cues all vouch (``resume_cue_quality``).
         memory_start_quality: ``start_quality`` for a start from the memory's answer: the pose its
@@ -231,6 +237,7 @@ class HybridConfig:
     disagreement_deg: float | None = None
     reacquire_deg: float | None = None
     keypoint_memory: bool = True
+    colour_start_every: int = 4
     learn_after: int = 10
     memory_start_quality: float = 0.4
     plain_start_quality: float = 0.75
@@ -239,7 +246,7 @@ class HybridConfig:
 
     def __post_init__(self) -> None:
         for name in ("check_period", "probation_frames", "unstable_window", "settle_frames", "confirm_frames",
-                     "keep_after", "learn_after"):
+                     "keep_after", "learn_after", "colour_start_every"):
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")

@@ -336,3 +336,31 @@ def test_a_pose_turned_about_an_object_point_keeps_that_point_in_place(v):
     points = np.array([[0.03, -0.02, 0.01], [-0.04, 0.05, 0.02], centre])
     expected = turn.apply((points @ pose.R.T + pose.t) - c_cam) + c_cam
     np.testing.assert_allclose(points @ got.R.T + got.t, expected, atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).filter(lambda v: np.linalg.norm(v) > 0.1),
+       st.floats(0.1, 5.0))
+def test_a_facing_pose_looks_at_the_object_from_its_direction(v, distance):
+    """Oracle: cv2.projectPoints puts the object's origin on the principal point; the camera centre
+    lies ``distance`` along ``direction`` (object frame); the rotation is proper."""
+    from hybridpose.geometry import facing_pose
+
+    direction = np.asarray(v) / np.linalg.norm(v)
+    pose = facing_pose(direction, distance)
+    K = Camera.default().K
+    uv, _ = cv2.projectPoints(np.zeros((1, 3)), cv2.Rodrigues(pose.R)[0], pose.t, K, None)
+    np.testing.assert_allclose(uv.ravel(), K[:2, 2], atol=1e-9)
+    np.testing.assert_allclose(-pose.R.T @ pose.t, distance * direction, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(pose.R), 1.0, atol=1e-12)
+
+
+def test_sphere_directions_are_unit_and_spread():
+    from hybridpose.geometry import sphere_directions
+
+    d = sphere_directions(26)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    cos = d @ d.T - 2 * np.eye(26)
+    nearest_deg = np.degrees(np.arccos(cos.max(1)))
+    assert 25 < nearest_deg.min() and nearest_deg.max() < 50   # evenly spread: no two close, no gap
+    assert np.linalg.norm(d.mean(0)) < 0.05

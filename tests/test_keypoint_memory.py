@@ -88,7 +88,8 @@ def test_the_hybrid_asks_the_memory_before_the_cnn(printed_cube, memory):
     frames = [_frame(printed_cube, turned(POSE, [0.0, 0.6 * k, 0.0]), index=k)
               for k in range(3)]
     est = HybridEstimator(registry.create("tracker", "combined", object=printed_cube), registry.create("regressor", "none"),
-                          registry.create("fusion", "ukf"), HybridConfig(keypoint_memory=memory))
+                          registry.create("fusion", "ukf"),
+                          HybridConfig(keypoint_memory=memory, colour_start_every=0))  # the memory alone
     estimates = [est.step(f) for f in frames]
     if memory:
         assert "regressor:keypoints" in estimates[0].sources and estimates[-1].status == "tracking"

@@ -278,6 +278,26 @@ def mirrored_tilt(pose: Pose, normal_obj, centre_obj) -> Pose:
     return turned_about(pose, axis / sin * math.atan2(sin, cos), centre_obj)
 
 
+def sphere_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    r = np.sqrt(1 - z ** 2)
+    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
+
+
+def facing_pose(direction_obj, distance_m: float) -> Pose:
+    """``T_cam_obj`` of a camera ``distance_m`` metres from the object's origin along the unit vector
+    ``direction_obj`` (3,) (object frame), looking at the origin (which projects to the principal point)."""
+    z = -np.asarray(direction_obj, np.float64)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])  # rows: the camera's axes in the object frame
+    return Pose(R, np.array([0.0, 0.0, float(distance_m)]))
+
+
 def save_camera(camera: Camera, path) -> None:
     Path(path).write_text(json.dumps(camera.to_dict(), indent=2))
 

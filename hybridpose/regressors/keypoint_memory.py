@@ -29,7 +29,7 @@ from ..core import Frame, Measurement
 from ..edges import ModelView, to_gray8
 from ..edges.silhouette import LIT_PIXEL_GREY
 from ..edges.print_match import PrintView
-from ..geometry import Camera, Pose
+from ..geometry import Camera, Pose, facing_pose, sphere_directions
 from .keypoint_pnp import solve_pnp
 from .print_colours import PrintColours
 
@@ -97,8 +97,8 @@ class KeypointMemory:
         memory = cls(view, **kw)
         memory._colours = PrintColours(view.object.texture)
         distance = view.object.diameter * camera.K[0, 0] / (fill * min(camera.width, camera.height))
-        for direction in _sphere(directions):
-            pose = _facing(direction, distance)
+        for direction in sphere_directions(directions):
+            pose = facing_pose(direction, distance)
             memory._add(printed.image(pose, camera), pose, camera)
         return memory
 
@@ -262,23 +262,3 @@ def _direction(pose: Pose) -> np.ndarray:
     """Unit vector (3,) from the object's origin towards the camera, object frame."""
     d = -pose.R.T @ pose.t
     return d / np.linalg.norm(d)
-
-
-def _sphere(n: int) -> np.ndarray:
-    """``n`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
-    k = np.arange(n) + 0.5
-    z = 1 - 2 * k / n
-    phi = np.pi * (1 + 5 ** 0.5) * k
-    r = np.sqrt(1 - z ** 2)
-    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
-
-
-def _facing(direction: np.ndarray, distance: float) -> Pose:
-    """``T_cam_obj`` of a camera ``distance`` metres from the object's origin along the unit vector
-    ``direction`` (object frame), looking at the origin."""
-    z = -direction
-    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])  # rows: the camera's axes in the object frame
-    return Pose(R, np.array([0.0, 0.0, distance]))

@@ -70,19 +70,18 @@ from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status, check_n
 from .edges import ModelView, to_gray8
 from .edges.silhouette import SPACE_DARK_SHARE, dark_share
 from .fusion.base import measured_twist, nearest_equivalent_measurement, pose_mahalanobis2 as _mahalanobis2
-from .geometry import Camera, Pose
+from .geometry import Pose
 from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
 from .objects import ObjectModel
-from .regressors.colour_starts import ColourStarts
+from .regressors.colour_starts import SOURCE as COLOUR_SOURCE, ColourStarts
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE, KeypointMemory
-from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_climber, print_fails,
-                     print_view, start_refused_in_light)
+from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_backs, print_climber,
+                     print_fails, print_view, start_refused_in_light)
 from .threads import set_threads
 
-# a twist measured from two tracker poses further apart than this is not worth keeping
-MAX_TWIST_GAP_S = 0.2
+MAX_TWIST_GAP_S = 0.2  # a twist measured from two tracker poses further apart than this is not worth keeping
 
 
 @dataclass
@@ -169,8 +168,7 @@ class HybridEstimator:
         self._restarts: list[int] = []  # frame counts at which fusion and tracker restarted
         self._first_start = False  # whether the last restart was the first start since reset
         self.best_start_fit = 0.0  # the best quality a start's fit reached since reset (why a run never started)
-        self.camera: Camera | None = None
-        self.last_timestamp: float | None = None
+        self.camera, self.last_timestamp = None, None  # (Camera | None, float | None): the last frame's
         self._n = _Counters()
         self.last_tracker = None
         self.memory: KeypointMemory | None = None  # the part's look, made at the first frame (none on black space)
@@ -308,7 +306,8 @@ class HybridEstimator:
             m = self._track_from(frame, prior.pose, timings)
             self.last_tracker = m
             vouched = cues_vouch(getattr(self.tracker, "cue_qualities", None), self.config.resume_cue_quality)
-            if not m.lost and vouched and not self._edges_alone(frame, m) and self._timed(timings, "fusion", self.fusion.update, m):
+            if (not m.lost and vouched and not self._edges_alone(frame, m) and print_backs(self._print, frame, m.pose)
+                    and self._timed(timings, "fusion", self.fusion.update, m)):
                 # inside the gate: taken up, but the fusion starts over from the fit — the twist coasted through the
                 # loss is a guess, and after one update its spread still lets the next CNN check pull the track off by cm
                 return self._take_up(frame, m, timings)
@@ -353,7 +352,8 @@ class HybridEstimator:
             cues = getattr(self.tracker, "cue_qualities", None)
             return None if self._view is not None and start_refused_in_light(cues, frame, self._view, f, plain_bar) else f
 
-        stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin)
+        floor = c.colour_start_print if m.source == COLOUR_SOURCE else 0.0  # 32 blind tries: the print must show well
+        stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin, floor)
         climb = print_climber(fit, self._print, frame, self.object, c.start_print_turn_deg)
         return confirmed_start(m, fit, c if m.source != MEMORY_SOURCE else replace(c, start_quality=c.memory_start_quality),
                                depth_search, stands_out, climb)

@@ -168,6 +168,12 @@ class HybridConfig:
             regressors.colour_starts.ColourStarts`, 32 for a cube), each through the start checks, the
             first accepted taken: a dark or smooth print the memory's keypoints miss. Seconds of fits
             each time on a CPU core, hence not every frame. Off black space only, as the memory; 0: never.
+        colour_start_print: a colour start must also show the print at least this well (its
+            :func:`~hybridpose.edges.print_match.print_agreement`'s best score; the other starts need
+            only single one pose out, ``start_print_margin``): 32 tries give a wrong pose more chances
+            to pass. Hand-held tuning scenes: the 18 right colour starts scored 0.68–0.98, the one
+            wrong (102° off, a brick print seen near head-on) 0.32; right starts on ViSP's MegaPose
+            cube video score 0.5–0.7.
         learn_after: frames a track must have run since its (re)start before the memory learns from
             it, at fits reaching ``start_sure_quality`` whose cues all vouch (``resume_cue_quality``).
         memory_start_quality: ``start_quality`` for a start from the memory's answer: the pose its
@@ -238,6 +244,7 @@ class HybridConfig:
     reacquire_deg: float | None = None
     keypoint_memory: bool = True
     colour_start_every: int = 4
+    colour_start_print: float = 0.45
     learn_after: int = 10
     memory_start_quality: float = 0.4
     plain_start_quality: float = 0.75
@@ -282,8 +289,9 @@ class HybridConfig:
             raise ValueError(f"resume_cue_quality: expected a cue quality in [0, 1] (0: off), got {self.resume_cue_quality}")
         if not 0 <= self.start_print_margin <= 2:
             raise ValueError(f"start_print_margin: expected a correlation difference in [0, 2] (0: off), got {self.start_print_margin}")
-        if not 0 <= self.track_print_floor <= 1:
-            raise ValueError(f"track_print_floor: expected a correlation in [0, 1] (0: off), got {self.track_print_floor}")
+        for name in ("track_print_floor", "colour_start_print"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name}: expected a correlation in [0, 1] (0: off), got {getattr(self, name)}")
         if not 0 <= self.start_contrast <= 1:
             raise ValueError(f"start_contrast: expected a share of edge samples in [0, 1] (0: off), got {self.start_contrast}")
         if not 0 <= self.start_sure_quality <= 1:

@@ -140,6 +140,19 @@ def print_fails(print_view: PrintView | None, frame: Frame, pose: Pose | None, f
     return bool(np.isfinite(score) and score < floor)
 
 
+def print_backs(print_view: PrintView | None, frame: Frame, pose: Pose) -> bool:
+    """Whether the part's print (``print_view``; None: no print, always) shows ``pose`` itself best among
+    the poses its shape cannot tell apart (:func:`~hybridpose.edges.print_match.print_agreement`; no
+    verdict where none scores). A track taken up again after a loss carries on which face is which: a
+    fit whose print another face arrangement explains better slid onto the part's outline elsewhere
+    (hand-held tuning scenes: the one wrong take-up, 71° off after a hand passed, scored 0.20 at its own
+    pose and 0.48 at another; the ten right ones scored best at their own, 0.37–0.95)."""
+    if print_view is None:
+        return True
+    agreement = print_agreement(print_view, frame, pose)
+    return agreement.branch is None or _is_identity(agreement.branch)
+
+
 def print_view(view: ModelView | None) -> PrintView | None:
     """The :class:`~hybridpose.edges.print_match.PrintView` of ``view``'s object where it carries a print
     that maps onto its facets; None otherwise (no print check)."""
@@ -152,13 +165,13 @@ def print_view(view: ModelView | None) -> PrintView | None:
 
 
 def image_test(view: ModelView | None, frame: Frame, margin: float, part_print: PrintView | None = None,
-               print_margin: float = 0.0) -> StandsOut | None:
+               print_margin: float = 0.0, print_floor: float = 0.0) -> StandsOut | None:
     """The ``stands_out`` test of :func:`confirmed_start` in ``frame``: a pose's
     :func:`~hybridpose.edges.placement_contrast` with ``margin`` (``start_contrast``) and, for a
     printed part (``part_print``: its :func:`print_view`),
     :func:`~hybridpose.edges.print_match.print_agreement` singling out one of its equivalent poses by
-    ``print_margin`` (``start_print_margin``) — the one the test then names; None (no test) without a
-    model view or with both margins 0."""
+    ``print_margin`` (``start_print_margin``) — the one the test then names — with a score of at least
+    ``print_floor``; None (no test) without a model view or with both margins 0."""
     contrast = view is not None and margin > 0
     printed = part_print is not None and print_margin > 0
     if not contrast and not printed:
@@ -174,7 +187,7 @@ def image_test(view: ModelView | None, frame: Frame, margin: float, part_print: 
         if not printed:
             return Pose.identity()
         agreement = print_agreement(part_print, frame, pose, grey[0])
-        return agreement.branch if agreement.singles_out(print_margin) else None
+        return agreement.branch if agreement.singles_out(print_margin) and agreement.best >= print_floor else None
 
     return stands_out
 

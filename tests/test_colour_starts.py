@@ -89,13 +89,16 @@ def _hybrid(obj, **config):
 
 def test_the_hybrid_starts_from_the_prints_colours_where_its_keypoints_find_nothing(smooth_cube, monkeypatch):
     """The memory blinded and no network: the colour starts alone start the track, at the cube's own
-    pose (its print tells which face is which); switched off, nothing starts."""
+    pose (its print tells which face is which); switched off, or asked for a print no pose shows that
+    well, nothing starts."""
     monkeypatch.setattr(KeypointMemory, "find", lambda self, frame, roi=None: None)
     frame = _frame(smooth_cube, POSE)
     e = _hybrid(smooth_cube).step(frame)
     assert e.status == "init" and SOURCE in e.sources
     assert rotation_error_deg(e.pose, POSE) < 5 and np.linalg.norm(e.pose.t - POSE.t) < 0.01
     assert _hybrid(smooth_cube, colour_start_every=0).step(frame).pose is None
+    # a colour start must show the print well (colour_start_print): no right pose scores 1
+    assert _hybrid(smooth_cube, colour_start_print=1.0).step(frame).pose is None
 
 
 def test_the_colour_starts_start_nothing_without_the_part(smooth_cube, monkeypatch):
@@ -115,3 +118,5 @@ def test_the_colour_start_setting_is_checked():
         HybridConfig(colour_start_every=-1)
     with pytest.raises(ValueError, match="colour_start_every"):
         HybridConfig(colour_start_every=1.5)
+    with pytest.raises(ValueError, match="colour_start_print"):
+        HybridConfig(colour_start_print=1.5)

@@ -198,3 +198,51 @@ def test_the_hybrid_does_not_trust_a_track_that_slid_off_its_print(printed_cube)
 def _turned_about_centre(obj, pose, deg):
     """``pose`` turned ``deg`` about the camera's y axis through ``obj``'s centre."""
     return turned_about(pose, np.radians(deg) * np.array([0.0, 1.0, 0.0]), obj.bbox_corners.mean(0))
+
+
+@pytest.mark.parametrize("arrangement", ["own", "another"])
+def test_a_lost_track_is_taken_up_only_where_the_print_shows_the_fit_itself(printed_cube, arrangement):
+    """A scripted tracker loses the part for a second, then fits its outline again: at the part's own
+    pose (its print shows it) the track is taken up; at another of the cube's equivalent poses (the
+    same outline, other faces where the print is) it stays lost — a fit whose print another face
+    arrangement explains better slid onto the outline elsewhere."""
+    from hybridpose import HybridConfig, HybridEstimator, registry
+    from hybridpose.core import Measurement
+    from hybridpose.starts import print_backs
+
+    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
+    image = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5))).image
+    covariance = np.diag([np.radians(0.5) ** 2] * 3 + [0.001 ** 2] * 3)
+    quarter_turn = next(S for S in printed_cube.symmetries if abs(np.trace(S.R) - 1.0) < 1e-6)  # 90°
+    refit = pose if arrangement == "own" else pose @ quarter_turn
+
+    class Scripted:
+        lost_quality, tells_covered, object = None, False, printed_cube
+
+        def init(self, frame, start):
+            pass
+
+        def reset(self):
+            pass
+
+        def track(self, frame, prior=None, **options):
+            if 3 <= frame.index < 30:  # a second lost: the fusion's spread has grown past a quarter turn
+                return Measurement(None, np.eye(6), 0.0, "tracker:scripted", frame.timestamp)
+            return Measurement(pose if frame.index < 3 else refit, covariance, 0.85, "tracker:scripted", frame.timestamp)
+
+    class FirstFrameOnly:
+        hybrid_config = {}
+
+        def predict(self, frame, roi=None):
+            found = pose if frame.index == 0 else None
+            return Measurement(found, covariance * 4 if found else np.eye(6), 0.9 if found else 0.0, "regressor:once",
+                               frame.timestamp)
+
+    # the watch off (track_print_floor): the take-up alone is under test
+    config = HybridConfig(check_period=0, probation_frames=0, start_contrast=0, keypoint_memory=False, track_print_floor=0)
+    est = HybridEstimator(Scripted(), FirstFrameOnly(), registry.create("fusion", "ukf"), config)
+    statuses = [est.step(Frame(image, CAM, k / 30.0, k)).status for k in range(33)]
+    assert statuses[:3] == ["init", "tracking", "tracking"] and set(statuses[3:30]) == {"lost"}
+    assert statuses[30:] == (["tracking"] * 3 if arrangement == "own" else ["lost"] * 3)
+    frame = Frame(image, CAM, 0.0, 0)
+    assert print_backs(None, frame, refit) and print_backs(est._print, frame, refit) == (arrangement == "own")

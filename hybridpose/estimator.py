@@ -37,7 +37,8 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the tracker, started from
   the latest, confirms it (under the arm the CNN can repeat the same wrong answer, but the edges do not
   match); then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
-  from the prediction each frame and takes up again when its fit is good and inside the gate.
+  from the prediction each frame and takes up again when its fit is good, inside the gate and, for a
+  printed part, the pose its print shows best (``print_backs``).
 
 A start (init, reinit) may be put on probation (``confirm_frames``): not trusted until it has held. A
 printed part's tracked pose where its print does not show (``track_print_floor``) is reported lost.
@@ -169,8 +170,7 @@ class HybridEstimator:
         self._first_start = False  # whether the last restart was the first start since reset
         self.best_start_fit = 0.0  # the best quality a start's fit reached since reset (why a run never started)
         self.camera, self.last_timestamp = None, None  # (Camera | None, float | None): the last frame's
-        self._n = _Counters()
-        self.last_tracker = None
+        self._n, self.last_tracker = _Counters(), None
         self.memory: KeypointMemory | None = None  # the part's look, made at the first frame (none on black space)
         self.colour_starts: ColourStarts | None = None  # a printed part's last-resort starts (the same)
         self.tracker.reset()

@@ -146,7 +146,7 @@ def print_backs(print_view: PrintView | None, frame: Frame, pose: Pose) -> bool:
     verdict where none scores). A track taken up again after a loss carries on which face is which: a
     fit whose print another face arrangement explains better slid onto the part's outline elsewhere
     (hand-held tuning scenes: the one wrong take-up, 71° off after a hand passed, scored 0.20 at its own
-    pose and 0.48 at another; the ten right ones scored best at their own, 0.37–0.95)."""
+    pose and 0.48 at another; the nine right ones scored best at their own, 0.37–0.95)."""
     if print_view is None:
         return True
     agreement = print_agreement(print_view, frame, pose)

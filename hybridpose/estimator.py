@@ -79,7 +79,7 @@ from .objects import ObjectModel
 from .regressors.colour_starts import SOURCE as COLOUR_SOURCE, ColourStarts
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE, KeypointMemory
 from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_backs, print_climber,
-                     print_fails, print_view, start_refused_in_light)
+                     print_fails, print_prefers, print_view, start_refused_in_light)
 from .threads import set_threads
 
 MAX_TWIST_GAP_S = 0.2  # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -298,7 +298,7 @@ class HybridEstimator:
         better = (fit.pose is not None and fit.quality > m.quality + self.config.switch_quality_margin
                   and _mahalanobis2(fused.pose, fused.covariance, fit.pose, fit.covariance) > chi2)
         stayed = fit.pose is not None and _mahalanobis2(c.pose, c.covariance, fit.pose, fit.covariance) <= chi2
-        return CnnCheck(c, fit, disagrees=far or better, stayed=stayed)
+        return CnnCheck(c, fit, disagrees=(far or better) and print_prefers(self._print, frame, fit, m), stayed=stayed)
 
     def _reacquire(self, frame: Frame, timings: dict) -> Estimate:
         prior = self._timed(timings, "fusion", self.fusion.predict, frame.timestamp)

@@ -246,3 +246,54 @@ def test_a_lost_track_is_taken_up_only_where_the_print_shows_the_fit_itself(prin
     assert statuses[30:] == (["tracking"] * 3 if arrangement == "own" else ["lost"] * 3)
     frame = Frame(image, CAM, 0.0, 0)
     assert print_backs(None, frame, refit) and print_backs(est._print, frame, refit) == (arrangement == "own")
+
+
+@pytest.mark.parametrize("printed", [True, False])
+def test_a_check_does_not_move_a_printed_track_off_its_print(printed_cube, printed):
+    """A scripted tracker holds the truth at a middling quality (so the CNN checks it every frame), a
+    CNN answers 25° off and the fit from there scores higher: on a plain model the checks restart the
+    track there, as they must where the track drifted; on the printed model the print shows the
+    check's fit worse than the track, and the track stays."""
+    from dataclasses import replace
+
+    from hybridpose import HybridConfig, HybridEstimator, registry
+    from hybridpose.core import Measurement
+    from hybridpose.metrics import rotation_error_deg
+    from hybridpose.starts import print_prefers
+
+    obj = printed_cube if printed else replace(printed_cube, texture=None, face_uv=None)
+    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
+    off = _turned_about_centre(printed_cube, pose, 25.0)
+    image = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5))).image
+    covariance = np.diag([np.radians(0.5) ** 2] * 3 + [0.001 ** 2] * 3)
+
+    class Scripted:
+        lost_quality, tells_covered, object = None, False, obj
+
+        def init(self, frame, start):
+            pass
+
+        def reset(self):
+            pass
+
+        def track(self, frame, prior=None, **options):
+            near_truth = rotation_error_deg(prior, pose) < 10.0
+            return Measurement(pose if near_truth else off, covariance, 0.65 if near_truth else 0.95, "tracker:scripted",
+                               frame.timestamp)
+
+    class WrongAfterTheStart:
+        hybrid_config = {}
+
+        def predict(self, frame, roi=None):
+            return Measurement(pose if frame.index == 0 else off, covariance * 4, 0.9, "regressor:wrong", frame.timestamp)
+
+    config = HybridConfig(start_contrast=0, keypoint_memory=False, track_print_floor=0)
+    est = HybridEstimator(Scripted(), WrongAfterTheStart(), registry.create("fusion", "ukf"), config)
+    errors = [rotation_error_deg(est.step(Frame(image, CAM, k / 30.0, k)).pose, pose) for k in range(6)]
+    assert errors[0] < 1.0
+    assert (max(errors) < 2.0) if printed else (errors[-1] > 20.0)
+    frame = Frame(image, CAM, 0.0, 0)
+    at = lambda p: Measurement(p, covariance, 0.9, "x", 0.0)  # noqa: E731
+    printed_view = PrintView(ModelView(printed_cube))
+    assert not print_prefers(printed_view, frame, at(off), at(pose)) and print_prefers(printed_view, frame, at(pose), at(off))
+    assert print_prefers(None, frame, at(off), at(pose))

@@ -16,22 +16,22 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   fit is not convincing (``start_sure_quality``), a clearly better one from the start turned a few
   degrees (a local minimum of the object's edges lies next to the truth); where the part's print is
   known, moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
-- **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is
-  gated (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where
-  the tracker sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``:
-  an arm covering half the object lowers a right fit's quality under the tracker's own threshold).
-  Every ``check_period`` frames the CNN runs on a crop around the predicted projection, and the
-  tracker fits the edges from the CNN pose too (:class:`CnnCheck`). The check disagrees when the CNN
-  pose is far from the fused one (``disagreement_chi2`` with both covariances; optionally
-  ``disagreement_deg``) or when the fit from it lands elsewhere and matches the image better than
-  the track (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next
-  check follows at once) restart everything from that fit — the drift the tracker did not flag. A
-  check whose CNN pose the edges cannot fit at all (typically its end-for-end twin) while the track
-  fits better does not count. A CNN pose that agrees is fused. A tracker measurement the gate refuses
-  calls a check at once; where the CNN and the edges from its pose vouch for it, the fusion (not the
-  tracker) was wrong and starts over there. Where the tracker loses the object from the prediction, an
-  established track (``retry_after``) tries once more from the tracker's previous pose and, found there,
-  starts the fusion over from that fit: a hand-held camera stops where a constant-velocity model runs on.
+- **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is gated
+  (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where the tracker
+  sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``: an arm covering half
+  the object lowers a right fit's quality under the tracker's own threshold). Every ``check_period`` frames
+  the CNN runs on a crop around the predicted projection, and the tracker fits the edges from the CNN pose too
+  (:class:`CnnCheck`). The check disagrees when the CNN pose is far from the fused one (``disagreement_chi2``
+  with both covariances; optionally ``disagreement_deg``) or when the fit from it lands elsewhere and matches
+  the image better than the track (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row
+  (the next check follows at once) restart everything from that fit — the drift the tracker did not flag. A
+  check whose CNN pose the edges cannot fit at all (typically its end-for-end twin) while the track fits
+  better does not count, nor, for a printed part, one whose fit shows the print worse than the track
+  (``print_prefers``). A CNN pose that agrees is fused. A tracker measurement the gate refuses calls a check
+  at once; where the CNN and the edges from its pose vouch for it, the fusion (not the tracker) was wrong and
+  starts over there. Where the tracker loses the object from the prediction, an established track
+  (``retry_after``) tries once more from the tracker's previous pose and, found there, starts the fusion over
+  from that fit: a hand-held camera stops where a constant-velocity model runs on.
 - **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The fusion
   keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two consecutive
   answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the tracker, started from

@@ -147,20 +147,19 @@ def test_a_tracked_pose_that_does_not_show_the_print_fails_the_watch(printed_cub
     assert not print_fails(printed, frame, None, 0.15)
 
 
-def test_the_hybrid_does_not_trust_a_track_that_slid_off_its_print(printed_cube):
-    """A tracker that slides 2° a frame about the image's vertical through the part, fully confident,
-    and a fusion that follows it (no CNN checks): the hybrid keeps tracking but stops trusting the
-    track where its pose no longer shows the part's print; with the watch off it trusts every frame."""
-    from hybridpose import HybridConfig, HybridEstimator, registry
-    from hybridpose.core import Measurement
-    from hybridpose.metrics import rotation_error_deg
+# the scripted hybrid tests' scene: the printed cube over clutter, and its trackers' and CNNs' covariance
+POSE = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
+COVARIANCE = np.diag([np.radians(0.5) ** 2] * 3 + [0.001 ** 2] * 3)
 
-    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
-    image = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5))).image
-    covariance = np.diag([np.radians(0.5) ** 2] * 3 + [0.001 ** 2] * 3)
 
-    class Sliding:
-        lost_quality, tells_covered, object = None, False, printed_cube
+def _scene(printed_cube) -> np.ndarray:
+    return _frame(printed_cube, POSE, clutter_background(CAM.width, CAM.height, np.random.default_rng(5))).image
+
+
+def _scripted_tracker(obj, fit):
+    """A tracker of ``obj`` whose measurement of a frame is ``fit(frame, prior)``: the tracker contract, nothing more."""
+    class Scripted:
+        lost_quality, tells_covered, object = None, False, obj
 
         def init(self, frame, start):
             pass
@@ -169,22 +168,52 @@ def test_the_hybrid_does_not_trust_a_track_that_slid_off_its_print(printed_cube)
             pass
 
         def track(self, frame, prior=None, **options):
-            off = 2.0 * max(frame.index - 2, 0)
-            return Measurement(_turned_about_centre(printed_cube, pose, off), covariance, 0.85, "tracker:sliding",
-                               frame.timestamp)
+            return fit(frame, prior)
 
-    class Truth:
+    return Scripted()
+
+
+def _scripted_cnn(answer):
+    """A regressor whose answer in a frame is ``answer(frame)`` (a pose or None) with ``COVARIANCE`` × 4."""
+    from hybridpose.core import Measurement
+
+    class Scripted:
         hybrid_config = {}
 
         def predict(self, frame, roi=None):
-            return Measurement(pose, covariance * 4, 0.9, "regressor:truth", frame.timestamp)
+            pose = answer(frame)
+            found = pose is not None
+            return Measurement(pose, COVARIANCE * 4 if found else np.eye(6), 0.9 if found else 0.0, "regressor:scripted",
+                               frame.timestamp)
+
+    return Scripted()
+
+
+def _hybrid_run(tracker, cnn, frames: int, image, **config):
+    from hybridpose import HybridConfig, HybridEstimator, registry
+
+    est = HybridEstimator(tracker, cnn, registry.create("fusion", "ukf"),
+                          HybridConfig(start_contrast=0, keypoint_memory=False, **config))
+    return est, [est.step(Frame(image, CAM, k / 30.0, k)) for k in range(frames)]
+
+
+def test_the_hybrid_does_not_trust_a_track_that_slid_off_its_print(printed_cube):
+    """A tracker that slides 2° a frame about the image's vertical through the part, fully confident,
+    and a fusion that follows it (no CNN checks): the hybrid keeps tracking but stops trusting the
+    track where its pose no longer shows the part's print; with the watch off it trusts every frame."""
+    from hybridpose import HybridConfig
+    from hybridpose.core import Measurement
+    from hybridpose.metrics import rotation_error_deg
+
+    image = _scene(printed_cube)
+    sliding = _scripted_tracker(printed_cube, lambda frame, prior: Measurement(
+        _turned_about_centre(printed_cube, POSE, 2.0 * max(frame.index - 2, 0)), COVARIANCE, 0.85, "tracker:sliding",
+        frame.timestamp))
 
     def statuses(floor):
-        config = HybridConfig(check_period=0, probation_frames=0, start_contrast=0, keypoint_memory=False,
-                              track_print_floor=floor)
-        est = HybridEstimator(Sliding(), Truth(), registry.create("fusion", "ukf"), config)
-        out = [est.step(Frame(image, CAM, k / 30.0, k)) for k in range(16)]
-        return [(e.status, rotation_error_deg(e.pose, pose)) for e in out]
+        _, out = _hybrid_run(sliding, _scripted_cnn(lambda frame: POSE), 16, image, check_period=0, probation_frames=0,
+                             track_print_floor=floor)
+        return [(e.status, rotation_error_deg(e.pose, POSE)) for e in out]
 
     watched = statuses(HybridConfig().track_print_floor)
     assert watched[0][0] == "init" and all(s == "tracking" for s, _ in watched[1:4])
@@ -206,42 +235,22 @@ def test_a_lost_track_is_taken_up_only_where_the_print_shows_the_fit_itself(prin
     pose (its print shows it) the track is taken up; at another of the cube's equivalent poses (the
     same outline, other faces where the print is) it stays lost — a fit whose print another face
     arrangement explains better slid onto the outline elsewhere."""
-    from hybridpose import HybridConfig, HybridEstimator, registry
     from hybridpose.core import Measurement
     from hybridpose.starts import print_backs
 
-    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
-    image = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5))).image
-    covariance = np.diag([np.radians(0.5) ** 2] * 3 + [0.001 ** 2] * 3)
+    image = _scene(printed_cube)
     quarter_turn = next(S for S in printed_cube.symmetries if abs(np.trace(S.R) - 1.0) < 1e-6)  # 90°
-    refit = pose if arrangement == "own" else pose @ quarter_turn
+    refit = POSE if arrangement == "own" else POSE @ quarter_turn
 
-    class Scripted:
-        lost_quality, tells_covered, object = None, False, printed_cube
-
-        def init(self, frame, start):
-            pass
-
-        def reset(self):
-            pass
-
-        def track(self, frame, prior=None, **options):
-            if 3 <= frame.index < 30:  # a second lost: the fusion's spread has grown past a quarter turn
-                return Measurement(None, np.eye(6), 0.0, "tracker:scripted", frame.timestamp)
-            return Measurement(pose if frame.index < 3 else refit, covariance, 0.85, "tracker:scripted", frame.timestamp)
-
-    class FirstFrameOnly:
-        hybrid_config = {}
-
-        def predict(self, frame, roi=None):
-            found = pose if frame.index == 0 else None
-            return Measurement(found, covariance * 4 if found else np.eye(6), 0.9 if found else 0.0, "regressor:once",
-                               frame.timestamp)
+    def fit(frame, prior):
+        if 3 <= frame.index < 30:  # a second lost: the fusion's spread has grown past a quarter turn
+            return Measurement(None, np.eye(6), 0.0, "tracker:scripted", frame.timestamp)
+        return Measurement(POSE if frame.index < 3 else refit, COVARIANCE, 0.85, "tracker:scripted", frame.timestamp)
 
     # the watch off (track_print_floor): the take-up alone is under test
-    config = HybridConfig(check_period=0, probation_frames=0, start_contrast=0, keypoint_memory=False, track_print_floor=0)
-    est = HybridEstimator(Scripted(), FirstFrameOnly(), registry.create("fusion", "ukf"), config)
-    statuses = [est.step(Frame(image, CAM, k / 30.0, k)).status for k in range(33)]
+    est, out = _hybrid_run(_scripted_tracker(printed_cube, fit), _scripted_cnn(lambda f: POSE if f.index == 0 else None),
+                           33, image, check_period=0, probation_frames=0, track_print_floor=0)
+    statuses = [e.status for e in out]
     assert statuses[:3] == ["init", "tracking", "tracking"] and set(statuses[3:30]) == {"lost"}
     assert statuses[30:] == (["tracking"] * 3 if arrangement == "own" else ["lost"] * 3)
     frame = Frame(image, CAM, 0.0, 0)
@@ -256,44 +265,26 @@ def test_a_check_does_not_move_a_printed_track_off_its_print(printed_cube, print
     check's fit worse than the track, and the track stays."""
     from dataclasses import replace
 
-    from hybridpose import HybridConfig, HybridEstimator, registry
     from hybridpose.core import Measurement
     from hybridpose.metrics import rotation_error_deg
     from hybridpose.starts import print_prefers
 
     obj = printed_cube if printed else replace(printed_cube, texture=None, face_uv=None)
-    pose = Pose.from_rotvec_t([0.3, -0.5, 0.2], [0.0, 0.01, 0.32])
-    off = _turned_about_centre(printed_cube, pose, 25.0)
-    image = _frame(printed_cube, pose, clutter_background(CAM.width, CAM.height, np.random.default_rng(5))).image
-    covariance = np.diag([np.radians(0.5) ** 2] * 3 + [0.001 ** 2] * 3)
+    off = _turned_about_centre(printed_cube, POSE, 25.0)
+    image = _scene(printed_cube)
 
-    class Scripted:
-        lost_quality, tells_covered, object = None, False, obj
+    def fit(frame, prior):
+        near_truth = rotation_error_deg(prior, POSE) < 10.0
+        return Measurement(POSE if near_truth else off, COVARIANCE, 0.65 if near_truth else 0.95, "tracker:scripted",
+                           frame.timestamp)
 
-        def init(self, frame, start):
-            pass
-
-        def reset(self):
-            pass
-
-        def track(self, frame, prior=None, **options):
-            near_truth = rotation_error_deg(prior, pose) < 10.0
-            return Measurement(pose if near_truth else off, covariance, 0.65 if near_truth else 0.95, "tracker:scripted",
-                               frame.timestamp)
-
-    class WrongAfterTheStart:
-        hybrid_config = {}
-
-        def predict(self, frame, roi=None):
-            return Measurement(pose if frame.index == 0 else off, covariance * 4, 0.9, "regressor:wrong", frame.timestamp)
-
-    config = HybridConfig(start_contrast=0, keypoint_memory=False, track_print_floor=0)
-    est = HybridEstimator(Scripted(), WrongAfterTheStart(), registry.create("fusion", "ukf"), config)
-    errors = [rotation_error_deg(est.step(Frame(image, CAM, k / 30.0, k)).pose, pose) for k in range(6)]
+    _, out = _hybrid_run(_scripted_tracker(obj, fit), _scripted_cnn(lambda f: POSE if f.index == 0 else off), 6, image,
+                         track_print_floor=0)
+    errors = [rotation_error_deg(e.pose, POSE) for e in out]
     assert errors[0] < 1.0
     assert (max(errors) < 2.0) if printed else (errors[-1] > 20.0)
     frame = Frame(image, CAM, 0.0, 0)
-    at = lambda p: Measurement(p, covariance, 0.9, "x", 0.0)  # noqa: E731
+    at = lambda p: Measurement(p, COVARIANCE, 0.9, "x", 0.0)  # noqa: E731
     printed_view = PrintView(ModelView(printed_cube))
-    assert not print_prefers(printed_view, frame, at(off), at(pose)) and print_prefers(printed_view, frame, at(pose), at(off))
-    assert print_prefers(None, frame, at(off), at(pose))
+    assert not print_prefers(printed_view, frame, at(off), at(POSE)) and print_prefers(printed_view, frame, at(POSE), at(off))
+    assert print_prefers(None, frame, at(off), at(POSE))

@@ -15,7 +15,7 @@ from hybridpose.geometry import Camera, Pose
 from hybridpose.hybrid_config import HybridConfig
 from hybridpose.metrics import rotation_error_deg
 from hybridpose.objects import load_builtin
-from hybridpose.regressors.colour_starts import SOURCE, ColourStarts
+from hybridpose.regressors.colour_starts import MIN_REGION_PX, SOURCE, ColourStarts
 from hybridpose.regressors.keypoint_memory import KeypointMemory
 from hybridpose.render import Appearance, Renderer
 from hybridpose.render.appearance import clutter_background
@@ -78,6 +78,10 @@ def test_the_candidates_sit_where_the_print_is(smooth_cube):
     # a frame of one colour singles nothing out: no candidates
     blank = Frame(np.full((CAM.height, CAM.width, 3), 90, np.uint8), CAM, 0.0, 0)
     assert ColourStarts(smooth_cube).candidates(blank) == []
+    # nor does a region under MIN_REGION_PX (here the whole part, 40 px across: more often a patch of a print)
+    far = Pose(POSE.R, POSE.t * 3)
+    assert np.ptp(CAM.project(smooth_cube.bbox_corners, far), 0).max() < MIN_REGION_PX
+    assert ColourStarts(smooth_cube).candidates(_frame(smooth_cube, far)) == []
     with pytest.raises(ValueError, match="texture"):
         ColourStarts(load_builtin("cube"))
 

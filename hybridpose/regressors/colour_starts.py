@@ -33,6 +33,11 @@ SPACING_DEG = 20.0
 # unshrunk by BOX_GROW), a little nearer (the region misses the part's shaded edges); the start's depth
 # search (``start_depth_span``) covers the rest
 NEARER = 0.9
+# a colour region smaller than this (px, the box unshrunk) is more often one patch of a many-coloured print
+# than the whole part: on ViSP's MegaPose cube (150 px across) its print's region spans 25–68 px on most
+# frames, and the part posed to that size, a tiny cube inside one of its own tiles, scored the print 0.9
+# there; the hand-held tuning scenes' accepted colour starts came from regions of 104–161 px
+MIN_REGION_PX = 80
 SIGMA_DEG = SPACING_DEG          # a candidate's rotation uncertainty (1σ): the spacing of the candidates
 SIGMA_DISTANCE_SHARE = 0.3       # its position's (1σ, each axis): this share of its distance
 SOURCE = "regressor:colours"     # the candidates' Measurement.source
@@ -60,13 +65,16 @@ class ColourStarts:
 
     def candidates(self, frame: Frame) -> list[Measurement]:
         """The candidate poses (``T_cam_obj``) in ``frame``, one per orientation, the part's centre on the
-        ray through the centre of the print's colour region; none where no region stands out."""
+        ray through the centre of the print's colour region; none where no region stands out, or where it
+        spans less than ``MIN_REGION_PX`` (a patch of the print, not the part)."""
         box = self.colours.box(frame.image)
         if box is None:
             return []
         x, y, w, h = box
         K = frame.camera.K
         region_px = max(w, h) / (1 + BOX_GROW)
+        if region_px < MIN_REGION_PX:
+            return []
         depth = NEARER * K[0, 0] * self.object.diameter / region_px
         ray = np.linalg.solve(K, [x + w / 2, y + h / 2, 1.0])
         centre_cam = ray / ray[2] * depth

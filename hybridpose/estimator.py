@@ -71,7 +71,7 @@ from .core import LOST_COVARIANCE, Estimate, Frame, Measurement, Status, check_n
 from .edges import ModelView, to_gray8
 from .edges.silhouette import SPACE_DARK_SHARE, dark_share
 from .fusion.base import measured_twist, nearest_equivalent_measurement, pose_mahalanobis2 as _mahalanobis2
-from .geometry import Pose
+from .geometry import Camera, Pose
 from .geometry.crops import projection_roi
 from .hybrid_config import DEFAULT_FUSION, HybridConfig, recommended_config
 from .metrics import rotation_error_deg
@@ -169,8 +169,10 @@ class HybridEstimator:
         self._restarts: list[int] = []  # frame counts at which fusion and tracker restarted
         self._first_start = False  # whether the last restart was the first start since reset
         self.best_start_fit = 0.0  # the best quality a start's fit reached since reset (why a run never started)
-        self.camera, self.last_timestamp = None, None  # (Camera | None, float | None): the last frame's
-        self._n, self.last_tracker = _Counters(), None
+        self.camera: Camera | None = None
+        self.last_timestamp: float | None = None
+        self._n = _Counters()
+        self.last_tracker = None
         self.memory: KeypointMemory | None = None  # the part's look, made at the first frame (none on black space)
         self.colour_starts: ColourStarts | None = None  # a printed part's last-resort starts (the same)
         self.tracker.reset()
@@ -406,16 +408,11 @@ class HybridEstimator:
 
     def _keep_quality(self) -> tuple[float | None, float | None]:
         """The tracker's lost thresholds for the next frame-to-frame fit (in general, where it sees the object
-        covered), once the track has run ``keep_after`` frames since its start; else None (the tracker's own). A
-        tracker that tells when the object is covered (``tells_covered``) keeps its own threshold in general and
-        gets ``keep_covered_quality`` where covered; any other ``keep_quality``; neither above its own (``lost_quality``)."""
+        covered: :meth:`HybridConfig.keep_thresholds`), once the track has run ``keep_after`` frames since its
+        start; else None (the tracker's own)."""
         if self._n.since_start < self.config.keep_after:
             return None, None
-        own = self.tracker.lost_quality
-        capped = lambda q: q if q is None or own is None else min(q, float(own))  # noqa: E731
-        if self.tracker.tells_covered:
-            return None, capped(self.config.keep_covered_quality)
-        return capped(self.config.keep_quality), None
+        return self.config.keep_thresholds(self.tracker.lost_quality, self.tracker.tells_covered)
 
     def _meet_scene(self, frame: Frame) -> None:
         """At a video's first frame, off black space: the part's keypoint memory (``keypoint_memory``), a printed

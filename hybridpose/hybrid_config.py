@@ -304,6 +304,18 @@ class HybridConfig:
         if not 0 <= self.check_roi_margin <= 2:
             raise ValueError(f"check_roi_margin: expected a fraction in [0, 2], got {self.check_roi_margin}")
 
+    def keep_thresholds(self, own: float | None, tells_covered: bool) -> tuple[float | None, float | None]:
+        """An established track's lost thresholds (in general, where the tracker sees the object covered)
+        for a tracker whose own is ``own`` (its ``lost_quality``; None: it takes none per call): one that
+        tells when the object is covered (``tells_covered``) keeps its own in general and gets
+        ``keep_covered_quality`` where covered; any other ``keep_quality``; neither above ``own``."""
+        def capped(q: float | None) -> float | None:
+            return q if q is None or own is None else min(q, float(own))
+
+        if tells_covered:
+            return None, capped(self.keep_covered_quality)
+        return capped(self.keep_quality), None
+
 
 def recommended_config(recommended: Mapping | None, overrides: Mapping | None = None,
                        source: str = "regressor") -> HybridConfig:

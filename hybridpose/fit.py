@@ -276,9 +276,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                           epochs=plan.epochs, batch=TRAIN_BATCH, lr=start_learning_rate(start, obj),
                           image_size=IMAGE_SIZE, val_fraction=0.05, seed=seed, patience=0, schedule="cosine",
                           init_from=start, time_limit_min=plan.train_min,
-                          full_view=FULL_VIEW if look == "random" else 0.0, workers=1, fill_time_limit=True)
+                          full_view=FULL_VIEW if look == "random" else 0.0, workers=1)
         record["learning_rate"] = cfg.lr
-        record["epochs_run"] = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)["epochs_run"]
+        train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
         if cfg.lr == REFIT_LR and keep_start_sun(start, out / "best.pt"):
             progress("fit: kept the start's sun side (its crops are turned to the light it learnt)")
@@ -359,8 +359,8 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"- Trained the `default` network ({IMAGE_SIZE} px, "
         + ("found as the sunlit pixels" if req.get("look") == "space" else f"{FULL_VIEW:.0%} whole-frame crops")
         + (f"; one unlabelled heatmap of its {len(obj.keypoints)} keypoints, which look alike under its symmetries"
-           if obj.symmetric else "") + f") for {record.get('epochs_run', p['epochs'])} epochs within "
-        f"{p['train_min']:.0f} min, from `{req['init_from']}`.",
+           if obj.symmetric else "") + f") for up to "
+        f"{p['epochs']} epochs within {p['train_min']:.0f} min, from `{req['init_from']}`.",
         f"- Minutes per stage: {minutes}.", "",
         f"Held-out views ({a['views']}, not those that calibrated the covariance): rotation error median "
         f"{a['rot_median_deg']:.2f}°, mean {a['rot_mean_deg']:.2f}°; translation median {a['trans_median_pct']:.2f} % "

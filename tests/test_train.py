@@ -338,21 +338,3 @@ def test_validation_errors_of_a_symmetric_part_go_to_the_nearest_equivalent_pose
     assert float(quat_geodesic_angle(q_pred, q_eq)) < 1e-3 and float((t_pred - t_eq).norm()) < 1e-5
     t_same, q_same = nearest_twin(t_pred, q_pred, t_true, q_true, ())
     assert torch.equal(q_same, q_true)
-
-
-@pytest.mark.parametrize("fill", [True, False])
-def test_a_fit_fills_its_time_limit_from_the_first_epochs_pace(data, tmp_path, tiny, monkeypatch, fill):
-    """One epoch planned within a generous limit: filling it, the run takes as many epochs as the first
-    one's pace allows (capped here at 3), the cosine schedule stretched over them (its rate falls epoch
-    by epoch, not to the floor after the first), and records them for a resume; without, one epoch."""
-    from hybridpose.training import train as train_module
-
-    monkeypatch.setattr(train_module, "MAX_FILLED_EPOCHS", 3)
-    cfg = TrainConfig(model="tiny", data=str(data), out=str(tmp_path / "fill"), epochs=1, batch=4, lr=1e-2,
-                      image_size=32, patience=0, schedule="cosine", time_limit_min=10.0, fill_time_limit=fill)
-    best = train(cfg, progress=False)
-    hist = json.loads((tmp_path / "fill" / "history.json").read_text())
-    assert best["epochs_run"] == (3 if fill else 1) and best["stopped"] == ("ran all 3 epochs" if fill else "ran all 1 epoch")
-    rates = [r["lr"] for r in hist]
-    assert rates[0] == pytest.approx(1e-2) and all(a > b > 1e-4 for a, b in zip(rates, rates[1:]))
-    assert load_checkpoint(tmp_path / "fill" / "last.pt")["epochs_planned"] == (3 if fill else 1)

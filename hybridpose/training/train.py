@@ -39,9 +39,6 @@ log = logging.getLogger(__name__)
 TWIN_CE_WEIGHT = 0.1  # the twin head's cross-entropy beside the keypoint loss (shipped default.pt)
 
 SCHEDULES = ("constant", "cosine")
-# fill_time_limit: epochs planned from the first epoch's pace with this margin for a slower machine later,
-# and at most this many (a fit's plan caps its epochs the same)
-FILL_MARGIN, MAX_FILLED_EPOCHS = 1.15, 200
 
 
 @dataclass(frozen=True)
@@ -76,12 +73,6 @@ class TrainConfig:
             validation, calibration and checkpoints stay float32).
         time_limit_min: stop after the epoch that would make the next one end past this many
             minutes of training (best.pt is calibrated as after a normal end); None = no limit.
-        fill_time_limit: with ``time_limit_min``, a fresh run's first epoch sets how many epochs fit in
-            the limit at its pace (``FILL_MARGIN``), and ``epochs`` grows to that many (the cosine
-            schedule stretched with it; never shrunk: the limit stops a slower run; one process only).
-            ``hybridpose fit`` plans its epochs from a few timed steps before training, and where other
-            work shared the machine at that moment the plan fell short: a 20-minute fit planned 4
-            epochs for 14 minutes and trained them in 5.
         cache_images: a directory where the direct (VGG) models' inputs are decoded and resized (or
             cropped) once and memory-mapped from then on (:meth:`PoseDataset.cache_images`; reused by
             later runs on the same views): 0.7 ms per item instead of 7.7 (1.8 instead of 10.1 for the
@@ -127,7 +118,6 @@ class TrainConfig:
     cache_images: str | None = None
     full_view: float = 0.0
     max_batches: int | None = field(default=None)  # cap per epoch (smoke runs)
-    fill_time_limit: bool = False
 
     def __post_init__(self) -> None:
         if self.model not in available_models():
@@ -245,7 +235,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
     sched = (torch.optim.lr_scheduler.CosineAnnealingLR(optim, cfg.epochs, eta_min=0.01 * cfg.lr)
              if cfg.schedule == "cosine" else None)
 
-    start_epoch, best, history, stale, epochs = 0, math.inf, [], 0, cfg.epochs
+    start_epoch, best, history, stale = 0, math.inf, [], 0
     last_path = out / "last.pt"
     if resume and last_path.exists():
         ck = load_checkpoint(last_path)
@@ -258,19 +248,17 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         torch.set_rng_state(ck["torch_rng"])
         gen.set_state(ck["loader_rng"])
         start_epoch, best, history, stale = ck["epoch"] + 1, ck["best"], ck["history"], ck["stale"]
-        epochs = max(epochs, ck.get("epochs_planned", epochs))  # as the interrupted run had filled them
         log.info("resumed %s at epoch %d", last_path, start_epoch)
 
     bar = None
     if progress and main_process:
         from tqdm import tqdm
 
-        bar = tqdm(total=epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
+        bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
     run_start = time.perf_counter()
     best_payload = None  # a best.pt not written yet (checkpoint_every > 1)
-    stopped = f"ran all {_epochs(epochs)}"  # why the run ended, for the caller's summary
-    epoch = start_epoch - 1
-    while (epoch := epoch + 1) < epochs:
+    stopped = f"ran all {_epochs(cfg.epochs)}"  # why the run ended, for the caller's summary
+    for epoch in range(start_epoch, cfg.epochs):
         if sampler is not None:
             sampler.set_epoch(epoch)
         net.train()
@@ -314,24 +302,12 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
                "lr": lr_used, "epoch_s": time.perf_counter() - t0, "train_images": n, "train_s": train_s,
                "loader_wait_s": loader_wait_s}
         history.append(row)
-        if cfg.fill_time_limit and cfg.time_limit_min and epoch == start_epoch == 0 and world == 1:  # ranks would disagree
-            first_s = time.perf_counter() - run_start
-            filled = min(MAX_FILLED_EPOCHS, int(cfg.time_limit_min * 60 / (FILL_MARGIN * first_s)))
-            if filled > epochs:
-                log.info("filling the time limit: %d epochs at the first epoch's pace (planned %d)", filled, epochs)
-                epochs, stopped = filled, f"ran all {_epochs(filled)}"
-                if sched is not None:  # the cosine over the epochs now planned, from where it stands on it
-                    sched.T_max = filled
-                    for group, base in zip(optim.param_groups, sched.base_lrs):
-                        group["lr"] = sched.eta_min + (base - sched.eta_min) * (1 + math.cos(math.pi * sched.last_epoch / filled)) / 2
-                if bar:
-                    bar.total = filled
         improved = row["val_loss"] < best
         best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)
         payload = {"config": asdict(cfg), "model": model.state_dict(), "build": kw_for_checkpoint(kw),
                    "dataset": dataset_info(cfg.data, obj), "twins": [S.matrix.tolist() for S in twins], "optimizer": optim.state_dict(),
                    "scheduler": sched.state_dict() if sched is not None else None,
-                   "epoch": epoch, "best": best, "history": history, "stale": stale, "epochs_planned": epochs,
+                   "epoch": epoch, "best": best, "history": history, "stale": stale,
                    "torch_rng": torch.get_rng_state(), "loader_rng": gen.get_state()}
         if improved:
             # best.pt is what eval, export and --init-from read; resuming reads last.pt. Without the
@@ -347,16 +323,16 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         if stop:
             log.info("early stop at epoch %d: no validation improvement for %d epochs", epoch, stale)
             stopped = f"early stop after epoch {epoch}: no validation improvement for {stale} epochs (--patience)"
-        written = stop or epoch + 1 == epochs or (epoch + 1) % cfg.checkpoint_every == 0
+        written = stop or epoch + 1 == cfg.epochs or (epoch + 1) % cfg.checkpoint_every == 0
         if written:  # before the time limit is judged: the writes are part of an epoch's time
             write_checkpoints(out, best_payload, payload)
             best_payload = None
         write_metrics(out, history)
         elapsed_min = (time.perf_counter() - run_start) / 60
-        if cfg.time_limit_min and epoch + 1 < epochs and elapsed_min * (epoch + 2 - start_epoch) / (epoch + 1 - start_epoch) > cfg.time_limit_min:
+        if cfg.time_limit_min and epoch + 1 < cfg.epochs and elapsed_min * (epoch + 2 - start_epoch) / (epoch + 1 - start_epoch) > cfg.time_limit_min:
             log.info("time limit: stopping after epoch %d of %d (%.1f of %.1f min used)",
-                     epoch, epochs, elapsed_min, cfg.time_limit_min)
-            stopped = (f"time limit after epoch {epoch} of {epochs}: {elapsed_min:.1f} of {cfg.time_limit_min:g} "
+                     epoch, cfg.epochs, elapsed_min, cfg.time_limit_min)
+            stopped = (f"time limit after epoch {epoch} of {cfg.epochs}: {elapsed_min:.1f} of {cfg.time_limit_min:g} "
                        "min used (--time-limit; --resume continues)")
             stop = True
             if not written:

@@ -62,6 +62,7 @@ def run(entries: list, networks: dict[str, str], models: list[str], memories: li
     from concurrent.futures import ProcessPoolExecutor
 
     from hybridpose.bench.suite import render_suite
+    from hybridpose.workers import pool_options
 
     scenes = render_suite(entries, cache)  # rendered here, once: the workers only read them
     jobs = [(e.name, e.spec.seed, str(scenes[e.name]), networks, models, memories, config) for e in entries]
@@ -69,7 +70,7 @@ def run(entries: list, networks: dict[str, str], models: list[str], memories: li
         return [r for job in jobs for r in _sequence_rows(job)]
     # fresh interpreters, not forks: a fork of this process after it rendered (its GL context and the
     # renderer's threads) hung every worker before its first sequence
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), **pool_options()) as pool:
         return [r for rows in pool.map(_sequence_rows, jobs) for r in rows]
 
 

@@ -87,7 +87,9 @@ def main() -> None:
     if args.workers > 1 and len(jobs) > 1:
         import multiprocessing as mp
 
-        with ProcessPoolExecutor(min(args.workers, len(jobs)), mp_context=mp.get_context("spawn")) as pool:
+        from hybridpose.workers import pool_options
+
+        with ProcessPoolExecutor(min(args.workers, len(jobs)), mp_context=mp.get_context("spawn"), **pool_options()) as pool:
             reports = list(pool.map(evaluate_set, jobs))
     else:
         reports = [evaluate_set(j) for j in jobs]

@@ -58,11 +58,8 @@ def run(entries: list, networks: dict[str, str], models: list[str], memories: li
     """One row per (sequence of ``entries``, network, model, memory): :func:`megapose_no_pose.score_hybrid`'s
     counts against the truth, and the print's keypoint memory alone (every 5th frame); ``workers``
     processes, one sequence each at a time."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
     from hybridpose.bench.suite import render_suite
-    from hybridpose.workers import pool_options
+    from hybridpose.workers import spawn_executor
 
     scenes = render_suite(entries, cache)  # rendered here, once: the workers only read them
     jobs = [(e.name, e.spec.seed, str(scenes[e.name]), networks, models, memories, config) for e in entries]
@@ -70,7 +67,7 @@ def run(entries: list, networks: dict[str, str], models: list[str], memories: li
         return [r for job in jobs for r in _sequence_rows(job)]
     # fresh interpreters, not forks: a fork of this process after it rendered (its GL context and the
     # renderer's threads) hung every worker before its first sequence
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), **pool_options()) as pool:
+    with spawn_executor(workers) as pool:
         return [r for rows in pool.map(_sequence_rows, jobs) for r in rows]
 
 

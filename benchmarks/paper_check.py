@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -85,11 +84,9 @@ def main() -> None:
     label = "default" + "".join(f", {x}" for x in ([args.engine] if args.engine != "auto" else []) + ["no expert"] * args.no_expert)
     jobs = [(args.checkpoint, d, str(Path(args.reports) / Path(d).name), args.limit, options) for d in args.data]
     if args.workers > 1 and len(jobs) > 1:
-        import multiprocessing as mp
+        from hybridpose.workers import spawn_executor
 
-        from hybridpose.workers import pool_options
-
-        with ProcessPoolExecutor(min(args.workers, len(jobs)), mp_context=mp.get_context("spawn"), **pool_options()) as pool:
+        with spawn_executor(min(args.workers, len(jobs))) as pool:
             reports = list(pool.map(evaluate_set, jobs))
     else:
         reports = [evaluate_set(j) for j in jobs]

@@ -13,9 +13,11 @@ its parent itself.
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
 import threading
 import time
+from concurrent.futures import ProcessPoolExecutor
 
 PARENT_POLL_S = 1.0  # how often a worker checks that its parent still runs (seconds)
 
@@ -38,3 +40,13 @@ def pool_options() -> dict:
     ``multiprocessing`` context's ``Pool`` and for a ``ProcessPoolExecutor`` alike
     (``initializer``, ``initargs``)."""
     return {"initializer": exit_with_parent, "initargs": (os.getpid(),)}
+
+
+def spawn_executor(max_workers: int) -> ProcessPoolExecutor:
+    """A ``ProcessPoolExecutor`` of ``max_workers`` fresh interpreters (``spawn``) that end with this process."""
+    return ProcessPoolExecutor(max_workers, mp_context=multiprocessing.get_context("spawn"), **pool_options())
+
+
+def spawn_pool(processes: int):
+    """A ``multiprocessing.Pool`` of ``processes`` fresh interpreters (``spawn``) that end with this process."""
+    return multiprocessing.get_context("spawn").Pool(processes, **pool_options())

@@ -1,5 +1,7 @@
 """Pool workers end with the process that started them (hybridpose.workers): a parent killed outright
 (SIGKILL: no handler runs) leaves no worker behind; without the watch one stays."""
+import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -11,14 +13,16 @@ import pytest
 PARENT = textwrap.dedent("""
     import multiprocessing, os, sys, time
     from concurrent.futures import ProcessPoolExecutor
-    from hybridpose.workers import pool_options
+    from hybridpose.workers import spawn_executor
 
     def worker_pid(_):
         return os.getpid()
 
     if __name__ == "__main__":
-        options = pool_options() if sys.argv[1] == "watched" else {}
-        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), **options)
+        if sys.argv[1] == "watched":
+            pool = spawn_executor(1)
+        else:
+            pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         print(pool.submit(worker_pid, 0).result(), flush=True)
         time.sleep(120)
 """)
@@ -53,4 +57,4 @@ def test_a_pool_worker_ends_when_its_parent_is_killed(tmp_path, watched):
         assert _running(worker) != watched
     finally:
         if _running(worker):
-            subprocess.run(["kill", "-9", str(worker)], check=False)
+            os.kill(worker, signal.SIGKILL)

@@ -12,8 +12,7 @@ import contextlib
 import functools
 import hashlib
 import json
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -24,7 +23,7 @@ from ..estimator import HybridConfig
 from ..hybrid_config import DEFAULT_FUSION, changes_text
 from ..io import atomic_write_json, read_json
 from ..threads import set_threads
-from ..workers import pool_options
+from ..workers import spawn_executor
 from .modes import (COMPONENTS, load_sequence, run_cnn, run_hybrid, run_tracker, sequence_stats, trusted_errors_deg,
                     without_sun)
 
@@ -247,7 +246,7 @@ def run_all(scenes: dict[str, Path], specs: list[RunSpec], out=None, workers: in
     else:
         # fresh interpreters, not forks: the parent may have just rendered the suite, and a fork of a
         # process holding the renderer's threads and GL context hung its workers before their first task
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), **pool_options()) as pool:
+        with spawn_executor(workers) as pool:
             futures = {pool.submit(run_sequence, name, str(scenes[name]), sp): name for name, sp in todo.items()}
             for fut in as_completed(futures):
                 name = futures[fut]

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-import multiprocessing
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -24,7 +23,7 @@ from ..render.appearance import AppearanceSpec
 from ..render.camera_effects import camera_effects
 from ..render.occluder import ArmState, arm_state
 from ..render.sequences import SequenceSpec, make_sequence
-from ..workers import pool_options
+from ..workers import spawn_pool
 from .bop import BopSceneWriter, write_camera_json, write_models
 from .labels import Label, write_labels
 
@@ -130,8 +129,7 @@ def _run_job(
         # Worker processes render chunks and write the image files; the parent alone merges their
         # records and rewrites the scene JSONs, so a stop loses at most the chunks in flight.
         # "spawn": a forked GL context is not safe.
-        ctx = multiprocessing.get_context("spawn")
-        with ctx.Pool(workers, **pool_options()) as pool:
+        with spawn_pool(workers) as pool:
             jobs = [pool.apply_async(_render_chunk, (scene_dir, obj, camera, chunk, seed, lighting, sensor, looks))
                     for chunk in chunks]
             for chunk, job in zip(chunks, jobs):

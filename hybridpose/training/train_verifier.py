@@ -40,7 +40,7 @@ from ..regressors.checkpoints import save_checkpoint
 from ..regressors.twin_verifier import (CHECKPOINT_FORMAT, STRIP_H, STRIP_W, HypothesisRenderer, TwinVerifierNet,
                             verifier_inputs)
 from ..regressors.verify import MIRROR_BELOW_DEG, box_half_turns, edge_on_mirror
-from ..workers import pool_options
+from ..workers import spawn_pool
 
 log = logging.getLogger(__name__)
 
@@ -129,9 +129,7 @@ def build_pairs(dirs, out, obj, seed: int = 0, limit: int | None = None, progres
     jobs = [(views[c * chunk:(c + 1) * chunk], pairs, obj, seed, c, estimates_from, label_max_deg, mirrors)
             for c in todo]
     if workers > 1 and len(jobs) > 1:
-        import multiprocessing as mp
-
-        with mp.get_context("spawn").Pool(min(workers, len(jobs)), **pool_options()) as pool:
+        with spawn_pool(min(workers, len(jobs))) as pool:
             for _ in pool.imap_unordered(_build_chunk, jobs):
                 if bar is not None:
                     bar.update(1)

@@ -88,9 +88,9 @@ def main() -> None:
     ap.add_argument("--train-photos", choices=("skimage", "none"), default="skimage",
                     help="backgrounds of the training views: half from scikit-image's sample photos (default), "
                          "or procedural clutter only")
-    ap.add_argument("--textured-share", type=float, default=0.0,
+    ap.add_argument("--textured-share", type=float, default=None,
                     help="share of the training views with a random print on the box (hybridpose fit "
-                         "--textured-share; default 0)")
+                         "--textured-share; default: fit's)")
     ap.add_argument("--split", choices=tuple(FIRST_SEED), default="report",
                     help="report: the sequences over grace_hopper.jpg that RESULTS shows (seeds 1–30); tuning: "
                          "the tuning sequences over --tuning-photos (seeds 101–130), results in OUT/bench_tuning only")
@@ -107,7 +107,7 @@ def main() -> None:
     if not mesh.is_file():
         trimesh.creation.box(extents=BOX_MM).export(mesh)
     fit = out / "fit"
-    extra = ["--textured-share", args.textured_share] if args.textured_share > 0 else []
+    extra = [] if args.textured_share is None else ["--textured-share", args.textured_share]
     # its own photos, or none at all (procedural clutter alone), never the fit's default ones
     extra += ["--backgrounds", training_photos(out / "train_photos") if args.train_photos == "skimage" else "none"]
     hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, "--workers", args.workers, *extra)

@@ -19,10 +19,11 @@ model castle in a cluttered room, modelled only in part by ``chateau.cao``, sepa
 fraction of the castle's edges; the check that asks it to would call every frame lost) and
 ``lost_quality=0.45``, beside the raw ``cv2.rapid`` trackers.
 
-With ``--visp-repo`` (a checkout of github.com/lagadic/visp), three videos of its tutorials too
+With ``--visp-repo`` (a checkout of github.com/lagadic/visp), five videos of its tutorials too
 (``REPO_VIDEOS``): the MegaPose cube video (a printed cube turned by hand on a cluttered desk), the
-detection tutorial's cube video and the lego square (four bricks, its ``.cao`` placing one brick model
-four times; a focal length estimated from the video, its XML's does not fit it); every tracker forward
+detection tutorial's cube video, the lego square (four bricks, its ``.cao`` placing one brick model
+four times; a focal length estimated from the video, its XML's does not fit it) and the two teabox
+videos of its model-based tracking tutorials (the mono one, and the stereo one's left camera); every tracker forward
 and back to the first frame from a hand-labelled first pose (``benchmarks/data/*.0.pos``), scored by how
 far from it the round trip ends (forward–backward consistency) besides the edge distance. Its dragon
 video is left out: its model is a Panda3D ``.bam`` file that the repository does not hold.
@@ -368,6 +369,20 @@ REPO_VIDEOS = (
               "tutorial/tracking/model-based/generic/model/lego-square/lego-square.cao",
               str(DATA / "lego_square.json"), 99, (0, 25, 50, 75, 98),
               "the square's four top corners clicked, then edge fits searched around that pose"),
+    RepoVideo("teabox", "ViSP's teabox video",
+              "ViSP's printed tea box (16.5 × 6.8 × 8 cm, `teabox.cao`) on a white table, 0.45 m from a camera "
+              "moved slowly by hand, 640 × 480 grey",
+              "tutorial/tracking/model-based/generic/model/teabox/teabox.mp4",
+              "tutorial/tracking/model-based/generic/model/teabox/teabox.cao",
+              "tutorial/tracking/model-based/generic/model/teabox/teabox.xml", 39, (0, 13, 26, 38),
+              "six corners clicked (PnP), then one edge fit"),
+    RepoVideo("teabox_left", "ViSP's stereo teabox video (left camera)",
+              "the same tea box on a wooden disc 0.41 m from the camera, a hand sliding and turning the disc, "
+              "640 × 480 grey",
+              "tutorial/tracking/model-based/generic-stereo/teabox_left.mp4",
+              "tutorial/tracking/model-based/generic-stereo/teabox_left.cao",
+              "tutorial/tracking/model-based/generic-stereo/teabox_left.xml", 121, (0, 40, 80, 120),
+              "six corners clicked (PnP), then one edge fit"),
 )
 
 

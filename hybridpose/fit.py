@@ -47,7 +47,7 @@ SUN_CONE_DEG = 85.0  # each view's sun within this of the look's centre directio
 SPACE_SUN_CENTRE = (0.0, 0.0, 1.0)  # the "space" look's: the optical axis (light travelling away from the camera)
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
-TEXTURED_SHARE = 0.0  # share of training views with a random print on the part (docs/decisions.md)
+TEXTURED_SHARE = 0.3  # share of training views with a random print on the part (docs/decisions.md)
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
 
@@ -88,13 +88,22 @@ def training_render_settings(backgrounds, distance_range_m, occluded_share: floa
     direction (:class:`~hybridpose.render.SpaceLighting`, 46° off the optical axis: front-, side- and
     some back-light), beside ambient and fill lights. ``"space"``: the sun alone on black, around the
     optical axis (light from every side of the image, as the shipped truss network's last stages saw:
-    centred on the default direction, a truss re-fit lost 2° mean on views lit from the far side)."""
+    centred on the default direction, a truss re-fit lost 2° mean on views lit from the far side).
+    Depths are drawn log-uniformly over the range (as many views at 0.3–0.6 m as at 1.2–2.4 m): drawn
+    uniformly, 0.4 % of a tea box fit's views lay at its video's 0.4–0.5 m."""
     from .render import AppearanceSpec, SpaceLighting
 
     looks = AppearanceSpec(look, backgrounds and str(backgrounds), texture_share=textured_share, camera_effects=look == "random")
     lighting = SpaceLighting(sun_direction_cam=SPACE_SUN_CENTRE) if look == "space" else SpaceLighting()
     return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, lighting=lighting,
-                sun_cone_deg=SUN_CONE_DEG, sun_scale_range=(0.6, 1.3), occluded_share=occluded_share)
+                sun_cone_deg=SUN_CONE_DEG, sun_scale_range=(0.6, 1.3), occluded_share=occluded_share, log_depth=True)
+
+
+def default_textured_share(look: str) -> float:
+    """The share of a fit's training views with a random print on the part, unless told: real parts on a
+    bench are often printed (a tea box, ViSP's cubes: fits without a print found neither), while the
+    ``"space"`` look draws no print."""
+    return TEXTURED_SHARE if look == "random" else 0.0
 
 
 def start_learning_rate(start, obj: ObjectModel) -> float:
@@ -149,7 +158,7 @@ def record_hybrid_policy(start, checkpoint, refit: bool) -> dict:
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
         backgrounds=SHIPPED, workers: int = 1, init_from="default", progress=print,
         plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE,
-        textured_share: float = TEXTURED_SHARE, look: str = "random",
+        textured_share: float | None = None, look: str = "random",
         distance_range_m: tuple[float, float] | None = None) -> dict:
     """Render, train, calibrate and evaluate a ``default`` keypoint regressor for ``mesh``.
 
@@ -171,8 +180,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         occluded_share: share of the training views with the arm partly in front of the part
             (:func:`~hybridpose.datasets.render_random_dataset`); held-out views have none.
         textured_share: share of the training views whose part carries a random print (photo crops
-            or procedural clutter, :func:`~hybridpose.render.appearance.part_texture`): for a part
-            with a printed or painted surface; held-out views stay plain.
+            or procedural clutter, :func:`~hybridpose.render.appearance.part_texture`), as real parts
+            are often printed or painted; held-out views stay plain. None: ``TEXTURED_SHARE`` with the
+            ``"random"`` look, 0 in ``"space"``; 0 for a part known to be plain.
         look: ``"random"`` (a part on a bench or in a hand) or ``"space"`` (black space and the
             sun): see the module docstring. ``backgrounds`` needs ``"random"``.
         distance_range_m: (near, far) metres of the part in the training and held-out views, where
@@ -203,6 +213,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
 
     if backgrounds == SHIPPED:
         backgrounds = SHIPPED if look == "random" else None
+    textured_share = default_textured_share(look) if textured_share is None else textured_share
     photos = SHIPPED_PHOTOS if backgrounds == SHIPPED else backgrounds  # what the views are cut from
     measured = plan is None
     budget_min = parse_budget(budget) if plan is None else plan.budget_min

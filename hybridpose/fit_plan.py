@@ -59,13 +59,18 @@ def parse_budget(text) -> float:
     return 60 * h + m + sec / 60
 
 
+NEAR_FILL, FAR_FILL = 1.0, 0.12  # the part's diameter as a share of the image's shorter side, near and far
+
+
 def working_distances(obj: ObjectModel, camera: Camera) -> tuple[float, float]:
-    """(near, far) metres at which the part fills between ≈ 70 % and ≈ 12 % of the image's shorter
-    side — the range a CNN initialisation is asked to cover (the truss, 0.43 m across, with the default
-    640×480 camera: 0.77–4.5 m)."""
+    """(near, far) metres at which the part's diameter spans the image's shorter side (``NEAR_FILL``:
+    a part held up to the camera fills the frame) and ≈ 12 % of it — the range a CNN initialisation is
+    asked to cover (the truss, 0.43 m across, with the default 640×480 camera: 0.54–4.5 m). A near end
+    of 70 % of the side left ViSP's tea box 0.45 m from its camera (0.2 m across, 839-px focal length:
+    77 % of the side) outside its own fit's range."""
     f = min(camera.fx, camera.fy)
     side = min(camera.width, camera.height)
-    return float(f * obj.diameter / (0.7 * side)), float(f * obj.diameter / (0.12 * side))
+    return float(f * obj.diameter / (NEAR_FILL * side)), float(f * obj.diameter / (FAR_FILL * side))
 
 
 def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, workers: int = 1,

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from hybridpose.cli import main
-from hybridpose.fit import FIT_LR, REFIT_LR, check_inputs, fit, start_learning_rate
+from hybridpose.fit import FIT_LR, REFIT_LR, check_inputs, fit, start_learning_rate, training_render_settings
 from hybridpose.fit_plan import (EVAL_RESERVE_MIN, PLAN_MARGIN, FitPlan, make_plan, measure_speeds, parse_budget,
                                  plan_training, working_distances)
 from hybridpose.geometry import Camera
@@ -237,6 +237,24 @@ def test_what_cannot_work_is_refused_before_long_work(box_mesh):
         check_inputs(tiny, cam, 60)
 
 
+def test_a_fit_prints_the_part_in_some_views_unless_in_space():
+    from hybridpose.fit import TEXTURED_SHARE, default_textured_share
+
+    assert default_textured_share("random") == TEXTURED_SHARE > 0 and default_textured_share("space") == 0.0
+    views = training_render_settings(None, (0.3, 2.0), textured_share=default_textured_share("random"))
+    assert views["appearance"].texture_share == TEXTURED_SHARE and views["log_depth"]
+
+
+def test_the_working_distances_reach_a_part_that_fills_the_frame(box_mesh):
+    """The near end is where the part's diameter spans the image's height (ViSP's tea box 0.45 m from its
+    839-px camera spans 77 % of it: inside, where a 70 % end left it out)."""
+    box = load_object(str(box_mesh), scale=0.001)
+    cam = Camera.from_K(np.array([[839.2, 0, 325.7], [0, 839.4, 243.7], [0, 0, 1]]), 640, 480)
+    near, far = working_distances(box, cam)
+    span = cam.fx * box.diameter / near
+    assert span == pytest.approx(480, rel=1e-3) and far > 8 * near
+
+
 @pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tmp_path, capsys):
     cam = Camera.default().scaled((320, 240))
@@ -258,6 +276,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     # the rendered views have random looks, not black space
     cfg = json.loads((out / "data" / "train" / "hybridpose.json").read_text())
     assert cfg["appearance"]["kind"] == "random"
+    assert cfg["log_depth"]  # as many views in each doubling of the distance
     # the arm in front of a quarter of the training views, never in the held-out ones
     assert cfg["occluded_share"] == 0.25 and record["request"]["occluded_share"] == 0.25
     assert "the arm partly in front of it in 25% of the training views" in report

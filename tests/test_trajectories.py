@@ -19,6 +19,20 @@ def test_random_poses_in_reach_and_in_view():
     assert all(a.allclose(b) for a, b in zip(again, poses))
 
 
+@pytest.mark.parametrize("in_view", [False, True])
+def test_random_poses_log_depth_spreads_views_evenly_over_scale(truss, in_view):
+    """Log-uniform depth: as many views in each doubling of the distance, against a uniform draw that
+    puts twice as many in the far doubling as in the near one."""
+    cam = Camera.default()
+    kw = {"in_view_points": truss.bbox_corners} if in_view else {}
+    rng_range = (1.0, 4.0)  # the truss fits in view all the way (0.54 m is its near end with this lens)
+    z = np.array([p.t[2] for p in random_poses(2000, cam, rng_range, rng=4, log_depth=True, **kw)])
+    near, far = np.sum(z < 2.0), np.sum(z >= 2.0)
+    assert z.min() >= 1.0 and z.max() <= 4.0 and abs(near - far) < 200
+    u = np.array([p.t[2] for p in random_poses(2000, cam, rng_range, rng=4, **kw)])
+    assert np.sum(u >= 2.0) > 1.7 * np.sum(u < 2.0)
+
+
 def test_random_poses_with_the_whole_object_in_view(truss):
     cam = Camera.default()
     poses = random_poses(300, cam, (0.3, 1.2), rng=2, in_view_points=truss.bbox_corners)

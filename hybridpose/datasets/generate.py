@@ -175,6 +175,7 @@ def render_random_dataset(
     elevation_range_deg: tuple[float, float] | None = None,
     appearance: AppearanceSpec | None = None,
     occluded_share: float = 0.0,
+    log_depth: bool = False,
 ) -> Path:
     """``count`` random views within arm's reach (split ``train``) + ``labels.csv``; resumable.
 
@@ -192,7 +193,8 @@ def render_random_dataset(
     for a part on a bench or in a hand rather than in space. ``occluded_share`` of the views (a
     seeded draw per view) have the arm's tool and forearm in front of part of the object
     (:func:`random_partial_occluder`): a network that has seen the part cut by something in front
-    of it still finds it when a hand or the arm covers it. Returns the scene directory.
+    of it still finds it when a hand or the arm covers it. ``log_depth`` draws the depth's logarithm
+    uniformly in ``distance_range_m`` (:func:`random_poses`). Returns the scene directory.
     """
     appearance = appearance or AppearanceSpec()
     if count < 1:
@@ -213,9 +215,10 @@ def render_random_dataset(
               **({} if elevation_range_deg is None
                  else {"elevation_range_deg": [float(v) for v in elevation_range_deg]}),
               **({} if appearance == AppearanceSpec() else {"appearance": appearance.record()}),
-              **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)}))
+              **({} if occluded_share == 0 else {"occluded_share": float(occluded_share)}),
+              **({"log_depth": True} if log_depth else {}))
     poses = random_poses(count, camera, distance_range_m, rng=seed, in_view_points=obj.bbox_corners if in_view else None,
-                         elevation_range_deg=elevation_range_deg, obj=obj)
+                         elevation_range_deg=elevation_range_deg, obj=obj, log_depth=log_depth)
     # lighting draws use their own stream so that the poses of a seed never change
     sun_rng = np.random.default_rng([seed, 7])
     dirs = (sun_directions_in_cone(lighting.sun_direction_cam, sun_cone_deg, count, sun_rng)

@@ -25,10 +25,12 @@ def random_poses(
     max_tries: int = 200,
     elevation_range_deg: tuple[float, float] | None = None,
     obj: ObjectModel | None = None,
+    log_depth: bool = False,
 ) -> list[Pose]:
     """Poses within arm's reach with the object centre inside the image (so at least partly in view).
 
-    Depth uniform in ``distance_range_m`` (metres along the optical axis), object centre uniform
+    Depth uniform in ``distance_range_m`` (metres along the optical axis; ``log_depth``: its logarithm
+    uniform, as many views between 0.3 and 0.6 m as between 1.2 and 2.4 m), object centre uniform
     over the image, orientation uniform on SO(3). With ``in_view_points`` ((N, 3) metres, e.g. the
     bounding-box corners) orientation and centre are redrawn (up to ``max_tries`` per depth) until
     all of them project inside the image: the object is wholly in view, as when the CNN
@@ -50,8 +52,12 @@ def random_poses(
         if obj is None:
             raise ValueError("obj: the object model is needed to measure view elevation (elevation_range_deg given)")
     rng = np.random.default_rng(rng)
+
+    def depth(n=None):
+        return np.exp(rng.uniform(np.log(lo), np.log(hi), n)) if log_depth else rng.uniform(lo, hi, n)
+
     if in_view_points is None and elevation_range_deg is None:
-        z = rng.uniform(lo, hi, count)
+        z = depth(count)
         u = rng.uniform(-0.5, camera.width - 0.5, count)
         v = rng.uniform(-0.5, camera.height - 0.5, count)
         q = random_quat(count, rng)
@@ -61,7 +67,7 @@ def random_poses(
     pts = None if in_view_points is None else np.asarray(in_view_points, dtype=np.float64)
     poses: list[Pose] = []
     while len(poses) < count:
-        z = rng.uniform(lo, hi)
+        z = depth()
         for _ in range(max_tries):
             pose = _pose_at_pixel(random_quat(None, rng), rng.uniform(-0.5, camera.width - 0.5),
                                   rng.uniform(-0.5, camera.height - 0.5), z, camera)

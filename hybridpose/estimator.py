@@ -130,7 +130,6 @@ class HybridEstimator:
         self.config = config
         self.object: ObjectModel | None = tracker.object
         self.regressor_calls = 0  # since construction: the CNN's share of the work
-        self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         # the start's image test slides the model's edges across the frame (none without a CAD model: a user's backend)
         self._view = ModelView(self.object) if self.object is not None else None
         self._print = print_view(self._view)  # a printed part's print: checks its starts, seeds its memory
@@ -172,7 +171,7 @@ class HybridEstimator:
         self.camera: Camera | None = None
         self.last_timestamp: float | None = None
         self._n = _Counters()
-        self.last_tracker = None
+        self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.memory: KeypointMemory | None = None  # the part's look, made at the first frame (none on black space)
         self.colour_starts: ColourStarts | None = None  # a printed part's last-resort starts (the same)
         self.tracker.reset()

@@ -46,7 +46,7 @@ class FootageCheck:
                 f"start from it on **{self.confirmed} ({share:.0f} %)**{first} — where the hybrid can start "
                 f"({self.ms_per_frame:.0f} ms a frame). A confirmed start is the tracker's verdict, not ground "
                 "truth; none confirmed means the hybrid will not start on this footage: fit with photos like "
-                "its scenes (`--backgrounds`), a print on the part if it carries one (`--textured-share`), "
+                "its scenes (`--backgrounds`), more views printed if the part is printed (`--textured-share 0.5`), "
                 "its distances (`--distances`), a longer budget, or refine it on this footage from the part's "
                 "pose in its first frame (`--refine-on VIDEO --init-pose FILE`).")
 

@@ -93,6 +93,11 @@ def test_a_measured_plan_trains_for_the_time_left_after_rendering(box_mesh, tmp_
     with pytest.raises(Stop):
         fit(box_mesh, out, camera=cam, scale=0.001, budget="6m", progress=lambda *_: None)
     assert runs[1].epochs == runs[0].epochs and runs[1].time_limit_min == runs[0].time_limit_min
+    # the machine busy when measured again instead: the first, faster measurement plans the training
+    monkeypatch.setattr(fit_module, "measure_train_speed", lambda *a, **k: 1.0)
+    with pytest.raises(Stop):
+        fit(box_mesh, tmp_path / "busy", camera=cam, scale=0.001, budget="6m", progress=lambda *_: None)
+    assert json.loads((tmp_path / "busy" / "fit.json").read_text())["plan"]["train_s_per_view"] == 0.05
 
 
 def test_this_machine_is_measured_before_planning(box_mesh):

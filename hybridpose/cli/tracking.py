@@ -482,7 +482,7 @@ def add_commands(sub) -> None:
                         "tracker starts from it; without it, from the hybrid's own start")
     f.add_argument("--refine-budget", default="10m", help="training time of --refine-on (default 10m)")
     f.add_argument("--textured-share", type=float, default=None, metavar="SHARE",
-                   help=f"share of the training views with a random print on the part, as real parts often are "
+                   help="share of the training views with a random print on the part, as real parts often are "
                         f"(default {TEXTURED_SHARE:g}, 0 in space; 0 for a part you know to be plain)")
     f.set_defaults(func=cmd_fit)
 

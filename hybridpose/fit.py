@@ -48,6 +48,8 @@ SPACE_SUN_CENTRE = (0.0, 0.0, 1.0)  # the "space" look's: the optical axis (ligh
 FULL_VIEW = 0.3  # share of training crops showing the whole frame (the network learns to find the part)
 OCCLUDED_SHARE = 0.0  # share of training views with the arm in front of part of the object (docs/decisions.md)
 TEXTURED_SHARE = 0.3  # share of training views with a random print on the part (docs/decisions.md)
+PRINT_ON = "image"  # where a training view's print lies: "image" (across the silhouette) or "faces" (per face)
+GREY_SHARE = 0.0  # share of the "random" look's training views that come out grey (a monochrome camera)
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
 
@@ -93,7 +95,9 @@ def training_render_settings(backgrounds, distance_range_m, occluded_share: floa
     uniformly, 0.4 % of a tea box fit's views lay at its video's 0.4–0.5 m."""
     from .render import AppearanceSpec, SpaceLighting
 
-    looks = AppearanceSpec(look, backgrounds and str(backgrounds), texture_share=textured_share, camera_effects=look == "random")
+    real = look == "random"
+    looks = AppearanceSpec(look, backgrounds and str(backgrounds), texture_share=textured_share, camera_effects=real,
+                           print_on=PRINT_ON, grey_share=GREY_SHARE if real else 0.0)
     lighting = SpaceLighting(sun_direction_cam=SPACE_SUN_CENTRE) if look == "space" else SpaceLighting()
     return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, lighting=lighting,
                 sun_cone_deg=SUN_CONE_DEG, sun_scale_range=(0.6, 1.3), occluded_share=occluded_share, log_depth=True)

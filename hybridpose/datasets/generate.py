@@ -79,7 +79,8 @@ def _render_into(renderer: Renderer, writer: BopSceneWriter, obj: ObjectModel, c
     for i, (pose, arm, sun, sun_dir) in chunk:
         res = renderer.render(pose, arm=arm, sun_scale=sun, rng=np.random.default_rng([seed, i]),
                               sun_direction_cam=sun_dir, appearance=looks.draw(cam.width, cam.height, seed, i))
-        rgb = camera_effects(res.rgb, np.random.default_rng([seed, i, 31])) if looks.camera_effects else res.rgb
+        rgb = (camera_effects(res.rgb, np.random.default_rng([seed, i, 31]), looks.grey_share)
+               if looks.camera_effects else res.rgb)
         writer.write(i, rgb, res.depth, res.mask, res.mask_visib, pose, obj.vertices)
         yield i
 

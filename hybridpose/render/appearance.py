@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ..geometry import as_unit_direction
+from .face_print import FACES, draw_face_prints
 
 # a few photos released into the public domain (scikit-image's CC0 samples: SOURCES.md there), the
 # backgrounds of a fit's views where the user gives none: a network fitted on procedural clutter alone
@@ -37,8 +38,10 @@ class Appearance:
         background: (H, W, 3) uint8 RGB drawn behind the object, or None (the lighting's background).
         object_texture: (H, W, 3) uint8 RGB print on the part, or None (plain): the shaded part is
             multiplied by ``TEXTURE_FLOOR + (1 − TEXTURE_FLOOR) · texture / 255`` where it is seen. It
-            lies in the image, not on the surface (no perspective of its own): for single training
-            images, where what matters is that the part's faces carry edges no model edge explains.
+            lies in the image, not on the surface (no perspective of its own), unless ``print_faces``
+            lays it on the part's faces.
+        print_faces: (6, 5) float64 patches of ``object_texture`` on the faces of the part's bounding
+            box (:func:`~hybridpose.render.face_print.draw_face_prints`), or None: the print in the image.
     """
 
     ambient: float = 0.0
@@ -46,6 +49,7 @@ class Appearance:
     fill_lights: tuple = ()
     background: np.ndarray | None = None
     object_texture: np.ndarray | None = None
+    print_faces: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.ambient <= 1.0:
@@ -64,6 +68,11 @@ class Appearance:
             img = getattr(self, name)
             if img is not None and (img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8):
                 raise ValueError(f"{name}: expected an (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}")
+        if self.print_faces is not None:
+            if self.object_texture is None:
+                raise ValueError("print_faces: a print on the faces needs the picture (object_texture)")
+            if np.shape(self.print_faces) != (FACES, 5):
+                raise ValueError(f"print_faces: expected ({FACES}, 5) face patches, got {np.shape(self.print_faces)}")
 
 
 def clutter_background(width: int, height: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
@@ -170,6 +179,7 @@ def part_texture(width: int, height: int, rng: np.random.Generator | int | None 
 
 
 APPEARANCES = ("space", "random")
+PRINT_PLACES = ("image", "faces")
 
 
 @dataclass(frozen=True)
@@ -185,6 +195,9 @@ class AppearanceSpec:
             lights stay while the part moves; False: a new look per image (training data).
         texture_share: the share of images whose part carries a print (:func:`part_texture`; drawn
             from a stream of its own, so the other draws of a seed do not change); 0: plain parts.
+        print_on: where the print lies: ``"image"`` (one picture across the silhouette) or
+            ``"faces"`` (a patch of it on each face, cut at the faces' edges: :mod:`~hybridpose.render.face_print`).
+        grey_share: with ``camera_effects``, the share of images that come out grey (a monochrome camera).
         camera_effects: each image also gets a draw of a real camera's motion blur, exposure and
             white balance, noise and JPEG (:func:`~hybridpose.render.camera_effects.camera_effects`).
     """
@@ -195,6 +208,8 @@ class AppearanceSpec:
     fixed: bool = False
     texture_share: float = 0.0
     camera_effects: bool = False
+    print_on: str = "image"
+    grey_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in APPEARANCES:
@@ -209,13 +224,23 @@ class AppearanceSpec:
             raise ValueError(f"texture_share: expected a share of the images in [0, 1], got {self.texture_share!r}")
         if self.texture_share > 0 and self.kind != "random":
             raise ValueError("texture_share: a print on the part is drawn only with appearance 'random'")
+        if self.print_on not in PRINT_PLACES:
+            raise ValueError(f"print_on: expected one of {', '.join(PRINT_PLACES)}, got {self.print_on!r}")
+        if not 0.0 <= self.grey_share <= 1.0:
+            raise ValueError(f"grey_share: expected a share of the images in [0, 1], got {self.grey_share!r}")
+        if self.grey_share > 0 and not self.camera_effects:
+            raise ValueError("grey_share: grey images are drawn among the camera effects (camera_effects=True)")
         if self.camera_effects and self.kind != "random":
             raise ValueError("camera_effects: drawn only with appearance 'random' (space has its own sensor model)")
 
     def record(self) -> dict:
-        """The spec as a dataset config records it (``texture_share`` and ``camera_effects`` only where
-        set, so configs written before they existed still match)."""
+        """The spec as a dataset config records it (``texture_share``, ``camera_effects``, ``print_on``
+        and ``grey_share`` only where not their defaults, so configs written before they existed still match)."""
         out = asdict(self)
+        if out["print_on"] == "image":
+            del out["print_on"]
+        if out["grey_share"] == 0:
+            del out["grey_share"]
         if out["texture_share"] == 0:
             del out["texture_share"]
         if not out["camera_effects"]:
@@ -234,6 +259,8 @@ class AppearanceSpec:
             rng = np.random.default_rng([seed, key, 29])
             if rng.random() < self.texture_share:
                 look = replace(look, object_texture=part_texture(width, height, rng, photos))
+                if self.print_on == "faces":
+                    look = replace(look, print_faces=draw_face_prints(rng, width, height))
         return look
 
 

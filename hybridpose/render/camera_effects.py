@@ -43,9 +43,12 @@ def jpeg(image: np.ndarray, quality: int) -> np.ndarray:
     return np.ascontiguousarray(cv2.imdecode(data, cv2.IMREAD_COLOR)[..., ::-1])
 
 
-def camera_effects(image: np.ndarray, rng: np.random.Generator | int | None = None) -> np.ndarray:
+def camera_effects(image: np.ndarray, rng: np.random.Generator | int | None = None,
+                   grey_share: float = 0.0) -> np.ndarray:
     """(H, W, 3) uint8 RGB → the same with one draw of motion blur, exposure and white-balance gains,
-    noise and JPEG (ranges: this module's constants), seeded by ``rng``."""
+    noise and JPEG (ranges: this module's constants), seeded by ``rng``; ``grey_share`` of the draws
+    then come out grey in all three channels (a monochrome camera: ViSP's videos, most machine-vision
+    and space cameras)."""
     image = as_rgb_image(image)
     rng = np.random.default_rng(rng)
     if rng.random() < BLUR_SHARE:
@@ -57,4 +60,6 @@ def camera_effects(image: np.ndarray, rng: np.random.Generator | int | None = No
     image = np.clip(noisy, 0, 255).astype(np.uint8)
     if rng.random() < JPEG_SHARE:
         image = jpeg(image, int(rng.integers(JPEG_QUALITY[0], JPEG_QUALITY[1] + 1)))
+    if grey_share > 0 and rng.random() < grey_share:  # drawn last: the other draws of a seed stay as they were
+        image = np.repeat(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)[..., None], 3, axis=2)
     return image

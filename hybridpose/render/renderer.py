@@ -21,6 +21,7 @@ import numpy as np  # noqa: E402
 from ..geometry import Camera, Pose, as_unit_direction, matrix_to_quat_wxyz  # noqa: E402
 from ..objects import ObjectModel  # noqa: E402
 from .appearance import MAX_FILL_LIGHTS, TEXTURE_FLOOR, Appearance  # noqa: E402
+from .face_print import face_print_gain  # noqa: E402
 from .lighting import SensorModel, SpaceLighting, earth_background  # noqa: E402
 from .occluder import ArmState  # noqa: E402
 
@@ -385,7 +386,12 @@ class Renderer:
             if tex.shape[:2] != (self.camera.height, self.camera.width):
                 raise ValueError(f"appearance.object_texture: expected {self.camera.height}×{self.camera.width} px, "
                                  f"got {tex.shape[0]}×{tex.shape[1]}")
-            gain = TEXTURE_FLOOR + (1.0 - TEXTURE_FLOOR) * tex[mask_visib].astype(np.float32) / 255.0
+            if appearance.print_faces is None:
+                ink = tex[mask_visib].astype(np.float32) / 255.0
+            else:
+                ink = face_print_gain(tex, appearance.print_faces, depth, mask_visib, self.camera, T_cam_obj,
+                                      self.obj.bbox_min, self.obj.bbox_max)
+            gain = TEXTURE_FLOOR + (1.0 - TEXTURE_FLOOR) * ink
             rgb = rgb.copy()
             rgb[mask_visib] = np.clip(rgb[mask_visib].astype(np.float32) * gain, 0, 255).astype(np.uint8)
         rgb = self.sensor.apply(rgb, rng)

@@ -248,6 +248,11 @@ def test_a_fit_prints_the_part_in_some_views_unless_in_space():
     assert default_textured_share("random") == TEXTURED_SHARE > 0 and default_textured_share("space") == 0.0
     views = training_render_settings(None, (0.3, 2.0), textured_share=default_textured_share("random"))
     assert views["appearance"].texture_share == TEXTURED_SHARE and views["log_depth"]
+    # the print on the part's faces, a share of the views grey as a monochrome camera gives them; in
+    # space neither (the renders are the sunlit part on black, grey already)
+    looks = views["appearance"]
+    assert looks.print_on == "faces" and 0 < looks.grey_share < 1 and looks.camera_effects
+    assert training_render_settings(None, (0.3, 2.0), look="space")["appearance"].grey_share == 0.0
 
 
 def test_the_working_distances_reach_a_part_that_fills_the_frame(box_mesh):
@@ -288,7 +293,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     assert "occluded_share" not in json.loads((out / "data" / "test" / "hybridpose.json").read_text())
     # a print on the part in half the training views, none in the held-out ones
     assert cfg["appearance"]["texture_share"] == 0.5 and record["request"]["textured_share"] == 0.5
-    assert "a random print on it in 50% of the training views" in report
+    assert "a random print on its faces in 50% of the training views" in report
     assert "texture_share" not in json.loads((out / "data" / "test" / "hybridpose.json").read_text())["appearance"]
     # the checkpoint finds the part itself (trained with whole-frame crops)
     from hybridpose.regressors.predictor import CheckpointRegressor

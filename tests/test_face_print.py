@@ -58,7 +58,7 @@ def test_each_face_gets_its_own_patch_cut_at_its_edges(box):
         faces[k, 4] = 0
         gain = np.ones((CAM.height, CAM.width))
         gain[res.mask_visib] = face_print_gain(tex, faces, res.depth, res.mask_visib, CAM, pose, lo, hi)[:, 0]
-        corners = np.array([[hi[i] if (c >> i) & 1 else lo[i] for i in range(3)] for c in range(8)])
+        corners = box.bbox_corners
         on_face = corners[np.isclose(corners[:, axis], hi[axis] if positive else lo[axis])]
         normal = np.zeros(3)
         normal[axis] = 1.0 if positive else -1.0

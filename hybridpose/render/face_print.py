@@ -56,13 +56,13 @@ def face_print_gain(texture: np.ndarray, faces: np.ndarray, depth: np.ndarray, m
     p = (cam - T_cam_obj.t) @ T_cam_obj.R                       # object frame (R orthonormal: Rᵀ(x − t))
     centre, half = (box_min + box_max) / 2, np.maximum((box_max - box_min) / 2, 1e-9)
     q = (p - centre) / half
+    rows = np.arange(len(q))
     axis = np.abs(q).argmax(1)
-    face = 2 * axis + (q[np.arange(len(q)), axis] > 0)
+    face = 2 * axis + (q[rows, axis] > 0)
     # the two coordinates across each face, metres from its centre, over its longer side
     across = np.array([[1, 2], [0, 2], [0, 1]])[axis]
-    rows = np.arange(len(q))[:, None]
     side = 2 * half[across].max(1)
-    a, b = ((p - centre)[rows, across] / side[:, None]).T
+    a, b = ((p - centre)[rows[:, None], across] / side[:, None]).T
     f = faces[face]
     c, s = np.cos(f[:, 3]), np.sin(f[:, 3])
     # cv2.remap's maps are images (each side under 32 767): the pixels laid out in rows of REMAP_ROW

@@ -54,6 +54,7 @@ TEXTURED_SHARE = 0.3  # share of training views with a random print on the part 
 # 3 495), trusted 203 (244) > 10° off (docs/decisions.md)
 PRINT_ON = "faces"
 GREY_SHARE = 0.25  # ViSP's tutorial videos, machine-vision and space cameras are often monochrome
+CARTON_SHARE = 0.0  # share of the prints drawn as a carton's (panels and lettering on card: render.carton)
 MIN_OBJECT_PX = 24  # the part's image diameter at the far distance must be at least this
 MIN_NEAR_M = 0.05  # a part that must come nearer than this to fill the image is too small to see (or mis-scaled)
 
@@ -101,7 +102,8 @@ def training_render_settings(backgrounds, distance_range_m, occluded_share: floa
 
     real = look == "random"
     looks = AppearanceSpec(look, backgrounds and str(backgrounds), texture_share=textured_share, camera_effects=real,
-                           print_on=PRINT_ON, grey_share=GREY_SHARE if real else 0.0)
+                           print_on=PRINT_ON, grey_share=GREY_SHARE if real else 0.0,
+                           carton_share=CARTON_SHARE if real and PRINT_ON == "faces" else 0.0)
     lighting = SpaceLighting(sun_direction_cam=SPACE_SUN_CENTRE) if look == "space" else SpaceLighting()
     return dict(distance_range_m=tuple(distance_range_m), in_view=True, appearance=looks, lighting=lighting,
                 sun_cone_deg=SUN_CONE_DEG, sun_scale_range=(0.6, 1.3), occluded_share=occluded_share, log_depth=True)
@@ -376,6 +378,7 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         + (f"; the arm partly in front of it in {req['occluded_share']:.0%} of the training views" if req.get("occluded_share") else "")
         + ("; the part's own print, from its mesh file" if obj.texture is not None else "")
         + (f"; a random print on {'its faces' if PRINT_ON == 'faces' else 'it'} in {req['textured_share']:.0%} of the training views"
+           + (f", {CARTON_SHARE:.0%} of them a carton's (panels and lettering)" if CARTON_SHARE and PRINT_ON == "faces" else "")
            if req.get("textured_share") else "") + ").",
         f"- Trained the `default` network ({IMAGE_SIZE} px, "
         + ("found as the sunlit pixels" if req.get("look") == "space" else f"{FULL_VIEW:.0%} whole-frame crops")

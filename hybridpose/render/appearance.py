@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ..geometry import as_unit_direction
+from .carton import carton_sheet
 from .face_print import FACES, draw_face_prints
 
 # a few photos released into the public domain (scikit-image's CC0 samples: SOURCES.md there), the
@@ -178,6 +179,13 @@ def part_texture(width: int, height: int, rng: np.random.Generator | int | None 
     return clutter_background(width, height, rng)
 
 
+def _panel_fill(photos: PhotoBackgrounds | None):
+    """A carton panel's picture: a crop of ``photos`` (half the draws, where given) or procedural clutter."""
+    def fill(width: int, height: int, rng: np.random.Generator) -> np.ndarray:
+        return part_texture(width, height, rng, photos)
+    return fill
+
+
 APPEARANCES = ("space", "random")
 PRINT_PLACES = ("image", "faces")
 
@@ -197,6 +205,9 @@ class AppearanceSpec:
             from a stream of its own, so the other draws of a seed do not change); 0: plain parts.
         print_on: where the print lies: ``"image"`` (one picture across the silhouette) or
             ``"faces"`` (a patch of it on each face, cut at the faces' edges: :mod:`~hybridpose.render.face_print`).
+        carton_share: with ``print_on="faces"``, the share of the prints drawn as a carton's
+            (:func:`~hybridpose.render.carton.carton_sheet`: picture panels and lettering on white card)
+            instead of a photo or clutter over each face; drawn from a stream of its own.
         grey_share: with ``camera_effects``, the share of images that come out grey (a monochrome camera).
         camera_effects: each image also gets a draw of a real camera's motion blur, exposure and
             white balance, noise and JPEG (:func:`~hybridpose.render.camera_effects.camera_effects`).
@@ -210,6 +221,7 @@ class AppearanceSpec:
     camera_effects: bool = False
     print_on: str = "image"
     grey_share: float = 0.0
+    carton_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in APPEARANCES:
@@ -226,6 +238,10 @@ class AppearanceSpec:
             raise ValueError("texture_share: a print on the part is drawn only with appearance 'random'")
         if self.print_on not in PRINT_PLACES:
             raise ValueError(f"print_on: expected one of {', '.join(PRINT_PLACES)}, got {self.print_on!r}")
+        if not 0.0 <= self.carton_share <= 1.0:
+            raise ValueError(f"carton_share: expected a share of the prints in [0, 1], got {self.carton_share!r}")
+        if self.carton_share > 0 and self.print_on != "faces":
+            raise ValueError("carton_share: a carton's print is laid on the faces (print_on='faces')")
         if not 0.0 <= self.grey_share <= 1.0:
             raise ValueError(f"grey_share: expected a share of the images in [0, 1], got {self.grey_share!r}")
         if self.grey_share > 0 and not self.camera_effects:
@@ -241,6 +257,8 @@ class AppearanceSpec:
             del out["print_on"]
         if out["grey_share"] == 0:
             del out["grey_share"]
+        if out["carton_share"] == 0:
+            del out["carton_share"]
         if out["texture_share"] == 0:
             del out["texture_share"]
         if not out["camera_effects"]:
@@ -258,7 +276,11 @@ class AppearanceSpec:
         if self.texture_share > 0:
             rng = np.random.default_rng([seed, key, 29])
             if rng.random() < self.texture_share:
-                look = replace(look, object_texture=part_texture(width, height, rng, photos))
+                carton = np.random.default_rng([seed, key, 37])
+                if self.carton_share > 0 and carton.random() < self.carton_share:
+                    look = replace(look, object_texture=carton_sheet(width, height, carton, _panel_fill(photos)))
+                else:
+                    look = replace(look, object_texture=part_texture(width, height, rng, photos))
                 if self.print_on == "faces":
                     look = replace(look, print_faces=draw_face_prints(rng, width, height))
         return look

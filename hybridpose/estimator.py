@@ -351,7 +351,9 @@ class HybridEstimator:
             f = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
             self.best_start_fit = max(self.best_start_fit, f.quality if f.pose is not None else 0.0)
             cues = getattr(self.tracker, "cue_qualities", None)
-            return None if self._view is not None and start_refused_in_light(cues, frame, self._view, f, plain_bar) else f
+            refused = self._view is not None and start_refused_in_light(cues, frame, self._view, f, plain_bar,
+                                                                         c.plain_surround_quality)
+            return None if refused else f
 
         floor = c.colour_start_print if m.source == COLOUR_SOURCE else 0.0  # 32 blind tries: the print must show well
         stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin, floor)

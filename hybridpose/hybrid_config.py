@@ -193,6 +193,11 @@ class HybridConfig:
             its first right start, at 0.76, never came at 0.8 and the hybrid held 0 of 261 frames
             instead of 233). A start from the memory keeps ``memory_start_quality``; on black space, or
             with ``edges``, ``start_quality`` decides.
+        plain_surround_quality: in a lit scene a start the edges alone vouch for (the region cue without
+            a verdict, as on a white box on a white table) is refused, unless the scene around it is
+            plain — its view slid beside it matches at most a fifth of its edges
+            (:meth:`~hybridpose.edges.distinct.PlacementContrast.plain_around`) — and its fit reaches this
+            (0: refused everywhere).
         handheld_accel_rad_s2, handheld_accel_m_s2: the fusion's motion model off black space (the
             first frame less than ``SPACE_DARK_SHARE`` dark, as for ``keypoint_memory``): white-
             acceleration densities (rad/s², m/s² per √Hz; :attr:`Fusion.motion_noise`) for a camera or
@@ -248,6 +253,7 @@ class HybridConfig:
     learn_after: int = 10
     memory_start_quality: float = 0.4
     plain_start_quality: float = 0.75
+    plain_surround_quality: float = 0.0
     handheld_accel_rad_s2: float | None = 3.0
     handheld_accel_m_s2: float = 3.0
 
@@ -274,7 +280,7 @@ class HybridConfig:
             v = getattr(self, name)
             if v is not None and not 0 <= v <= 1:
                 raise ValueError(f"{name}: expected a tracker quality in [0, 1] or None, got {v}")
-        for name in ("start_quality", "memory_start_quality", "plain_start_quality"):
+        for name in ("start_quality", "memory_start_quality", "plain_start_quality", "plain_surround_quality"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}: expected a tracker quality in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.switch_quality_margin <= 1:

@@ -221,15 +221,22 @@ def edges_alone_in_clutter(cue_qualities: dict | None, frame: Frame, view: Model
 
 
 def start_refused_in_light(cue_qualities: dict | None, frame: Frame, view: ModelView, fit: Measurement,
-                           plain_bar: float) -> bool:
+                           plain_bar: float, plain_surround_bar: float = 0.0) -> bool:
     """Whether a start's ``fit`` in ``frame``, by a tracker that reports its cues' verdicts
-    (``cue_qualities``), is refused for what a lit scene asks more than black space: the edges alone
-    vouch for it (:func:`edges_alone_in_clutter`), or it scores below ``plain_bar`` — a plain part's
-    start there needs :attr:`~hybridpose.hybrid_config.HybridConfig.plain_start_quality` (a network's
-    pose at the wrong distance fits a smaller cube inside a face of the real one, or in the clutter,
-    almost as well)."""
-    return (bool(cue_qualities) and not fit.lost and (_edges_alone(cue_qualities) or fit.quality < plain_bar)
-            and lit_around(frame, view, fit.pose))
+    (``cue_qualities``), is refused for what a lit scene asks more than black space: it scores below
+    ``plain_bar`` — a plain part's start there needs :attr:`~hybridpose.hybrid_config.HybridConfig.plain_start_quality`
+    (a network's pose at the wrong distance fits a smaller cube inside a face of the real one, or in the
+    clutter, almost as well) — or the edges alone vouch for it (:func:`edges_alone_in_clutter`), unless
+    the scene around it is plain (:meth:`~hybridpose.edges.distinct.PlacementContrast.plain_around`: a
+    white box on a white table, where the region cue has no verdict and no clutter lends a wrong outline
+    its edges) and the fit reaches ``plain_surround_bar`` (0: never)."""
+    if not cue_qualities or fit.lost or not lit_around(frame, view, fit.pose):
+        return False
+    if fit.quality < plain_bar:
+        return True
+    if not _edges_alone(cue_qualities):
+        return False
+    return not (0 < plain_surround_bar <= fit.quality and placement_contrast(view, frame, fit.pose).plain_around())
 
 
 def _edges_alone(cue_qualities: dict | None) -> bool:

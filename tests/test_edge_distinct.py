@@ -117,9 +117,53 @@ def test_off_black_space_a_start_that_only_the_edges_confirm_stays_init(box):
                 (CAM.height, CAM.width, 3), grey, np.uint8))).rgb
         frame = Frame(image, CAM, 0.0, 0)
         tracker = registry.create("tracker", "combined", object=box)
-        est = HybridEstimator(tracker, TruthRegressor(TRUTH), registry.create("fusion", "ukf"))
+        est = HybridEstimator(tracker, TruthRegressor(TRUTH), registry.create("fusion", "ukf"),
+                              HybridConfig(plain_surround_quality=0.0))
         assert (est.step(frame).pose is not None) == starts
-        assert set(tracker.cue_qualities) == ({"edges", "region"} if starts else {"edges"})
+        assert {n for n, q in tracker.cue_qualities.items() if np.isfinite(q)} == ({"edges", "region"} if starts else {"edges"})
+        # on this plain table the edges alone may vouch where their fit is sure (plain_surround_quality)
+        plain = HybridEstimator(registry.create("tracker", "combined", object=box), TruthRegressor(TRUTH),
+                                registry.create("fusion", "ukf"), HybridConfig(plain_surround_quality=0.75))
+        assert plain.step(frame).pose is not None
         alone = registry.create("tracker", "combined", object=box)
         alone.init(frame, TRUTH)
         assert not alone.track(frame).lost
+
+
+@pytest.fixture(scope="module")
+def plain_scene(box):
+    """The box on a plain grey table, nothing else in view."""
+    with Renderer(box, CAM) as r:
+        image = r.render(TRUTH, rng=0, appearance=Appearance(ambient=0.4, background=np.full(
+            (CAM.height, CAM.width, 3), 150, np.uint8))).rgb
+    return Frame(image, CAM, 0.0, 0)
+
+
+def test_a_plain_table_around_the_part_is_told_from_clutter(box, scene, plain_scene):
+    """On a plain table the right pose's slid views find almost no edges; the outline laid over the tiles
+    has tiles all round it, and so has the right pose near them."""
+    view = ModelView(box)
+    assert placement_contrast(view, plain_scene, TRUTH).plain_around()
+    assert not placement_contrast(view, scene, TRUTH).plain_around()
+    far = shifted_in_image(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
+    assert not placement_contrast(view, scene, far).plain_around()
+    assert not PlacementContrast(here=float("nan"), around=0.0).plain_around()
+    assert not PlacementContrast(here=0.0, around=0.0).plain_around()  # nothing matched here either
+
+
+@pytest.mark.parametrize("quality, bar, refused", [(0.85, 0.0, True), (0.85, 0.75, False), (0.7, 0.75, True)])
+def test_an_edges_alone_start_on_a_plain_table_is_taken_at_the_plain_surround_bar(box, scene, plain_scene, quality, bar,
+                                                                                  refused):
+    """In a lit scene the edges alone do not make a start, unless the part stands on a plain surface
+    (``plain_surround_quality``) and its fit reaches that bar; over clutter they never do."""
+    from hybridpose.starts import start_refused_in_light
+
+    view, edges_alone = ModelView(box), {"edges": 0.9, "region": float("nan")}
+    fit = Measurement(TRUTH, np.eye(6) * 1e-4, quality, "tracker:edges", 0.0)
+    assert start_refused_in_light(edges_alone, plain_scene, view, fit, 0.0, bar) == refused
+    far = shifted_in_image(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
+    assert start_refused_in_light(edges_alone, scene, view, Measurement(far, fit.covariance, 0.9, "tracker:edges", 0.0),
+                                  0.0, 0.75)
+    assert not start_refused_in_light({"edges": 0.9, "region": 0.7}, scene, view, fit, 0.0, 0.0)  # another cue spoke
+    black = Frame(np.zeros_like(scene.image), CAM, 0.0, 0)
+    assert not start_refused_in_light(edges_alone, black, view, fit, 0.0, 0.0)  # black space: the edges decide

@@ -59,7 +59,14 @@ class PlacementContrast:
         compare (no score at the pose or around it): the test has no verdict and vetoes nothing."""
         if not np.isfinite(self.here) or not np.isfinite(self.around):
             return True
-        return self.here - self.around >= margin or self.around <= NULL_SHARE * self.here
+        return self.here - self.around >= margin or self.plain_around()
+
+    def plain_around(self) -> bool:
+        """Whether the placements around the pose match no more than ``NULL_SHARE`` of what it matches: the
+        part stands on a plain table or wall, or on black space, where no clutter offers a wrong outline
+        its edges (False where either has no score)."""
+        return bool(np.isfinite(self.here) and np.isfinite(self.around) and self.here > 0
+                    and self.around <= NULL_SHARE * self.here)
 
 
 def placement_contrast(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | None = None) -> PlacementContrast:

@@ -61,7 +61,9 @@ class RegressorContract(Protocol):
             recommends (empty for most; a part's fitted network carries ``reacquire_deg``).
 
     ``predict(frame, roi)``: ``roi`` an optional box ``(x, y, w, h)`` px around the object; a
-    :class:`~hybridpose.core.Measurement` with ``pose`` None where the object is not found.
+    :class:`~hybridpose.core.Measurement` with ``pose`` None where the object is not found. Optional:
+    ``candidates(frame, roi, limit)``, that measurement and up to ``limit`` other poses a start may try
+    (:meth:`~hybridpose.regressors.base.PoseRegressor.candidates`).
     """
 
     hybrid_config: Mapping[str, object]

@@ -8,14 +8,14 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
                           │  └─CNN disagrees k checks in a row─▶ reinit│
                           └──────────────────── reinit ◀──two CNN answers agree
 
-- **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker,
-  started from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest
-  error), confirms it (not lost, not by its edges alone off black space where it reports its cues,
-  and its fit stands out from its own view slid across the image: clutter matches a wrong outline
-  as well as its neighbours, ``start_contrast``); the tracker's fit starts the fusion — or, where that
-  fit is not convincing (``start_sure_quality``), a clearly better one from the start turned a few
-  degrees (a local minimum of the object's edges lies next to the truth); where the part's print is
-  known, moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
+- **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker, started
+  from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest error; or from the
+  network's other poses in the frame, ``start_alternatives``), confirms it (not lost; off black space, where
+  it reports its cues, not by its edges alone unless the scene around is plain, ``plain_surround_quality``;
+  its fit standing out from its own view slid across the image: clutter matches a wrong outline as well as
+  its neighbours, ``start_contrast``); the tracker's fit starts the fusion — or, where not convincing
+  (``start_sure_quality``), a clearly better one from the start turned a few degrees; a printed part's,
+  moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is gated
   (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where the tracker
   sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``: an arm covering half
@@ -204,14 +204,10 @@ class HybridEstimator:
 
     # --- the three states --------------------------------------------------------------------------
     def _initialise(self, frame: Frame, timings: dict) -> Estimate:
-        m = self._cnn(frame, None, timings)
-        fit = self._confirmed(frame, m, timings, depth_search=True)
-        every = self.config.colour_start_every
-        if fit is None and self.colour_starts is not None and every and self._frames % every == 0:
-            # the last resort, where nothing else found the part: poses all round it where its print's colours stand out
-            for m in self._timed(timings, "regressor", self.colour_starts.candidates, frame):
-                if (fit := self._confirmed(frame, m, timings, depth_search=True)) is not None:
-                    break
+        fit = None
+        for m in self._start_candidates(frame, timings):
+            if (fit := self._confirmed(frame, m, timings, depth_search=True)) is not None:
+                break
         if fit is None:
             return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status=Status.INIT)
         self._restart(frame, fit, timings)
@@ -292,7 +288,7 @@ class HybridEstimator:
         if c.pose is None:
             return None
         chi2 = self.config.disagreement_chi2
-        fit = self._track_from(frame, c.pose, timings, self._cnn_search_px(), from_cnn=True, trial=True)
+        fit = self._track_from(frame, c.pose, timings, self.config.cnn_search_px or None, from_cnn=True, trial=True)
         far = (_mahalanobis2(fused.pose, fused.covariance, c.pose, c.covariance) > chi2
                or (self.config.disagreement_deg is not None
                    and rotation_error_deg(fused.pose, c.pose) > self.config.disagreement_deg))
@@ -348,7 +344,7 @@ class HybridEstimator:
                 self._timed(timings, "tracker", self.tracker.init, frame, start)
             except ValueError:  # a tracker may refuse a start where nothing of the model matches the image
                 return None
-            f = self._track_from(frame, start, timings, self._cnn_search_px(), from_cnn=True)
+            f = self._track_from(frame, start, timings, c.cnn_search_px or None, from_cnn=True)
             self.best_start_fit = max(self.best_start_fit, f.quality if f.pose is not None else 0.0)
             cues = getattr(self.tracker, "cue_qualities", None)
             refused = self._view is not None and start_refused_in_light(cues, frame, self._view, f, plain_bar,
@@ -375,11 +371,10 @@ class HybridEstimator:
         return self._estimate(Status.TRACKING, (m.source,))
 
     def _retries(self, previous: Measurement | None) -> bool:
-        """Whether a fit lost from the prediction is tried again from the tracker's ``previous`` pose: the track has
-        run ``retry_after`` frames since its last (re)start (a younger one may be a wrong start a second chance keeps alive)."""
+        """Whether a fit lost from the prediction is tried again from the tracker's ``previous`` pose: the track has run
+        ``retry_after`` frames since its last (re)start (a younger one may be a wrong start a second chance keeps alive)."""
         after = self.config.retry_after
-        return (after is not None and previous is not None and previous.pose is not None
-                and self._n.since_start >= after)
+        return after is not None and previous is not None and previous.pose is not None and self._n.since_start >= after
 
     def _vouched(self, m: Measurement, c: Measurement, fit: Measurement) -> bool:
         """Whether the CNN pose ``c`` and the tracker's fit from it both agree with the tracker's ``m`` (``disagreement_chi2``)."""
@@ -397,8 +392,8 @@ class HybridEstimator:
         unless ``sun_in_cnn_fits``); lost where the tracker refuses that start (a prediction coasting
         while lost can leave the view or pass behind the camera). ``trial``: a second fit of the frame,
         on the tracker's throw-away copy where it offers one (``trial()``): the track goes on as before."""
-        kw = {k: v for k, v in (("search_px", search_px), ("lost_quality", lost_quality),
-                                ("covered_lost_quality", covered_lost_quality)) if v is not None}
+        kw = {k: v for k, v in dict(search_px=search_px, lost_quality=lost_quality,
+                                    covered_lost_quality=covered_lost_quality).items() if v is not None}
         if from_cnn and not self.config.sun_in_cnn_fits and frame.sun_direction_cam is not None:
             frame = replace(frame, sun_direction_cam=None)
         tracker = self.tracker.trial if trial and hasattr(self.tracker, "trial") else lambda: self.tracker
@@ -427,10 +422,6 @@ class HybridEstimator:
         if own is not None and self.config.handheld_accel_rad_s2 is not None:  # a fusion that lets it be set
             c = self.config
             self.fusion.motion_noise = (c.handheld_accel_rad_s2, c.handheld_accel_m_s2) if lit else own
-
-    def _cnn_search_px(self) -> float | None:
-        """A fit's search range (px) from a CNN pose: ``cnn_search_px`` (None where 0: the tracker's own)."""
-        return self.config.cnn_search_px if self.config.cnn_search_px > 0 else None
 
     def _restart(self, frame: Frame, m: Measurement, timings: dict, twist: np.ndarray | None = None) -> None:
         """Fusion and tracker start over from ``m`` (the tracker's fit), with body twist ``twist`` (6,) rad/s, m/s."""
@@ -473,6 +464,17 @@ class HybridEstimator:
                 and cues_vouch(getattr(self.tracker, "cue_qualities", None), self.config.resume_cue_quality)
                 and not self._edges_alone(frame, m)):
             self._timed(timings, "regressor", self.memory.learn, frame, m.pose)
+
+    def _start_candidates(self, frame: Frame, timings: dict):
+        """What a start tries in turn until one is confirmed: the memory's answer, else the network's and its other poses
+        (``start_alternatives``); every ``colour_start_every`` frames, a printed part posed where its print's colours stand out."""
+        m = None if self.memory is None else self._timed(timings, "regressor", self.memory.find, frame, None)
+        n, candidates = self.config.start_alternatives, getattr(self.regressor, "candidates", None)
+        self.regressor_calls += m is None
+        yield from ([m] if m is not None else self._timed(timings, "regressor", candidates, frame, None, n) if n and candidates
+                    else [self._timed(timings, "regressor", self.regressor.predict, frame, None)])
+        if self.colour_starts is not None and (every := self.config.colour_start_every) and self._frames % every == 0:
+            yield from self._timed(timings, "regressor", self.colour_starts.candidates, frame)
 
     def _cnn(self, frame: Frame, roi, timings: dict, near: Pose | None = None) -> Measurement:
         """The memory's answer in ``frame`` (:attr:`memory`), else the regressor's; for a symmetric

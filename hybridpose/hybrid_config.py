@@ -162,6 +162,11 @@ class HybridConfig:
             CNN's are. Never on black space (the first frame at least ``SPACE_DARK_SHARE`` dark, as
             ``track`` tells it): a plain part's keypoints there are its shading, which the sun moves
             (the space suite's hybrid as accurate without it, and a third faster). False: the CNN alone.
+        start_alternatives: at ``init``, where the tracker refuses the network's answer, up to this many
+            other distinct poses its passes found in the same frame are tried in turn through the same
+            start checks (:meth:`~hybridpose.regressors.base.PoseRegressor.candidates`; a close crop of
+            a printed part can take corners of its print for the part's where the whole frame's coarser
+            pass does not); the first accepted is taken. 0: the network's answer alone.
         colour_start_every: while the hybrid has no pose (``init``) and neither the memory nor the CNN
             gives a start, every this many frames a part that carries its print is also started from
             poses all around it placed where its print's colours stand out (:class:`~hybridpose.
@@ -254,6 +259,7 @@ class HybridConfig:
     memory_start_quality: float = 0.4
     plain_start_quality: float = 0.75
     plain_surround_quality: float = 0.0
+    start_alternatives: int = 0
     handheld_accel_rad_s2: float | None = 3.0
     handheld_accel_m_s2: float = 3.0
 
@@ -263,6 +269,8 @@ class HybridConfig:
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name}: expected a whole number of frames ≥ 0, got {v}")
+        if int(self.start_alternatives) != self.start_alternatives or self.start_alternatives < 0:
+            raise ValueError(f"start_alternatives: expected a whole number of poses ≥ 0, got {self.start_alternatives}")
         if self.retry_after is not None and (int(self.retry_after) != self.retry_after or self.retry_after < 0):
             raise ValueError(f"retry_after: expected a whole number of frames ≥ 0 or None, got {self.retry_after}")
         for name in ("confirm_checks", "lost_after_rejections", "lost_check_period", "lost_after_tracker_losses"):

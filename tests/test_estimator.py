@@ -390,6 +390,35 @@ def test_repeated_cnn_twins_that_the_edges_cannot_fit_do_not_restart_a_good_trac
     assert max(rotation_error_deg(e.pose, truth(k)) for k, e in enumerate(out)) < 0.3
 
 
+class TwinFirst(OracleRegressor):
+    """Answers the end-for-end twin first, as a close crop of a printed part can; the truth is among
+    its other poses in the frame (``candidates``)."""
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return replace(m, pose=m.pose @ Pose.from_rotvec_t([0, 0, np.pi], [0, 0, 0]))
+
+    def candidates(self, frame, roi=None, limit=4):
+        return [self.predict(frame, roi), *[super(TwinFirst, self).predict(frame, roi)][:limit]]
+
+
+@pytest.mark.parametrize("alternatives", [0, 1])
+def test_where_the_edges_refuse_the_networks_answer_a_start_tries_its_other_poses(alternatives):
+    """``start_alternatives``: the tracker cannot fit the network's answer (a twin), and the start goes on to the
+    other poses the network found in the frame; 0: the answer alone, and the hybrid never starts."""
+    reg = TwinFirst()
+    est = HybridEstimator(EdgesOnlyAtTheTruth(), reg, registry.create("fusion", "ukf"),
+                          HybridConfig(start_alternatives=alternatives, start_contrast=0, probation_frames=0))
+    out = run(est, 3)
+    if alternatives:
+        assert out[0].status == "init" and rotation_error_deg(out[0].pose, truth(0)) < 0.3
+    else:
+        assert all(e.pose is None for e in out) and HybridConfig().start_alternatives >= 0
+    assert est.regressor_calls == (1 if alternatives else 3)
+    with pytest.raises(ValueError, match="start_alternatives"):
+        HybridConfig(start_alternatives=-1)
+
+
 class HalfCoveredTracker(EdgesOnlyAtTheTruth):
     """Right from within 90° of the truth, but its quality falls to 0.45 (under its own 0.5 lost
     threshold) on ``covered`` frames, as the edges' honest quality does with half the object behind

@@ -1,6 +1,6 @@
 """Detection by the network without a prior (``detection="network"``): the tiles it looks at, the
-proposals it makes (one per place, the whole frame's first) and the estimate the regressor keeps
-(the one PnP fits best)."""
+proposals it makes (one per place, the whole frame's first), the estimate the regressor keeps
+(the one PnP fits best) and the other distinct poses a start may try."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,8 @@ import pytest
 from hybridpose.geometry import Camera, Pose
 from hybridpose.regressors.keypoint_passes import KeypointEstimate, pnp_quality
 from hybridpose.regressors.keypoint_pnp import PnPResult
-from hybridpose.regressors.network_detection import FINE_TILE_SIDE, box_iou, find_object, network_boxes, tile_boxes
+from hybridpose.regressors.network_detection import (FINE_TILE_SIDE, box_iou, distinct_estimates, find_object, network_boxes,
+                                                     tile_boxes)
 
 CORNERS = np.array([[x, y, z] for x in (-0.09, 0.09) for y in (-0.055, 0.055) for z in (-0.035, 0.035)])
 
@@ -105,6 +106,38 @@ def test_the_regressor_keeps_the_estimate_pnp_fits_best():
     passes.estimate_in = lambda *a: None
     box, est = find_object(passes, image, cam, 0.0)
     assert est is None and box == network_boxes(passes, image, cam)[0]
+
+
+def test_the_other_estimates_come_best_first_and_a_start_gets_the_distinct_ones():
+    """Every pass's own pose and every other proposal's estimate are offered, best PnP fit first; the
+    distinct ones leave out poses that project the keypoints where the chosen one does (the same pose,
+    a millimetre off, or the box turned by one of its symmetries)."""
+    cam = Camera.default().scaled((640, 480))
+    image = np.zeros((480, 640, 3), np.uint8)
+    part, clutter = (Pose.from_rotvec_t([0.3, 0.2, 0.1], [-0.25, 0.0, 1.2]), Pose.from_rotvec_t([0.1, -0.4, 0.2], [0.25, 0.05, 1.0]))
+    passes = FakePasses({0: _result(part, 0.75), 2: _result(clutter, 0.75)})
+    passes.max_depth_m = None
+    crops = []
+
+    def estimate_in(image, cam, box, sun_turn):  # the crop on the part fits better than its whole-frame pass
+        pose = part if box[0] + box[2] / 2 < 320 else clutter
+        crops.append(KeypointEstimate(_result(pose, 1.0 if pose is part else 0.5), [0], None, 128))
+        return crops[-1]
+
+    passes.estimate_in = estimate_in
+    others = []
+    box, est = find_object(passes, image, cam, 0.0, others=others)
+    assert est.result.pose is part and all(e is not est for _, e in others)
+    assert len(others) == 3 and [pnp_quality(e) for _, e in others] == sorted((pnp_quality(e) for _, e in others), reverse=True)
+    assert box == find_object(passes, image, cam, 0.0)[0]   # asking for the others changes nothing
+    half_turn = Pose.from_rotvec_t([np.pi, 0, 0], [0, 0, 0])   # a symmetry of the box CORNERS
+    nudged = Pose(part.R, part.t + [0.001, 0, 0])
+    listed = [(None, KeypointEstimate(_result(p), [0], None, 128)) for p in (part @ half_turn, nudged, clutter, clutter @ half_turn)]
+    kept = distinct_estimates(listed, part, CORNERS, cam, limit=4)
+    assert [k.result.pose for k in kept] == [clutter]
+    assert distinct_estimates(listed, None, CORNERS, cam, limit=4)[0].result.pose is listed[0][1].result.pose
+    assert len(distinct_estimates(listed, None, CORNERS, cam, limit=4)) == 2
+    assert distinct_estimates(listed, part, CORNERS, cam, limit=0) == []
 
 
 def test_fine_tiles_look_again_where_no_estimate_fits_well():

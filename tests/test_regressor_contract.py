@@ -87,3 +87,11 @@ def test_every_regressor_keeps_the_measurement_contract(name, truss, view, tmp_p
     for bad in ((0, 0, -5, 10), (1000, 1000, 10, 10), (np.nan, 0, 10, 10)):
         with pytest.raises(ValueError, match="roi"):
             reg.predict(frame, roi=bad)
+    # a start's candidates: predict's measurement first, then at most `limit` more, each a measurement
+    found = reg.candidates(frame, None, 3)
+    assert 1 <= len(found) <= 4 and (found[0].pose is None) == m.lost
+    if not m.lost:
+        assert rotation_error_deg(found[0].pose, m.pose) < 1e-6
+    for c in found:
+        _check(c, name, frame)
+    assert len(reg.candidates(frame, None, 0)) == 1 and len(reg.candidates(frame, (160, 80, 320, 320), 3)) == 1

@@ -36,6 +36,12 @@ class PoseRegressor(ABC):
                 predicted projection); without it the regressor finds the object itself.
         """
 
+    def candidates(self, frame: Frame, roi: tuple[int, int, int, int] | None = None, limit: int = 4) -> list[Measurement]:
+        """:meth:`predict`'s measurement first, then up to ``limit`` other distinct poses of the object in
+        ``frame`` that a start may try where the tracker refuses the first (here none: backends that see
+        several answers, as the keypoint checkpoints do, offer them)."""
+        return [self.predict(frame, roi)]
+
 
 def check_roi(roi, frame: Frame) -> tuple[float, float, float, float] | None:
     """Validate ``roi`` = (x, y, w, h) pixels: finite, positive size, overlapping the image."""

@@ -17,7 +17,7 @@ import numpy as np
 from ..geometry import Camera
 from .detection import detect_bright_object
 from .keypoint_net import HEATMAP_STRIDE
-from .keypoint_passes import pnp_quality
+from .keypoint_passes import KeypointEstimate, pnp_quality
 
 # tiles: squares this share of the frame's long side, overlapping by at least half a tile (640 × 480:
 # two 480-px squares). Box tuning sequences, CNN-only in a tracker's basin with the frame alone 71 %;
@@ -41,6 +41,10 @@ SAME_BOX_IOU = 0.7
 # within a tracker's basin 38 vs 17 % of the frames; the procedural views favoured the linked box)
 CLUSTER_LINK = 0.2  # procedural calibration views, whole path > 10° off: 0.12 / 0.2 / 0.3 → 47 / 27 / 30 %
 MIN_BOX_CELLS = 4  # a proposal smaller than 4 × 4 heatmap cells is noise
+# two estimates are one pose for a start where every projected keypoint of each lies within this share of
+# the keypoints' image extent of a keypoint of the other (sets, not labels: a symmetric part's equivalent
+# poses project the same keypoints and are one start)
+SAME_POSE_SHARE = 0.05
 
 
 def linked_cluster(points: np.ndarray, link: float) -> np.ndarray:
@@ -104,19 +108,24 @@ def _cluster_box(passes, found: np.ndarray, K_crop: np.ndarray, cam: Camera):
 
 
 def network_boxes(passes, image: np.ndarray, cam: Camera, tiles: bool = True, tile_side: float = TILE_SIDE,
-                  whole_frame: bool = True) -> list[tuple]:
+                  whole_frame: bool = True, poses: list | None = None) -> list[tuple]:
     """Boxes (x, y, w, h) pixels where a keypoint network sees its object in the undistorted ``image``
     (camera ``cam``), the whole frame's first: the projected keypoints of each pass's PnP pose on the
     whole frame and (``tiles``) on :func:`tile_boxes`, one per place (``SAME_BOX_IOU``). Where the
     whole-frame pass of an unlabelled network gives no pose, the box of its linked detections takes its
     place. ``tile_side``: the tiles' share of the long side; ``whole_frame=False``: the tiles alone.
-    ``passes``: the network's :class:`~.keypoint_passes.KeypointPasses`. [] where nothing is found."""
+    ``passes``: the network's :class:`~.keypoint_passes.KeypointPasses`. [] where nothing is found.
+    ``poses``: where given, each pass's own estimate is appended to it as (box, :class:`KeypointEstimate`)
+    (within the depth gate)."""
     whole = ((cam.width - 1) / 2, (cam.height - 1) / 2, float(max(cam.width, cam.height)))
     views = [*([whole] if whole_frame else []), *(tile_boxes(cam.width, cam.height, tile_side) if tiles else [])]
     boxes = []
-    for i, (res, found, K_crop, _, _) in enumerate(passes.solve_boxes(image, cam.K, views)):
+    for i, (res, found, K_crop, order, prob) in enumerate(passes.solve_boxes(image, cam.K, views)):
         if res is not None:
             box = _pose_box(passes, res.pose, cam)
+            if (poses is not None and box is not None
+                    and (passes.max_depth_m is None or res.pose.t[2] <= passes.max_depth_m)):
+                poses.append((box, KeypointEstimate(res, order, prob, passes.image_size)))
         elif i == 0 and whole_frame and passes.unlabelled is not None:
             box = _cluster_box(passes, found, K_crop, cam)
         else:
@@ -134,14 +143,18 @@ def fine_boxes(passes, image: np.ndarray, cam: Camera, coarse: list[tuple]) -> l
 
 
 def find_object(passes, image: np.ndarray, cam: Camera, sun_turn: float, network: bool = True,
-                fine_tiles: bool = True) -> tuple:
+                fine_tiles: bool = True, others: list | None = None) -> tuple:
     """(box (x, y, w, h) px where the object is, its estimate or None) with no prior; (None, None)
     where nothing is found. With the network's proposals (``network``: :func:`network_boxes`) the
     estimate PnP fits best (``passes.estimate_in``), the first proposal's box where none gives an
     estimate; with ``fine_tiles``, where none reaches PnP quality ``FINE_BELOW``, finer tiles'
     proposals too (:func:`fine_boxes`), their estimates from ``FINE_ACCEPT``. Without proposals, the
-    sunlit pixels (:func:`~.detection.detect_bright_object`)."""
-    proposals = network_boxes(passes, image, cam) if network else []
+    sunlit pixels (:func:`~.detection.detect_bright_object`). ``others``: where given, every other
+    estimate found on the way — the other proposals', and each whole-frame and tile pass's own (a close
+    crop of a printed part can take corners of its print for the part's where the coarser pass does
+    not) — is appended to it, best PnP fit first."""
+    passes_found = [] if others is not None else None
+    proposals = network_boxes(passes, image, cam, poses=passes_found) if network else []
     if not proposals:
         seen = detect_bright_object(image)
         return seen, None if seen is None else passes.estimate_in(image, cam, seen, sun_turn)
@@ -152,5 +165,39 @@ def find_object(passes, image: np.ndarray, cam: Camera, sun_turn: float, network
                 for box in fine_boxes(passes, image, cam, proposals)]
         found += [(box, est) for box, est in fine if est is not None and pnp_quality(est) >= FINE_ACCEPT]
     if not found:
-        return proposals[0], None
-    return max(found, key=lambda box_est: pnp_quality(box_est[1]))  # the first of equals: the whole frame's
+        best = (proposals[0], None)
+    else:
+        best = max(found, key=lambda box_est: pnp_quality(box_est[1]))  # the first of equals: the whole frame's
+    if others is not None:
+        rest = [be for be in found + passes_found if be is not best]
+        others.extend(sorted(rest, key=lambda box_est: -pnp_quality(box_est[1])))
+    return best
+
+
+def distinct_estimates(estimates, first, keypoints_m: np.ndarray, cam: Camera, limit: int) -> list[KeypointEstimate]:
+    """Up to ``limit`` of ``estimates`` ([(box, :class:`KeypointEstimate`)], in order) whose poses differ
+    from the pose ``first`` (``T_cam_obj``; None: none) and from each other: their keypoints (``keypoints_m`` (N, 3) metres) projected by ``cam``
+    do not all lie within ``SAME_POSE_SHARE`` of their image extent of the other's."""
+    kept: list[np.ndarray] = []
+    if first is not None and np.all((first @ keypoints_m)[:, 2] > 0):
+        kept.append(cam.project(keypoints_m, first))
+    out = []
+    for _, est in estimates:
+        if len(out) >= limit:
+            break
+        if np.any((est.result.pose @ keypoints_m)[:, 2] <= 0):
+            continue
+        uv = cam.project(keypoints_m, est.result.pose)
+        if not np.isfinite(uv).all() or any(_same_points(uv, k) for k in kept):
+            continue
+        kept.append(uv)
+        out.append(est)
+    return out
+
+
+def _same_points(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether the point sets ``a`` (N, 2) and ``b`` (N, 2) px each lie within ``SAME_POSE_SHARE`` of their
+    extent of the other (nearest neighbours both ways)."""
+    extent = max(float(np.ptp(a, 0).max()), float(np.ptp(b, 0).max()), 1.0)
+    d = np.linalg.norm(a[:, None] - b[None], axis=2)
+    return bool(max(d.min(1).max(), d.min(0).max()) <= SAME_POSE_SHARE * extent)

@@ -35,7 +35,7 @@ from .detection import detect_dim_object
 from .direct import bounded_image, direct_pose
 from .engines import ENGINES, keypoint_engine
 from .keypoint_passes import KeypointEstimate, KeypointPasses, image_batch, pnp_quality
-from .network_detection import find_object
+from .network_detection import distinct_estimates, find_object
 from .options import KeypointOptions
 from .sun_turn import sun_turn_deg, trained_light_azimuth_deg
 from .twin_choice import TwinChoice, twin_starts
@@ -238,28 +238,15 @@ class CheckpointRegressor(PoseRegressor):
         return reg
 
     def _load_verifier(self, verifier, shipped: str = "twin_verifier.pt"):
-        if verifier is None or verifier is False or self.twin_check is None or not self.has_twin_head:
+        """The twin verifier ``verifier`` names (:func:`~.twin_verifier.load_verifier`), on torch with a network on
+        torch, else ONNX Runtime where it runs (float32 also beside the 8-bit keypoint model); None without a twin head."""
+        if self.twin_check is None or not self.has_twin_head:
             return None
-        from .twin_verifier import TwinVerifier
+        from .twin_verifier import load_verifier
 
-        obj = self.twin_check.view.object
-        if isinstance(verifier, str) and verifier == "auto":
-            path = WEIGHTS_DIR / shipped
-            if not path.is_file():
-                return None
-            try:
-                return TwinVerifier(path, obj, engine=self._verifier_engine())
-            except ValueError as exc:  # the shipped ones are for the built-in truss
-                log.info("shipped %s not used: %s", shipped, exc)
-                return None
-        return TwinVerifier(verifier, obj, engine=self._verifier_engine())
+        engine = "torch" if self.engine.name == "torch" else "auto"
+        return load_verifier(verifier, self.twin_check.view.object, WEIGHTS_DIR / shipped, engine)
 
-    def _verifier_engine(self) -> str:
-        """The twin verifiers' engine: torch with a network on torch, else ONNX Runtime where it runs
-        (float32 also beside the 8-bit keypoint model)."""
-        return "torch" if self.engine.name == "torch" else "auto"
-
-    # --- checks ----------------------------------------------------------------------------------
     # --- inference -------------------------------------------------------------------------------
     def tensor(self, *images: np.ndarray) -> torch.Tensor:
         """B (H, W, 3) uint8 RGB images of one size as the network's input: (B, 3, H, W) float in [0, 1]
@@ -319,13 +306,15 @@ class CheckpointRegressor(PoseRegressor):
         with torch.no_grad():
             return self._estimates(image, cam, roi, sun_turn)
 
-    def _estimates(self, image: np.ndarray, cam: Camera, roi, sun_turn: float = 0.0) -> list[KeypointEstimate]:
-        """:meth:`keypoint_estimates` on the undistorted ``image`` (camera ``cam``), ``sun_turn`` in °."""
+    def _estimates(self, image: np.ndarray, cam: Camera, roi, sun_turn: float = 0.0,
+                   others: list | None = None) -> list[KeypointEstimate]:
+        """:meth:`keypoint_estimates` on the undistorted ``image`` (camera ``cam``), ``sun_turn`` in °;
+        ``others``: as :func:`~.network_detection.find_object`'s (the detection's other estimates)."""
         if roi is not None:
             seen, est = roi, self.passes.estimate_in(image, cam, roi, sun_turn)
         else:
             seen, est = find_object(self.passes, image, cam, sun_turn, self.detection == "network",
-                                    self.options.fine_tiles)
+                                    self.options.fine_tiles, others)
         if est is None and roi is None and self.options.dim_fallback:
             # nothing bright, or its box gave no plausible pose: the faintly lit object, if any
             dim = detect_dim_object(image)
@@ -369,9 +358,28 @@ class CheckpointRegressor(PoseRegressor):
             raise ValueError(f"{self.path}: twin candidates need a keypoint model with a twin head, "
                              f"this is {self.model_name!r}" + ("" if self.kind != "keypoints" else " without one"))
 
-    def _predict_keypoints(self, frame: Frame, roi, sun_turn: float = 0.0) -> Measurement:
+    def candidates(self, frame: Frame, roi=None, limit: int = 4, sun_direction_cam=None) -> list[Measurement]:
+        """:meth:`predict`'s measurement first, then, for a keypoint model finding the part itself (no
+        ``roi``), up to ``limit`` other poses its passes found in the frame, distinct from it and from
+        each other (:func:`~.network_detection.distinct_estimates`), best PnP fit first: where the
+        tracker's edges refuse the first, a start tries these. Arguments as :meth:`predict`."""
+        if self.kind != "keypoints" or roi is not None or limit <= 0:
+            return [self.predict(frame, roi, sun_direction_cam)]
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+        sun_turn = self._sun_turn(frame, sun_direction_cam)
+        check_camera(self.dataset, self.kind, self.path, frame.camera)
+        others: list = []
+        with torch.no_grad():
+            first = self._predict_keypoints(frame, None, sun_turn, others)
+            image, cam = self._undistorted(frame)
+            undistorted = Frame(image, cam, frame.timestamp, frame.index)
+            rest = distinct_estimates(others, first.pose, self.keypoints_m, cam, limit)
+            return [first, *(self._measure(frame, undistorted, est) for est in rest)]
+
+    def _predict_keypoints(self, frame: Frame, roi, sun_turn: float = 0.0, others: list | None = None) -> Measurement:
         image, cam = self._undistorted(frame)
-        ests = self._estimates(image, cam, roi, sun_turn)
+        ests = self._estimates(image, cam, roi, sun_turn, others)
         if not ests:
             return self._lost(frame)
         undistorted = Frame(image, cam, frame.timestamp, frame.index)

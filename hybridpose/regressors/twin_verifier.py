@@ -231,3 +231,20 @@ class TwinVerifier:
         s, c = pairs.shape[:2]
         logits = self.net(pairs) if self.onnx is None else self.onnx(pairs.flatten(0, 1))[0].view(s, c)
         return torch.softmax(logits, 1).numpy().astype(np.float64)
+
+
+def load_verifier(verifier, obj: ObjectModel, shipped: Path, engine: str) -> TwinVerifier | None:
+    """The :class:`TwinVerifier` of ``obj`` from ``verifier``: a checkpoint path; ``"auto"``: the ``shipped``
+    one where it exists and was trained for ``obj`` (the shipped ones are for the built-in truss); None or
+    False: none. ``engine`` as :class:`TwinVerifier`'s."""
+    if verifier is None or verifier is False:
+        return None
+    if isinstance(verifier, str) and verifier == "auto":
+        if not shipped.is_file():
+            return None
+        try:
+            return TwinVerifier(shipped, obj, engine=engine)
+        except ValueError as exc:
+            log.info("shipped %s not used: %s", shipped.name, exc)
+            return None
+    return TwinVerifier(verifier, obj, engine=engine)

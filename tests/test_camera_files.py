@@ -105,6 +105,9 @@ def test_a_visp_tracker_configuration_needs_the_frames_size(tmp_path):
         load_camera(tmp_path / "cube.xml")
     cam = load_camera(tmp_path / "cube.xml", image_size="640x480")
     assert cam == Camera(640, 480, 547.7367575, 542.0744058, 338.7036994, 234.5083345)
+    # one that gives the size (<width>, <height> under <camera>, as ViSP's detection tutorial's does)
+    (tmp_path / "sized.xml").write_text(VISP_TRACKER_CONFIG.replace("<camera>", "<camera><width>640</width><height>480</height>"))
+    assert load_camera(tmp_path / "sized.xml") == cam
 
 
 @pytest.mark.parametrize("text, message", [

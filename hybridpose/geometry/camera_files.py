@@ -10,8 +10,9 @@
 - ViSP XML: a ``vpXmlParserCamera`` file (``<root><camera>`` with ``image_width``, ``image_height``
   and ``<model>`` entries: ``perspectiveProjWithDistortion`` is taken where present, since it models
   the raw image — ViSP's ``u = u0 + px·x·(1 + kud·r²)`` is OpenCV's model with ``k1 = kud``), or a
-  model-based tracker's configuration (``<conf><camera>`` with ``u0 v0 px py``), which gives no image
-  size: ``image_size`` does (``hybridpose track`` takes it from the first frame).
+  model-based tracker's configuration (``<conf><camera>`` with ``u0 v0 px py``), which gives the image
+  size only at times (``<width>``, ``<height>``): else ``image_size`` does (``hybridpose track`` takes it
+  from the first frame).
 
 Fisheye models (ROS ``equidistant``, ViSP Kannala–Brandt) are refused: rectify the images first.
 """
@@ -153,6 +154,8 @@ def _visp_xml(path: Path) -> dict:
         return float(text)
 
     kud = float(model.findtext("kud") or 0.0)
-    size = {key: camera.findtext(name) for key, name in (("width", "image_width"), ("height", "image_height"))}
+    # a tracker configuration may give the frames' size as <width> and <height> (ViSP's detection tutorial's)
+    size = {key: camera.findtext(name) or camera.findtext(key) for key, name in (("width", "image_width"),
+                                                                                 ("height", "image_height"))}
     return {"fx": number(model, "px"), "fy": number(model, "py"), "cx": number(model, "u0"), "cy": number(model, "v0"),
             "dist": [kud, 0.0, 0.0, 0.0] if kud else [], **{k: None if v is None else int(v) for k, v in size.items()}}

@@ -78,8 +78,8 @@ from .metrics import rotation_error_deg
 from .objects import ObjectModel
 from .regressors.colour_starts import SOURCE as COLOUR_SOURCE, ColourStarts
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE, KeypointMemory
-from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, print_backs, print_climber,
-                     print_fails, print_prefers, print_view, start_refused_in_light)
+from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, plain_alternatives, print_backs,
+                     print_climber, print_fails, print_prefers, print_view, start_refused_in_light)
 from .threads import set_threads
 
 MAX_TWIST_GAP_S = 0.2  # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -149,8 +149,7 @@ class HybridEstimator:
             regressor: a registered name, or the path of a trained checkpoint (``runs/x/best.pt``).
             config: as for the constructor (None: the regressor's recommended policy).
             scale: mesh units → metres for a mesh file (0.001 for mm).
-            tracker_kw, regressor_kw, fusion_kw: keyword arguments of each backend.
-            threads: as for the constructor.
+            tracker_kw, regressor_kw, fusion_kw: keyword arguments of each backend. threads: as for the constructor.
         """
         from .objects import load_object
         from .registry import create, create_regressor
@@ -467,11 +466,12 @@ class HybridEstimator:
 
     def _start_candidates(self, frame: Frame, timings: dict):
         """What a start tries in turn until one is confirmed: the memory's answer, else the network's and its other poses
-        (``start_alternatives``); every ``colour_start_every`` frames, a printed part posed where its print's colours stand out."""
+        (``start_alternatives``, plain surroundings only); every ``colour_start_every`` frames, a printed part's colour starts."""
         m = None if self.memory is None else self._timed(timings, "regressor", self.memory.find, frame, None)
         n, candidates = self.config.start_alternatives, getattr(self.regressor, "candidates", None)
         self.regressor_calls += m is None
-        yield from ([m] if m is not None else self._timed(timings, "regressor", candidates, frame, None, n) if n and candidates
+        yield from ([m] if m is not None else plain_alternatives(self._timed(timings, "regressor", candidates, frame, None, n),
+                                                                  frame, self._view) if n and candidates
                     else [self._timed(timings, "regressor", self.regressor.predict, frame, None)])
         if self.colour_starts is not None and (every := self.config.colour_start_every) and self._frames % every == 0:
             yield from self._timed(timings, "regressor", self.colour_starts.candidates, frame)

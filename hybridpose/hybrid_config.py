@@ -166,7 +166,9 @@ class HybridConfig:
             other distinct poses its passes found in the same frame are tried in turn through the same
             start checks (:meth:`~hybridpose.regressors.base.PoseRegressor.candidates`; a close crop of
             a printed part can take corners of its print for the part's where the whole frame's coarser
-            pass does not); the first accepted is taken. 0: the network's answer alone.
+            pass does not) — those whose surroundings are plain (:func:`~hybridpose.starts.plain_alternatives`:
+            in clutter each is one more chance for a wrong outline); the first accepted is taken. 0: the
+            network's answer alone.
         colour_start_every: while the hybrid has no pose (``init``) and neither the memory nor the CNN
             gives a start, every this many frames a part that carries its print is also started from
             poses all around it placed where its print's colours stand out (:class:`~hybridpose.
@@ -258,8 +260,8 @@ class HybridConfig:
     learn_after: int = 10
     memory_start_quality: float = 0.4
     plain_start_quality: float = 0.75
-    plain_surround_quality: float = 0.0
-    start_alternatives: int = 0
+    plain_surround_quality: float = 0.75
+    start_alternatives: int = 4
     handheld_accel_rad_s2: float | None = 3.0
     handheld_accel_m_s2: float = 3.0
 

@@ -252,6 +252,17 @@ def lit_around(frame: Frame, view: ModelView, pose: Pose) -> bool:
     return len(samples.index) > 0 and not dark_surround(to_gray(frame.image), samples.uv)
 
 
+def plain_alternatives(found: list[Measurement], frame: Frame, view: ModelView | None) -> list[Measurement]:
+    """Of a network's answers ``found`` (its answer first, then its other poses in ``frame``), the first and
+    those of the others whose surroundings are lit (:func:`lit_around`: not black space, where the space
+    suites measured the hybrid without them) and plain (:meth:`~hybridpose.edges.distinct.PlacementContrast.
+    plain_around`); none without a ``view``. Why: in clutter each extra guess is one more chance for a wrong
+    outline to pass a start's checks (hand-held tuning scenes over photos: a tile's pose 90° off confirmed
+    by edges and region at 0.81 and held for 90 frames), where on a plain table only the part has edges."""
+    return found[:1] + [m for m in found[1:] if view is not None and m.pose is not None and lit_around(frame, view, m.pose)
+                        and placement_contrast(view, frame, m.pose).plain_around()]
+
+
 def cues_vouch(cue_qualities: dict | None, bar: float) -> bool:
     """Whether every cue with a verdict (``cue_qualities``: cue name → quality, NaN for none) reaches
     ``bar``; True for a tracker that reports no cues, or with ``bar`` 0."""

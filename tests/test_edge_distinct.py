@@ -167,3 +167,25 @@ def test_an_edges_alone_start_on_a_plain_table_is_taken_at_the_plain_surround_ba
     assert not start_refused_in_light({"edges": 0.9, "region": 0.7}, scene, view, fit, 0.0, 0.0)  # another cue spoke
     black = Frame(np.zeros_like(scene.image), CAM, 0.0, 0)
     assert not start_refused_in_light(edges_alone, black, view, fit, 0.0, 0.0)  # black space: the edges decide
+
+
+def test_a_networks_other_poses_are_tried_only_on_plain_surroundings(box, scene, plain_scene):
+    """``plain_alternatives``: the network's answer always stays first; its other poses only where the
+    part's surroundings are lit and plain (the scene with tiles beside the part, black space, or no model
+    view: the answer alone)."""
+    from hybridpose.starts import plain_alternatives
+
+    view = ModelView(box)
+    cov = np.eye(6) * 1e-4
+    answer = Measurement(shifted_in_image(TRUTH, CAM, 40.0, 0.0), cov, 0.5, "regressor:test", 0.0)
+    other = Measurement(TRUTH, cov, 0.5, "regressor:test", 0.0)
+    nothing = Measurement(None, cov, 0.0, "regressor:test", 0.0)
+    assert plain_alternatives([answer, other, nothing], plain_scene, view) == [answer, other]
+    assert plain_alternatives([answer, other], scene, view) == [answer]
+    assert plain_alternatives([answer, other], plain_scene, None) == [answer]
+    assert plain_alternatives([], plain_scene, view) == []
+    with Renderer(box, CAM) as r:   # black space around the part: plain, but the space suites measured none
+        space = Frame(r.render(TRUTH, rng=0, appearance=Appearance(ambient=0.4, background=np.zeros(
+            (CAM.height, CAM.width, 3), np.uint8))).rgb, CAM, 0.0, 0)
+    assert placement_contrast(view, space, TRUTH).plain_around()
+    assert plain_alternatives([answer, other], space, view) == [answer]

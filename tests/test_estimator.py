@@ -402,19 +402,25 @@ class TwinFirst(OracleRegressor):
         return [self.predict(frame, roi), *[super(TwinFirst, self).predict(frame, roi)][:limit]]
 
 
-@pytest.mark.parametrize("alternatives", [0, 1])
-def test_where_the_edges_refuse_the_networks_answer_a_start_tries_its_other_poses(alternatives):
+@pytest.mark.parametrize("alternatives, plain", [(0, True), (1, True), (1, False)])
+def test_where_the_edges_refuse_the_networks_answer_a_start_tries_its_other_poses(alternatives, plain, monkeypatch):
     """``start_alternatives``: the tracker cannot fit the network's answer (a twin), and the start goes on to the
-    other poses the network found in the frame; 0: the answer alone, and the hybrid never starts."""
+    other poses the network found in the frame, where their surroundings are plain (here: said so, or not); 0:
+    the answer alone, and the hybrid never starts."""
+    import hybridpose.estimator
+
+    if plain:
+        monkeypatch.setattr(hybridpose.estimator, "plain_alternatives", lambda found, frame, view: found)
     reg = TwinFirst()
     est = HybridEstimator(EdgesOnlyAtTheTruth(), reg, registry.create("fusion", "ukf"),
                           HybridConfig(start_alternatives=alternatives, start_contrast=0, probation_frames=0))
     out = run(est, 3)
-    if alternatives:
+    if alternatives and plain:
         assert out[0].status == "init" and rotation_error_deg(out[0].pose, truth(0)) < 0.3
+        assert est.regressor_calls == 1
     else:
-        assert all(e.pose is None for e in out) and HybridConfig().start_alternatives >= 0
-    assert est.regressor_calls == (1 if alternatives else 3)
+        assert all(e.pose is None for e in out) and est.regressor_calls == 3
+    assert HybridConfig().start_alternatives >= 0
     with pytest.raises(ValueError, match="start_alternatives"):
         HybridConfig(start_alternatives=-1)
 

@@ -176,11 +176,10 @@ def find_object(passes, image: np.ndarray, cam: Camera, sun_turn: float, network
 
 def distinct_estimates(estimates, first, keypoints_m: np.ndarray, cam: Camera, limit: int) -> list[KeypointEstimate]:
     """Up to ``limit`` of ``estimates`` ([(box, :class:`KeypointEstimate`)], in order) whose poses differ
-    from the pose ``first`` (``T_cam_obj``; None: none) and from each other: their keypoints (``keypoints_m`` (N, 3) metres) projected by ``cam``
-    do not all lie within ``SAME_POSE_SHARE`` of their image extent of the other's."""
-    kept: list[np.ndarray] = []
-    if first is not None and np.all((first @ keypoints_m)[:, 2] > 0):
-        kept.append(cam.project(keypoints_m, first))
+    from the pose ``first`` (``T_cam_obj``; None: none) and from each other: their keypoints
+    (``keypoints_m`` (N, 3) metres) projected by ``cam`` do not all lie within ``SAME_POSE_SHARE`` of their
+    image extent of the other's."""
+    kept = [cam.project(keypoints_m, first)] if first is not None and np.all((first @ keypoints_m)[:, 2] > 0) else []
     out = []
     for _, est in estimates:
         if len(out) >= limit:

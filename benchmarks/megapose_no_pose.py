@@ -51,7 +51,9 @@ VIDEOS = {"megapose_cube": ("megapose-no-pose", "The start checks' thresholds we
                                                 "(`docs/decisions.md`): development figures, not held-out ones."),
           "detection_cube": ("detection-cube-no-pose", "No start check was tuned on this video (the trackers were "
                                                        "developed on it too)."),
-          "teabox": ("teabox-no-pose", "Nothing was tuned on this video."),
+          "teabox": ("teabox-no-pose", "The start rules for plain surroundings (`plain_surround_quality`, "
+                                       "`start_alternatives`) were developed on this video (`docs/decisions.md`): "
+                                       "development figures."),
           "teabox_left": ("teabox-left-no-pose", "Nothing was tuned on this video.")}
 CNN_EVERY = 5
 

@@ -204,7 +204,7 @@ class HybridConfig:
             a verdict, as on a white box on a white table) is refused, unless the scene around it is
             plain — its view slid beside it matches at most a fifth of its edges
             (:meth:`~hybridpose.edges.distinct.PlacementContrast.plain_around`) — and its fit reaches this
-            (0: refused everywhere).
+            (0: refused everywhere; 0.75: ViSP's mono tea box, docs/decisions.md).
         handheld_accel_rad_s2, handheld_accel_m_s2: the fusion's motion model off black space (the
             first frame less than ``SPACE_DARK_SHARE`` dark, as for ``keypoint_memory``): white-
             acceleration densities (rad/s², m/s² per √Hz; :attr:`Fusion.motion_noise`) for a camera or

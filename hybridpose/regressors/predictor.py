@@ -370,12 +370,12 @@ class CheckpointRegressor(PoseRegressor):
         sun_turn = self._sun_turn(frame, sun_direction_cam)
         check_camera(self.dataset, self.kind, self.path, frame.camera)
         others: list = []
+        image, cam = self._undistorted(frame)  # once: the first answer and the others' measurements share it
+        undistorted = Frame(image, cam, frame.timestamp, frame.index)
         with torch.no_grad():
-            first = self._predict_keypoints(frame, None, sun_turn, others)
-            image, cam = self._undistorted(frame)
-            undistorted = Frame(image, cam, frame.timestamp, frame.index)
+            first = self._predict_keypoints(undistorted, None, sun_turn, others)
             rest = distinct_estimates(others, first.pose, self.keypoints_m, cam, limit)
-            return [first, *(self._measure(frame, undistorted, est) for est in rest)]
+            return [first, *(self._measure(undistorted, undistorted, est) for est in rest)]
 
     def _predict_keypoints(self, frame: Frame, roi, sun_turn: float = 0.0, others: list | None = None) -> Measurement:
         image, cam = self._undistorted(frame)

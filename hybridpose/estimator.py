@@ -79,7 +79,7 @@ from .objects import ObjectModel
 from .regressors.colour_starts import SOURCE as COLOUR_SOURCE, ColourStarts
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE, KeypointMemory
 from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, plain_alternatives, print_backs,
-                     print_climber, print_fails, print_prefers, print_view, start_refused_in_light)
+                     print_climber, print_fails, print_prefers, print_view, start_refused_in_light, unseen_in_clutter)
 from .threads import set_threads
 
 MAX_TWIST_GAP_S = 0.2  # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -186,7 +186,7 @@ class HybridEstimator:
         state = {Status.INIT: self._initialise, Status.LOST: self._reacquire, Status.TRACKING: self._track}
         estimate = state[self.status](frame, timings)
         self._frames += 1
-        unsettled = estimate.status in (Status.TRACKING, Status.REINIT) and self._unsettled()
+        unsettled = estimate.status in (Status.TRACKING, Status.REINIT) and self.config.unsettled(self._restarts, self._frames)
         if unsettled or (estimate.status == Status.TRACKING  # the track goes on, not trusted where its print does not show
                          and print_fails(self._print, frame, estimate.pose, self.config.track_print_floor)):
             estimate = replace(estimate, status=Status.LOST)
@@ -204,8 +204,8 @@ class HybridEstimator:
     # --- the three states --------------------------------------------------------------------------
     def _initialise(self, frame: Frame, timings: dict) -> Estimate:
         fit = None
-        for m in self._start_candidates(frame, timings):
-            if (fit := self._confirmed(frame, m, timings, depth_search=True)) is not None:
+        for m, seen in self._start_candidates(frame, timings):
+            if (fit := self._confirmed(frame, m, timings, depth_search=True, sightings=seen)) is not None:
                 break
         if fit is None:
             return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status=Status.INIT)
@@ -333,10 +333,12 @@ class HybridEstimator:
         self._n.last_cnn = self._cnn(frame, None, timings, near=self.fusion.estimate.pose)
         return self._estimate(Status.LOST, ())
 
-    def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search: bool = False) -> Measurement | None:
-        """The start the CNN measurement ``m`` gives in ``frame`` (:func:`~hybridpose.starts.confirmed_start`)."""
+    def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search=False, sightings=None) -> Measurement | None:
+        """The start the CNN measurement ``m`` gives in ``frame`` (:func:`~hybridpose.starts.confirmed_start`; ``sightings``:
+        the network's other sightings of the part there, for a part with no print, :func:`~hybridpose.starts.unseen_in_clutter`)."""
         c = self.config  # a start from the memory's keypoints has its own bar (memory_start_quality)
         plain_bar = c.plain_start_quality if m.source != MEMORY_SOURCE and self._print is None else 0.0
+        seen = sightings if self._print is None else None  # a printed part's start answers to its print
 
         def fit(start: Pose) -> Measurement | None:
             try:
@@ -346,8 +348,9 @@ class HybridEstimator:
             f = self._track_from(frame, start, timings, c.cnn_search_px or None, from_cnn=True)
             self.best_start_fit = max(self.best_start_fit, f.quality if f.pose is not None else 0.0)
             cues = getattr(self.tracker, "cue_qualities", None)
-            refused = self._view is not None and start_refused_in_light(cues, frame, self._view, f, plain_bar,
-                                                                         c.plain_surround_quality)
+            refused = self._view is not None and (
+                start_refused_in_light(cues, frame, self._view, f, plain_bar, c.plain_surround_quality)
+                or unseen_in_clutter(seen, frame, self._view, f, c.start_sighting_iou))
             return None if refused else f
 
         floor = c.colour_start_print if m.source == COLOUR_SOURCE else 0.0  # 32 blind tries: the print must show well
@@ -448,13 +451,6 @@ class HybridEstimator:
             return Estimate(pose=None, covariance=LOST_COVARIANCE, timestamp=frame.timestamp, status=Status.INIT)
         return replace(estimate, status=Status.LOST)
 
-    def _unsettled(self) -> bool:
-        """Restarted twice within ``unstable_window`` frames and not yet ``settle_frames`` frames since:
-        the CNN and the edges keep agreeing on poses that do not hold (a view both get wrong)."""
-        r = self._restarts
-        return (self.config.settle_frames > 0 and len(r) >= 2 and r[-1] - r[-2] <= self.config.unstable_window
-                and self._frames - r[-1] <= self.config.settle_frames)
-
     def _learn(self, frame: Frame, m: Measurement, timings: dict) -> None:
         """The memory learns the part's look from the tracker's fit ``m`` where the track is sure of it:
         ``learn_after`` frames since its start, ``start_sure_quality``, every cue vouching, not the edges alone."""
@@ -465,16 +461,18 @@ class HybridEstimator:
             self._timed(timings, "regressor", self.memory.learn, frame, m.pose)
 
     def _start_candidates(self, frame: Frame, timings: dict):
-        """What a start tries in turn until one is confirmed: the memory's answer, else the network's and its other poses
-        (``start_alternatives``, plain surroundings only); every ``colour_start_every`` frames, a printed part's colour starts."""
+        """What a start tries in turn until one is confirmed, each with the network's sightings of the part in the frame
+        (None: not said): the memory's answer, else the network's and its other poses (``start_alternatives``, plain
+        surroundings only); every ``colour_start_every`` frames, a printed part's colour starts."""
         m = None if self.memory is None else self._timed(timings, "regressor", self.memory.find, frame, None)
-        n, candidates = self.config.start_alternatives, getattr(self.regressor, "candidates", None)
+        candidates = getattr(self.regressor, "candidates", None)
         self.regressor_calls += m is None
-        yield from ([m] if m is not None else plain_alternatives(self._timed(timings, "regressor", candidates, frame, None, n),
-                                                                  frame, self._view) if n and candidates
-                    else [self._timed(timings, "regressor", self.regressor.predict, frame, None)])
+        found = ([m] if m is not None else self._timed(timings, "regressor", candidates, frame, None, self.config.start_alternatives)
+                 if candidates else [self._timed(timings, "regressor", self.regressor.predict, frame, None)])
+        seen = getattr(found, "sightings", None)
+        yield from ((c, seen) for c in (found if m is not None else plain_alternatives(found, frame, self._view)))
         if self.colour_starts is not None and (every := self.config.colour_start_every) and self._frames % every == 0:
-            yield from self._timed(timings, "regressor", self.colour_starts.candidates, frame)
+            yield from ((c, None) for c in self._timed(timings, "regressor", self.colour_starts.candidates, frame))
 
     def _cnn(self, frame: Frame, roi, timings: dict, near: Pose | None = None) -> Measurement:
         """The memory's answer in ``frame`` (:attr:`memory`), else the regressor's; for a symmetric

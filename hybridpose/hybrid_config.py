@@ -205,6 +205,14 @@ class HybridConfig:
             plain — its view slid beside it matches at most a fifth of its edges
             (:meth:`~hybridpose.edges.distinct.PlacementContrast.plain_around`) — and its fit reaches this
             (0: refused everywhere; 0.75: ViSP's mono tea box, docs/decisions.md).
+        start_sighting_iou: a start of a part with no print to check it, from the network's answer at
+            ``init``, in a lit scene whose surroundings are not plain, is refused where none of the
+            network's other looks at the frame (its whole-frame and tile passes, its other proposals:
+            :attr:`~hybridpose.regressors.base.Candidates.sightings`) saw the part at the start's place
+            — its image box over the start's by at least this intersection over union
+            (:func:`~hybridpose.starts.unseen_in_clutter`; 0: off; a regressor that does not say: no
+            verdict). A close look alone took a box or a bottle's label in the clutter for a far, small
+            part (docs/decisions.md).
         handheld_accel_rad_s2, handheld_accel_m_s2: the fusion's motion model off black space (the
             first frame less than ``SPACE_DARK_SHARE`` dark, as for ``keypoint_memory``): white-
             acceleration densities (rad/s², m/s² per √Hz; :attr:`Fusion.motion_noise`) for a camera or
@@ -262,6 +270,7 @@ class HybridConfig:
     plain_start_quality: float = 0.75
     plain_surround_quality: float = 0.75
     start_alternatives: int = 4
+    start_sighting_iou: float = 0.25
     handheld_accel_rad_s2: float | None = 3.0
     handheld_accel_m_s2: float = 3.0
 
@@ -293,6 +302,8 @@ class HybridConfig:
         for name in ("start_quality", "memory_start_quality", "plain_start_quality", "plain_surround_quality"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}: expected a tracker quality in [0, 1], got {getattr(self, name)}")
+        if not 0 <= self.start_sighting_iou <= 1:
+            raise ValueError(f"start_sighting_iou: expected an intersection over union in [0, 1] (0: off), got {self.start_sighting_iou}")
         if not 0 <= self.switch_quality_margin <= 1:
             raise ValueError(f"switch_quality_margin: expected a quality difference in [0, 1], got {self.switch_quality_margin}")
         if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:
@@ -331,6 +342,14 @@ class HybridConfig:
         if tells_covered:
             return None, capped(self.keep_covered_quality)
         return capped(self.keep_quality), None
+
+    def unsettled(self, restarts: list[int], frames: int) -> bool:
+        """Whether a hybrid that restarted at the frame counts ``restarts`` and has stepped ``frames`` frames
+        restarted twice within ``unstable_window`` frames, not yet ``settle_frames`` frames ago: the CNN and
+        the edges keep agreeing on poses that do not hold (a view both get wrong)."""
+        r = restarts
+        return (self.settle_frames > 0 and len(r) >= 2 and r[-1] - r[-2] <= self.unstable_window
+                and frames - r[-1] <= self.settle_frames)
 
 
 def recommended_config(recommended: Mapping | None, overrides: Mapping | None = None,

@@ -20,6 +20,7 @@ from .edges.fit import dark_surround
 from .edges.print_match import PrintView, print_agreement
 from .fusion.base import equivalent_measurement, pose_mahalanobis2
 from .geometry import Pose, rotvec_to_matrix, turned_about
+from .geometry.crops import box_iou
 from .hybrid_config import HybridConfig
 
 Fit = Callable[[Pose], "Measurement | None"]
@@ -261,6 +262,34 @@ def plain_alternatives(found: list[Measurement], frame: Frame, view: ModelView |
     by edges and region at 0.81 and held for 90 frames), where on a plain table only the part has edges."""
     return found[:1] + [m for m in found[1:] if view is not None and m.pose is not None and lit_around(frame, view, m.pose)
                         and placement_contrast(view, frame, m.pose).plain_around()]
+
+
+def unseen_in_clutter(sightings, frame: Frame, view: ModelView, fit: Measurement, min_iou: float) -> bool:
+    """Whether a start's ``fit`` in ``frame`` lies where none of the network's other looks at the frame saw
+    the part — no pose of ``sightings`` (``T_cam_obj`` each: :attr:`~hybridpose.regressors.base.Candidates.
+    sightings` of the answer it started from) puts the part's image box over the fit's by ``min_iou``
+    (intersection over union) — in a lit scene whose surroundings are not plain (:func:`lit_around`,
+    :meth:`~hybridpose.edges.distinct.PlacementContrast.plain_around`). False where ``sightings`` is None
+    (the regressor does not say), with ``min_iou`` 0, or for a lost fit.
+
+    Why: a network's close look can take a box, a bottle's label or a panel in the clutter for a far,
+    small part that the edges and the region cue then confirm (hand-held tuning scenes over photos and
+    ViSP's MegaPose cube: four such starts, each 48–57° off and held 5–33 frames); there the network's
+    whole-frame and tile passes saw the part elsewhere, twice to seven times as large, or nowhere. A
+    right start has a pass at its place (overlap 0.3–1 on those scenes)."""
+    if sightings is None or min_iou <= 0 or fit.lost:
+        return False
+    box = _image_box(view, frame, fit.pose)
+    if box is None or any(box_iou(box, other) >= min_iou for other in
+                          (_image_box(view, frame, pose) for pose in sightings) if other is not None):
+        return False
+    return lit_around(frame, view, fit.pose) and not placement_contrast(view, frame, fit.pose).plain_around()
+
+
+def _image_box(view: ModelView, frame: Frame, pose: Pose):
+    """Box (x, y, w, h) px of the part's bounding box projected at ``pose``; None where it reaches behind the camera."""
+    box = frame.camera.image_box(view.object.bbox_corners, pose)
+    return None if box is None else (box[0], box[1], box[2] - box[0], box[3] - box[1])
 
 
 def cues_vouch(cue_qualities: dict | None, bar: float) -> bool:

@@ -189,3 +189,47 @@ def test_a_networks_other_poses_are_tried_only_on_plain_surroundings(box, scene,
             (CAM.height, CAM.width, 3), np.uint8))).rgb, CAM, 0.0, 0)
     assert placement_contrast(view, space, TRUTH).plain_around()
     assert plain_alternatives([answer, other], space, view) == [answer]
+
+
+def test_a_start_in_clutter_where_no_other_look_of_the_network_saw_the_part_is_refused(box, scene, plain_scene):
+    """``unseen_in_clutter``: in a lit scene with clutter around the part, a start whose place none of the
+    network's other sightings covers (by ``min_iou``) is refused; one sighting there is enough. On a plain
+    table, on black space, without sightings to judge by (None) or with the test off, nothing is refused."""
+    from hybridpose.starts import unseen_in_clutter
+
+    view, bar = ModelView(box), HybridConfig().start_sighting_iou
+    assert bar > 0
+    fit = Measurement(TRUTH, np.eye(6) * 1e-4, 0.9, "tracker:edges", 0.0)
+    far = shifted_in_image(Pose(TRUTH.R, TRUTH.t * 3.0), CAM, 120.0, 10.0)
+    assert unseen_in_clutter((), scene, view, fit, bar)  # nothing else saw it
+    assert unseen_in_clutter((far,), scene, view, fit, bar)  # the passes saw it elsewhere, small
+    assert not unseen_in_clutter((shifted_in_image(TRUTH, CAM, 8.0, -5.0), far), scene, view, fit, bar)
+    assert not unseen_in_clutter(None, scene, view, fit, bar)
+    assert not unseen_in_clutter((), scene, view, fit, 0.0)
+    assert not unseen_in_clutter((), plain_scene, view, fit, bar)
+    assert not unseen_in_clutter((), Frame(np.zeros_like(scene.image), CAM, 0.0, 0), view, fit, bar)
+    assert not unseen_in_clutter((), scene, view, Measurement(None, fit.covariance, 0.0, "tracker:edges", 0.0), bar)
+    with pytest.raises(ValueError, match="start_sighting_iou"):
+        HybridConfig(start_sighting_iou=1.5)
+
+
+class SightingRegressor(TruthRegressor):
+    """The true pose, with the places where the network's other passes saw the part (``candidates``)."""
+
+    def __init__(self, pose: Pose, sightings):
+        super().__init__(pose)
+        self.sightings = sightings
+
+    def candidates(self, frame, roi=None, limit=4):
+        from hybridpose.regressors.base import Candidates
+
+        return Candidates([self.predict(frame, roi)], self.sightings)
+
+
+@pytest.mark.parametrize("sightings, iou, starts", [((), 0.25, False), ((TRUTH,), 0.25, True), ((), 0.0, True),
+                                                    (None, 0.25, True)])
+def test_a_start_in_clutter_needs_the_networks_other_passes_to_have_seen_the_part_there(box, scene, sightings, iou,
+                                                                                        starts):
+    est = HybridEstimator(registry.create("tracker", "edges", object=box), SightingRegressor(TRUTH, sightings),
+                          registry.create("fusion", "ukf"), HybridConfig(start_sighting_iou=iou))
+    assert (est.step(scene).pose is not None) == starts

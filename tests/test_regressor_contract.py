@@ -94,4 +94,8 @@ def test_every_regressor_keeps_the_measurement_contract(name, truss, view, tmp_p
         assert rotation_error_deg(found[0].pose, m.pose) < 1e-6
     for c in found:
         _check(c, name, frame)
+    # where the regressor's other looks at the frame saw the object: poses, or None where it does not say
+    assert found.sightings is None or all(isinstance(p, Pose) for p in found.sightings)
+    if name == "default":
+        assert isinstance(found.sightings, tuple)  # a keypoint network's passes
     assert len(reg.candidates(frame, None, 0)) == 1 and len(reg.candidates(frame, (160, 80, 320, 320), 3)) == 1

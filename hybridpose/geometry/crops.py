@@ -52,3 +52,11 @@ def projection_roi(points_obj, pose, camera, margin: float) -> tuple[int, int, i
     if x1 - x0 < 2 or y1 - y0 < 2:
         return None
     return int(x0), int(y0), int(np.ceil(x1 - x0)), int(np.ceil(y1 - y0))
+
+
+def box_iou(a, b) -> float:
+    """Intersection over union of two boxes (x, y, w, h) px; 0 where they do not overlap."""
+    iw = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    return inter / (a[2] * a[3] + b[2] * b[3] - inter) if inter > 0 else 0.0

@@ -36,11 +36,24 @@ class PoseRegressor(ABC):
                 predicted projection); without it the regressor finds the object itself.
         """
 
-    def candidates(self, frame: Frame, roi: tuple[int, int, int, int] | None = None, limit: int = 4) -> list[Measurement]:
+    def candidates(self, frame: Frame, roi: tuple[int, int, int, int] | None = None, limit: int = 4) -> Candidates:
         """:meth:`predict`'s measurement first, then up to ``limit`` other distinct poses of the object in
-        ``frame`` that a start may try where the tracker refuses the first (here none: backends that see
-        several answers, as the keypoint checkpoints do, offer them)."""
-        return [self.predict(frame, roi)]
+        ``frame`` that a start may try where the tracker refuses the first (here none, and no
+        :attr:`Candidates.sightings`: backends that see several answers, as the keypoint checkpoints do,
+        offer them)."""
+        return Candidates([self.predict(frame, roi)])
+
+
+class Candidates(list):
+    """:meth:`PoseRegressor.candidates`'s answer: a list of :class:`~hybridpose.core.Measurement` (the
+    regressor's own answer first), and ``sightings``: the poses (``T_cam_obj``, metres) at which the
+    regressor's other looks over the same frame saw the object (a keypoint network's whole-frame and
+    tile passes, its other proposals) — a tuple, empty where nothing else saw it, None where the
+    regressor does not say. Where an answer stands alone, nothing else in the frame backs it."""
+
+    def __init__(self, found=(), sightings=None):
+        super().__init__(found)
+        self.sightings: tuple | None = None if sightings is None else tuple(sightings)
 
 
 def check_roi(roi, frame: Frame) -> tuple[float, float, float, float] | None:

@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from ..geometry import Camera
+from ..geometry.crops import box_iou
 from .detection import detect_bright_object
 from .keypoint_net import HEATMAP_STRIDE
 from .keypoint_passes import KeypointEstimate, pnp_quality
@@ -70,14 +71,6 @@ def tile_boxes(width: int, height: int, side_share: float = TILE_SIDE) -> list[t
         return np.linspace(side / 2, extent - side / 2, n) if n > 1 else np.array([extent / 2])
 
     return [(float(x), float(y), float(side)) for y in centres(height) for x in centres(width)]
-
-
-def box_iou(a, b) -> float:
-    """Intersection over union of two boxes (x, y, w, h)."""
-    iw = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    return inter / (a[2] * a[3] + b[2] * b[3] - inter) if inter > 0 else 0.0
 
 
 def _clip(uv: np.ndarray, cam: Camera):

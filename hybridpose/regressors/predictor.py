@@ -27,7 +27,7 @@ from ..core import LOST_COVARIANCE, Frame, Measurement
 from ..geometry import Camera, Pose, as_unit_direction
 from ..objects import view_elevation_deg
 from ..registry import register
-from .base import PoseRegressor, check_roi
+from .base import Candidates, PoseRegressor, check_roi
 from .checkpoints import WEIGHTS_DIR, shipped_checkpoint
 from .checkpoint_checks import builtin_object, check_camera, check_object, regressor_checkpoint
 from .calibration import SIGMA_FLOOR_PX, UNCALIBRATED_SCALE, pnp_covariance, quality_factor, uncalibrated_record
@@ -255,7 +255,9 @@ class CheckpointRegressor(PoseRegressor):
 
     def _sun_turn(self, frame: Frame, sun_direction_cam) -> float:
         """The crop turn (°, :func:`sun_turn_deg`) for the caller's sun (checked), else the frame's
-        own (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`); neither: no turn."""
+        own (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`); neither: no turn. ``frame`` checked first."""
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         if sun_direction_cam is None:
             sun_direction_cam = frame.sun_direction_cam
         if sun_direction_cam is None:
@@ -279,10 +281,8 @@ class CheckpointRegressor(PoseRegressor):
                 the whole frame and ignore it. None: the frame's own
                 (:attr:`Frame.sun_direction_cam <hybridpose.core.Frame>`), where it has one.
         """
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+        sun_turn = self._sun_turn(frame, sun_direction_cam)  # checks the frame first
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(frame, sun_direction_cam)
         check_camera(self.dataset, self.kind, self.path, frame.camera)
         with torch.no_grad():
             if self.kind == "keypoints":
@@ -296,12 +296,10 @@ class CheckpointRegressor(PoseRegressor):
         none); where an edge-on expert runs (the first estimate within ``expert_below_deg`` of
         edge-on) the expert's instead (``expert_rule="replace"``) or the first and the expert's (the
         other rules); the first alone where the expert finds nothing; [] where nothing is found."""
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         if self.kind != "keypoints":
             raise ValueError(f"{self.path}: keypoint estimates need a keypoint model, this is {self.model_name!r}")
+        sun_turn = self._sun_turn(frame, sun_direction_cam)  # checks the frame first
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(frame, sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
             return self._estimates(image, cam, roi, sun_turn)
@@ -338,11 +336,9 @@ class CheckpointRegressor(PoseRegressor):
         (``hybridpose train-verifier --estimates-from``). Keypoint models with a twin head only;
         ``roi`` and ``sun_direction_cam`` as in :meth:`predict`. With an edge-on expert (any rule but
         "replace") these are the first network's twins (the expert's estimate gets its own)."""
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
         self.require_twin_head()
+        sun_turn = self._sun_turn(frame, sun_direction_cam)  # checks the frame first
         roi = check_roi(roi, frame)
-        sun_turn = self._sun_turn(frame, sun_direction_cam)
         image, cam = self._undistorted(frame)
         with torch.no_grad():
             ests = self._estimates(image, cam, roi, sun_turn)
@@ -358,15 +354,14 @@ class CheckpointRegressor(PoseRegressor):
             raise ValueError(f"{self.path}: twin candidates need a keypoint model with a twin head, "
                              f"this is {self.model_name!r}" + ("" if self.kind != "keypoints" else " without one"))
 
-    def candidates(self, frame: Frame, roi=None, limit: int = 4, sun_direction_cam=None) -> list[Measurement]:
+    def candidates(self, frame: Frame, roi=None, limit: int = 4, sun_direction_cam=None) -> Candidates:
         """:meth:`predict`'s measurement first, then, for a keypoint model finding the part itself (no
         ``roi``), up to ``limit`` other poses its passes found in the frame, distinct from it and from
         each other (:func:`~.network_detection.distinct_estimates`), best PnP fit first: where the
-        tracker's edges refuse the first, a start tries these. Arguments as :meth:`predict`."""
-        if self.kind != "keypoints" or roi is not None or limit <= 0:
-            return [self.predict(frame, roi, sun_direction_cam)]
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame: expected a hybridpose Frame, got {type(frame).__name__}")
+        tracker's edges refuse the first, a start tries these; ``sightings``: every other pass's and
+        proposal's pose in the frame. Arguments as :meth:`predict`."""
+        if self.kind != "keypoints" or roi is not None:
+            return Candidates([self.predict(frame, roi, sun_direction_cam)])
         sun_turn = self._sun_turn(frame, sun_direction_cam)
         check_camera(self.dataset, self.kind, self.path, frame.camera)
         others: list = []
@@ -375,7 +370,8 @@ class CheckpointRegressor(PoseRegressor):
         with torch.no_grad():
             first = self._predict_keypoints(undistorted, None, sun_turn, others)
             rest = distinct_estimates(others, first.pose, self.keypoints_m, cam, limit)
-            return [first, *(self._measure(undistorted, undistorted, est) for est in rest)]
+            return Candidates([first, *(self._measure(undistorted, undistorted, est) for est in rest)],
+                              sightings=[est.result.pose for _, est in others])
 
     def _predict_keypoints(self, frame: Frame, roi, sun_turn: float = 0.0, others: list | None = None) -> Measurement:
         image, cam = self._undistorted(frame)

@@ -13,7 +13,8 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   network's other poses in the frame, ``start_alternatives``), confirms it (not lost; off black space, where
   it reports its cues, not by its edges alone unless the scene around is plain, ``plain_surround_quality``;
   its fit standing out from its own view slid across the image: clutter matches a wrong outline as well as
-  its neighbours, ``start_contrast``); the tracker's fit starts the fusion — or, where not convincing
+  its neighbours, ``start_contrast``; a plain part's in lit clutter, where another of the network's passes
+  saw it too, ``start_sighting_iou``); the tracker's fit starts the fusion — or, where not convincing
   (``start_sure_quality``), a clearly better one from the start turned a few degrees; a printed part's,
   moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is gated

@@ -102,6 +102,9 @@ class HybridConfig:
             uncertainty (``disagreement_chi2``) starts the track instead (0: off). Right starts
             mostly score 0.8 and more: on the tuning seeds a third of the starts tried the six extra
             fits, about 0.2 ms a frame amortised.
+        start_wide_turn_deg: where none of those turns fits better, the same six turns by this much
+            are tried (0: off): a plain cube's edges held a start 15° off at 0.8 where the truth fits
+            at 0.96 (hand-held tuning scenes; docs/decisions.md).
         start_print_turn_deg: a start of a part whose print is known climbs the print's score
             (:func:`~hybridpose.starts.print_climb`): its pose turned by this much about each camera axis
             through the part's centre, the best turn by the print fitted again while the print scores
@@ -251,6 +254,7 @@ class HybridConfig:
     restart_unconfirmed: bool = False
     start_turn_deg: float = 4.0
     start_sure_quality: float = 0.8
+    start_wide_turn_deg: float = 10.0
     start_print_turn_deg: float = 3.0
     start_contrast: float = 0.3
     start_print_margin: float = 0.2
@@ -309,7 +313,7 @@ class HybridConfig:
         if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:
             raise ValueError(f"start_depth_step, start_depth_span: expected relative distances in [0, 1), got "
                              f"{self.start_depth_step}, {self.start_depth_span}")
-        for name in ("start_turn_deg", "start_print_turn_deg"):
+        for name in ("start_turn_deg", "start_wide_turn_deg", "start_print_turn_deg"):
             if not 0 <= getattr(self, name) <= 45:
                 raise ValueError(f"{name}: expected degrees in [0, 45] (0: off), got {getattr(self, name)}")
         if not 0 <= self.resume_cue_quality <= 1:

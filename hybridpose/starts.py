@@ -117,17 +117,20 @@ def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, confi
     where it scores below ``start_sure_quality``, the best of the fits from ``start`` turned by
     ±``start_turn_deg`` about each camera axis through the object's origin that beats it by
     ``switch_quality_margin`` and stays within ``m``'s uncertainty (``disagreement_chi2``): a local
-    minimum of the object's edges may lie a few degrees from the truth."""
-    deg = config.start_turn_deg
-    if deg <= 0 or first.quality >= config.start_sure_quality:
+    minimum of the object's edges may lie a few degrees from the truth. Where none does, the same six
+    turns by ``start_wide_turn_deg``: a plain cube's edges also hold a start 15° off."""
+    if first.quality >= config.start_sure_quality:
         return first
     best, bar = first, first.quality + config.switch_quality_margin
-    for axis in np.eye(3):
-        for sign in (-1.0, 1.0):
-            other = fit(Pose(rotvec_to_matrix(sign * np.radians(deg) * axis) @ start.R, start.t))
-            if (other is not None and not other.lost and other.quality >= bar and other.quality > best.quality
-                    and pose_mahalanobis2(m.pose, m.covariance, other.pose, other.covariance) <= config.disagreement_chi2):
-                best = other
+    for deg in (config.start_turn_deg, config.start_wide_turn_deg):
+        if deg <= 0 or best is not first:
+            continue
+        for axis in np.eye(3):
+            for sign in (-1.0, 1.0):
+                other = fit(Pose(rotvec_to_matrix(sign * np.radians(deg) * axis) @ start.R, start.t))
+                if (other is not None and not other.lost and other.quality >= bar and other.quality > best.quality
+                        and pose_mahalanobis2(m.pose, m.covariance, other.pose, other.covariance) <= config.disagreement_chi2):
+                    best = other
     return best
 
 

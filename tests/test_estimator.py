@@ -249,8 +249,11 @@ def _turn_cam_x(pose: Pose, deg: float) -> Pose:
 
 
 class LocalMinimumTracker(ScriptedTracker):
-    """Converges on the truth from starts within 2.5° of it; from 2.5–8° off it settles in a local
-    minimum 6° off that fits worse (0.66 against 0.85: the truss's parallel beams); lost beyond."""
+    """Converges on the truth from starts within 2.5° of it; from 2.5–``reach_deg`` (8°) off it settles
+    in a local minimum ``minimum_deg`` (6°) off that fits worse (0.66 against 0.85: the truss's parallel
+    beams); lost beyond."""
+
+    reach_deg, minimum_deg = 8.0, 6.0
 
     def track(self, frame, prior=None, **options):
         k = frame.index
@@ -258,18 +261,20 @@ class LocalMinimumTracker(ScriptedTracker):
         cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
         if err <= 2.5:
             return Measurement(truth(k), cov, 0.85, "tracker:scripted", frame.timestamp)
-        if err <= 8.0:
-            return Measurement(_turn_cam_x(truth(k), 6.0), cov, 0.66, "tracker:scripted", frame.timestamp)
+        if err <= self.reach_deg:
+            return Measurement(_turn_cam_x(truth(k), self.minimum_deg), cov, 0.66, "tracker:scripted", frame.timestamp)
         return Measurement(None, np.eye(6), 0.1, "tracker:scripted", frame.timestamp)
 
 
 class TurnedRegressor(OracleRegressor):
-    """The truth turned 5° about the camera's x axis, with a 3° uncertainty."""
+    """The truth turned ``turn_deg`` (5°) about the camera's x axis, with a ``sigma_deg`` (3°) uncertainty."""
+
+    turn_deg, sigma_deg = 5.0, 3.0
 
     def predict(self, frame, roi=None):
         m = super().predict(frame, roi)
-        cov = np.diag([np.radians(3.0) ** 2] * 3 + [0.005**2] * 3)
-        return Measurement(_turn_cam_x(m.pose, 5.0), cov, m.quality, m.source, m.timestamp)
+        cov = np.diag([np.radians(self.sigma_deg) ** 2] * 3 + [0.005**2] * 3)
+        return Measurement(_turn_cam_x(m.pose, self.turn_deg), cov, m.quality, m.source, m.timestamp)
 
 
 def test_a_start_below_the_sure_quality_tries_turned_starts():
@@ -294,28 +299,16 @@ def test_a_start_below_the_sure_quality_tries_turned_starts():
             HybridConfig(**bad)
 
 
-class WideMinimumTracker(ScriptedTracker):
-    """Converges on the truth from starts within 2.5° of it; from 2.5–16° off it settles in a local
-    minimum 12° off that fits worse (0.66 against 0.85: a plain cube's edges); lost beyond."""
+class WideMinimumTracker(LocalMinimumTracker):
+    """A minimum 12° off, reached from 2.5–16° off (a plain cube's edges)."""
 
-    def track(self, frame, prior=None, **options):
-        k = frame.index
-        err = rotation_error_deg(prior, truth(k))
-        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
-        if err <= 2.5:
-            return Measurement(truth(k), cov, 0.85, "tracker:scripted", frame.timestamp)
-        if err <= 16.0:
-            return Measurement(_turn_cam_x(truth(k), 12.0), cov, 0.66, "tracker:scripted", frame.timestamp)
-        return Measurement(None, np.eye(6), 0.1, "tracker:scripted", frame.timestamp)
+    reach_deg, minimum_deg = 16.0, 12.0
 
 
-class FarTurnedRegressor(OracleRegressor):
+class FarTurnedRegressor(TurnedRegressor):
     """The truth turned 11° about the camera's x axis, with an 8° uncertainty."""
 
-    def predict(self, frame, roi=None):
-        m = super().predict(frame, roi)
-        cov = np.diag([np.radians(8.0) ** 2] * 3 + [0.005**2] * 3)
-        return Measurement(_turn_cam_x(m.pose, 11.0), cov, m.quality, m.source, m.timestamp)
+    turn_deg, sigma_deg = 11.0, 8.0
 
 
 @pytest.mark.parametrize("wide, finds", [(10.0, True), (0.0, False)])

@@ -470,8 +470,7 @@ class HybridEstimator:
         self.regressor_calls += m is None
         found = ([m] if m is not None else self._timed(timings, "regressor", candidates, frame, None, self.config.start_alternatives)
                  if candidates else [self._timed(timings, "regressor", self.regressor.predict, frame, None)])
-        seen = getattr(found, "sightings", None)
-        yield from ((c, seen) for c in (found if m is not None else plain_alternatives(found, frame, self._view)))
+        yield from ((c, getattr(found, "sightings", None)) for c in plain_alternatives(found, frame, self._view))
         if self.colour_starts is not None and (every := self.config.colour_start_every) and self._frames % every == 0:
             yield from ((c, None) for c in self._timed(timings, "regressor", self.colour_starts.candidates, frame))
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fit_plan import FAR_FILL, NEAR_FILL
 from ..geometry import Camera
 from ..hybrid_config import DEFAULT_FUSION
 from ..registry import backend_options, names
@@ -454,8 +455,9 @@ def add_commands(sub) -> None:
                         "to find the part); space: black space and the sun alone, the part "
                         "found as the sunlit pixels (default random)")
     f.add_argument("--distances", type=float_pair, default=None, metavar="NEAR,FAR",
-                   help="the part's distances in the views, metres (default: where it fills 70 %% to 12 %% of "
-                        "the image's shorter side)")
+                   help="the part's distances in the views, metres (default: where its diameter spans "
+                        f"{100 * NEAR_FILL:.0f} %% to {100 * FAR_FILL:.0f} %% of the image's shorter side, drawn "
+                        "log-uniformly)")
     f.add_argument("--backgrounds", default="shipped", metavar="DIR",
                    help="photos: half the training backgrounds are crops of them (look random); default: a few "
                         "public-domain photos that come with hybridpose; none: procedural clutter alone")

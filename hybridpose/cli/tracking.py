@@ -455,9 +455,8 @@ def add_commands(sub) -> None:
                         "to find the part); space: black space and the sun alone, the part "
                         "found as the sunlit pixels (default random)")
     f.add_argument("--distances", type=float_pair, default=None, metavar="NEAR,FAR",
-                   help="the part's distances in the views, metres (default: where its diameter spans "
-                        f"{100 * NEAR_FILL:.0f} %% to {100 * FAR_FILL:.0f} %% of the image's shorter side, drawn "
-                        "log-uniformly)")
+                   help=f"the part's distances in the views, metres (default: log-uniform from where its diameter "
+                        f"spans {100 * NEAR_FILL:.0f} %% to {100 * FAR_FILL:.0f} %% of the image's shorter side)")
     f.add_argument("--backgrounds", default="shipped", metavar="DIR",
                    help="photos: half the training backgrounds are crops of them (look random); default: a few "
                         "public-domain photos that come with hybridpose; none: procedural clutter alone")
@@ -465,8 +464,7 @@ def add_commands(sub) -> None:
     f.add_argument("--init-from", default="default",
                    help="checkpoint to start from: 'default' (the shipped network's weights), a path, or 'none'")
     f.add_argument("--occluded-share", type=float, default=OCCLUDED_SHARE, metavar="SHARE",
-                   help="share of the training views with the arm partly in front of the part "
-                        f"(default {OCCLUDED_SHARE:g})")
+                   help=f"share of the training views with the arm partly in front of the part (default {OCCLUDED_SHARE:g})")
     f.add_argument("--video", default=None, metavar="FILE",
                    help="your own footage (video file or image folder, same camera): after the fit, the network is "
                         "checked on 40 of its frames without labels — how often the tracker confirms its pose "

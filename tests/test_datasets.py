@@ -1,7 +1,9 @@
 """BOP round trip (mm in files, metres in memory), labels.csv, resume, errors, torch Dataset."""
 import json
+import pickle
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -329,3 +331,34 @@ def test_a_dataset_of_a_mesh_named_like_a_built_in_keeps_its_own_mesh_and_symmet
     write_models(tmp_path, builtin)
     back = dataset_object(tmp_path)
     assert back.name == "cube" and len(back.symmetries) == 23 and np.allclose(back.keypoints, builtin.keypoints)
+
+
+def test_source_cache_gives_the_same_random_crops_without_decoding(random_ds, tmp_path, monkeypatch):
+    """cache_sources: random crops (jitter, whole-frame views included) cut from the cached views equal
+    those cut from the decoded PNGs under the same torch seed; nothing is decoded once it is built; a
+    DataLoader worker maps the file itself; views of two sizes are refused."""
+    from hybridpose.datasets import bop
+
+    ds = PoseDataset(random_ds, size=40, crop=True, full_view=0.5).subset(range(4), jitter=True)
+    keys = ("image", "t", "q", "K", "crop")
+    torch.manual_seed(3)
+    before = [ds[k] for k in range(len(ds))]
+    path = ds.cache_sources(tmp_path / "cache", workers=2)
+    assert path.name.startswith("source_") and path.exists() and not list(path.parent.glob(".*.tmp"))
+    decoded = []
+    real = bop.BopScene.rgb
+    monkeypatch.setattr(bop.BopScene, "rgb", lambda self, im_id: decoded.append(im_id) or real(self, im_id))
+    torch.manual_seed(3)
+    after = [ds[k] for k in range(len(ds))]
+    assert not decoded, "items come from the source cache"
+    assert all(torch.equal(a[key], b[key]) for a, b in zip(before, after) for key in keys)
+    assert pickle.loads(pickle.dumps(ds))._sources is None  # a worker maps the file, it is not sent the pixels
+    monkeypatch.setattr(bop.BopScene, "rgb", real)
+    # a view of another size: the cache cannot hold it
+    rgb = sorted((find_scenes(random_ds)[0] / "rgb").iterdir())
+    data = tmp_path / "mixed"
+    shutil.copytree(random_ds, data)
+    odd = data / rgb[-1].relative_to(random_ds)
+    cv2.imwrite(str(odd), cv2.resize(cv2.imread(str(odd)), (20, 16)))
+    with pytest.raises(ValueError, match="one size"):
+        PoseDataset(data, size=40, crop=True).cache_sources(tmp_path / "cache2")

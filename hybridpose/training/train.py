@@ -77,8 +77,9 @@ class TrainConfig:
             cropped) once and memory-mapped from then on (:meth:`PoseDataset.cache_images`; reused by
             later runs on the same views): 0.7 ms per item instead of 7.7 (1.8 instead of 10.1 for the
             parallel model's two) on a core; the GPU then no longer
-            waits for the loaders. Keypoint models
-            train on random crops and ignore it. None: no cache.
+            waits for the loaders. Keypoint models train on random crops: their decoded views are
+            kept there instead (:meth:`PoseDataset.cache_sources`, 0.9 MB a 640×480 view), and each
+            crop is cut from them. None: no cache.
         checkpoint_every: write ``last.pt`` every this many epochs (epoch numbers divisible by it,
             counted from 1), and when the run stops; a better ``best.pt`` found in between is kept
             in host memory and written with it. 1 (default): every epoch. A parallel VGG-19's
@@ -405,8 +406,9 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
                    help="stop cleanly before the next epoch would end past MIN minutes")
     p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
     p.add_argument("--cache-images", default=None, metavar="DIR",
-                   help="VGG models: decode and resize every view once into DIR and memory-map it (reused by later "
-                        "runs on the same views; ≈ 150 KB a view at 224 px)")
+                   help="decode every view once into DIR and memory-map it (reused by later runs on the same "
+                        "views): VGG models' resized inputs (≈ 150 KB a view at 224 px), keypoint models' "
+                        "whole views (0.9 MB at 640×480; their random crops are cut from them)")
     p.add_argument("--full-view", type=float, default=0.0, metavar="SHARE",
                    help="keypoint models: share of training crops showing the whole frame, so that the network "
                         "finds the object itself on any background (e.g. 0.3; default 0: found by detection)")

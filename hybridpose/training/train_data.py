@@ -4,6 +4,7 @@ the photometric augmentations, and the description of the data a checkpoint reco
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,9 +43,9 @@ def make_datasets(cfg: TrainConfig, keypoints_m=None) -> tuple[Dataset, Dataset]
     deterministic object-centred crop.
     """
     if keypoints_m is not None:
-        if cfg.cache_images:
-            log.warning("--cache-images: keypoint models train on random crops, which are never cached; ignored")
         crops = PoseDataset(cfg.data, size=cfg.image_size, crop=True, keypoints_m=keypoints_m, full_view=cfg.full_view)
+        if cfg.cache_images:  # the decoded views: random crops differ every epoch and are cut from them
+            crops.cache_sources(cfg.cache_images, workers=max(cfg.workers, os.cpu_count() or 1))
         train_idx, val_idx = split_indices(len(crops), cfg.val_fraction, cfg.seed)
         return crops.subset(train_idx, jitter=cfg.augment), crops.subset(val_idx)
     inputs = [PoseDataset(cfg.data, size=cfg.image_size)]

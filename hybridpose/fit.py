@@ -18,13 +18,14 @@ long it took, how accurate it is).
 """
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
-from .fit_plan import (IMAGE_SIZE, TRAIN_BATCH, FitPlan, make_plan, measure_speeds, measure_train_speed, parse_budget,
+from .fit_plan import (IMAGE_SIZE, TRAIN_BATCH, FitPlan, cache_fits, make_plan, measure_speeds, measure_train_speed, parse_budget,
                        plan_training, working_distances)
 from .geometry import Camera
 from .io import atomic_write_json, atomic_write_text, read_json
@@ -292,14 +293,18 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                               workers=workers, progress=tick("render held-out views"), **held_out)))
 
     def run_training():
+        cache = out / "data" / "decoded"
         start = None if init_from is None else str(checkpoint_or_shipped(init_from))
         cfg = TrainConfig(model="default", data=str(out / "data" / "train"), out=str(out / "run"),
                           epochs=plan.epochs, batch=TRAIN_BATCH, lr=start_learning_rate(start, obj),
                           image_size=IMAGE_SIZE, val_fraction=0.05, seed=seed, patience=0, schedule="cosine",
                           init_from=start, time_limit_min=plan.train_min,
-                          full_view=FULL_VIEW if look == "random" else 0.0, workers=1)
+                          full_view=FULL_VIEW if look == "random" else 0.0, workers=1,
+                          cache_images=str(cache) if cache_fits(plan.train_views, camera, out) else None)
         record["learning_rate"] = cfg.lr
         train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
+        if cfg.cache_images:  # rebuilt in under a minute by a resumed run: not worth gigabytes in the fit's folder
+            shutil.rmtree(cache, ignore_errors=True)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
         if cfg.lr == REFIT_LR and keep_start_sun(start, out / "best.pt"):
             progress("fit: kept the start's sun side (its crops are turned to the light it learnt)")

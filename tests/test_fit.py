@@ -33,14 +33,28 @@ def test_budgets_read_as_minutes():
 
 
 def test_the_plan_grows_with_the_budget_and_fits_it():
+    from hybridpose.fit_plan import RENDER_SHARE, TRAIN_SHARE
+
+    assert RENDER_SHARE + TRAIN_SHARE < 1  # room left for calibration and evaluation
     small = make_plan(15, 0.05, 0.02, (0.3, 1.2))
     large = make_plan(60, 0.05, 0.02, (0.3, 1.2))
     assert large.train_views >= small.train_views and large.test_views >= small.test_views
     for p in (small, large):
         # the rendering fits its share, and at least two epochs over the views fit the training time
-        assert (p.train_views + p.test_views) * p.render_s_per_view <= 60 * p.budget_min * 0.25 + 1
+        assert (p.train_views + p.test_views) * p.render_s_per_view <= 60 * p.budget_min * RENDER_SHARE + 1
         assert 2 * p.train_views * p.train_s_per_view <= 60 * p.train_min + 1e-6
         assert p.epochs * p.train_views * p.train_s_per_view <= 60 * p.train_min * 1.01
+
+
+def test_decoded_training_views_are_kept_only_where_the_disk_has_room(tmp_path):
+    import shutil
+
+    from hybridpose.fit_plan import CACHE_DISK_SHARE, cache_fits
+
+    cam = Camera.default()
+    free = shutil.disk_usage(tmp_path).free
+    fits = int(CACHE_DISK_SHARE * free // (cam.width * cam.height * 3))
+    assert cache_fits(fits, cam, tmp_path) and not cache_fits(fits + 1, cam, tmp_path)
 
 
 def test_the_training_fills_the_time_the_rendering_left():
@@ -266,7 +280,12 @@ def test_the_working_distances_reach_a_part_that_fills_the_frame(box_mesh):
 
 
 @pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
-def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tmp_path, capsys):
+def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tmp_path, capsys, monkeypatch):
+    from hybridpose.datasets.torch_dataset import PoseDataset
+
+    sources = []  # the training cuts its crops from decoded views, then the fit removes them
+    real_cache = PoseDataset.cache_sources
+    monkeypatch.setattr(PoseDataset, "cache_sources", lambda self, d, **kw: sources.append(d) or real_cache(self, d, **kw))
     cam = Camera.default().scaled((320, 240))
     box = load_object(str(box_mesh), scale=0.001)
     plan = FitPlan(budget_min=2.0, train_views=32, test_views=44, epochs=1, train_min=1.0, render_s_per_view=0.05,
@@ -276,6 +295,7 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
                  occluded_share=0.25, textured_share=0.5)
     assert record["done"] == ["render", "train", "calibrate", "evaluate"]
     assert (out / "best.pt").is_file() and (out / "eval" / "report.json").is_file()
+    assert [str(d) for d in sources] == [str(out / "data" / "decoded")] and not (out / "data" / "decoded").exists()
     acc = record["accuracy"]
     assert acc["views"] == 22 and 0.0 <= acc["in_tracker_basin"] <= acc["in_tracker_basin_twin"] <= 1.0
     assert np.isfinite(acc["rot_median_deg"]) and acc["rot_twin_median_deg"] <= acc["rot_median_deg"]

@@ -9,8 +9,8 @@ import trimesh
 
 from hybridpose.cli import main
 from hybridpose.fit import FIT_LR, REFIT_LR, check_inputs, fit, start_learning_rate, training_render_settings
-from hybridpose.fit_plan import (EVAL_RESERVE_MIN, PLAN_MARGIN, FitPlan, make_plan, measure_speeds, parse_budget,
-                                 plan_training, working_distances)
+from hybridpose.fit_plan import (EVAL_RESERVE_MIN, PLAN_MARGIN, RENDER_SHARE, REPLAN_MARGIN, FitPlan, make_plan,
+                                 measure_speeds, parse_budget, plan_training, working_distances)
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
 from hybridpose.render import SpaceLighting
@@ -33,7 +33,7 @@ def test_budgets_read_as_minutes():
 
 
 def test_the_plan_grows_with_the_budget_and_fits_it():
-    from hybridpose.fit_plan import RENDER_SHARE, TRAIN_SHARE
+    from hybridpose.fit_plan import TRAIN_SHARE
 
     assert RENDER_SHARE + TRAIN_SHARE < 1  # room left for calibration and evaluation
     small = make_plan(15, 0.05, 0.02, (0.3, 1.2))
@@ -63,8 +63,8 @@ def test_the_training_fills_the_time_the_rendering_left():
     # the budget's rest after rendering, less the reserve for calibration and evaluation
     assert quick.train_min == pytest.approx(60 - 14 - EVAL_RESERVE_MIN) and quick.train_min > plan.train_min
     assert quick.epochs > plan.epochs and quick.train_views == plan.train_views
-    assert quick.epochs * PLAN_MARGIN * quick.train_views * quick.train_s_per_view <= 60 * quick.train_min
-    assert (quick.epochs + 1) * PLAN_MARGIN * quick.train_views * quick.train_s_per_view > 60 * quick.train_min
+    assert quick.epochs * REPLAN_MARGIN * quick.train_views * quick.train_s_per_view <= 60 * quick.train_min
+    assert (quick.epochs + 1) * REPLAN_MARGIN * quick.train_views * quick.train_s_per_view > 60 * quick.train_min
     # a render stage that overran leaves half the planned training, not none
     late = plan_training(plan, spent_min=59.0)
     assert late.train_min == pytest.approx(0.5 * plan.train_min) and late.epochs >= 1
@@ -100,8 +100,8 @@ def test_a_measured_plan_trains_for_the_time_left_after_rendering(box_mesh, tmp_
     assert record["training_planned"] and record["plan"]["train_min"] == pytest.approx(6.0 - spent - EVAL_RESERVE_MIN)
     # …planned at the speed measured just before training, not the first one
     assert record["plan"]["train_s_per_view"] == 0.01
-    assert record["plan"]["epochs"] == min(200, int(60 * record["plan"]["train_min"] / (PLAN_MARGIN * 32 * 0.01)))
-    assert record["plan"]["epochs"] > int(60 * record["plan"]["train_min"] / (PLAN_MARGIN * 32 * 0.05))
+    assert record["plan"]["epochs"] == min(200, int(60 * record["plan"]["train_min"] / (REPLAN_MARGIN * 32 * 0.01)))
+    assert record["plan"]["epochs"] > int(60 * record["plan"]["train_min"] / (REPLAN_MARGIN * 32 * 0.05))
     assert runs[0].time_limit_min == record["plan"]["train_min"] and runs[0].epochs == record["plan"]["epochs"] > 1
     # resumed, the training keeps the plan it was given (its schedule runs over those epochs)
     with pytest.raises(Stop):
@@ -158,7 +158,7 @@ def test_the_render_speed_is_measured_on_the_fits_own_render_processes(box_mesh,
                                        views=8, workers=2)
     assert seen == [2, 2, 2] and 0.008 < render_s < 0.02
     plan = make_plan(60, render_s, train_s, (0.3, 1.2))
-    assert (plan.train_views + plan.test_views) * render_s <= 60 * 60 * 0.25 / PLAN_MARGIN + 1
+    assert (plan.train_views + plan.test_views) * render_s <= 60 * 60 * RENDER_SHARE / PLAN_MARGIN + 1
 
 
 def test_the_render_speed_is_measured_on_views_like_the_training_views(box_mesh, tmp_path, monkeypatch):
@@ -285,7 +285,8 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
 
     sources = []  # the training cuts its crops from decoded views, then the fit removes them
     real_cache = PoseDataset.cache_sources
-    monkeypatch.setattr(PoseDataset, "cache_sources", lambda self, d, **kw: sources.append(d) or real_cache(self, d, **kw))
+    monkeypatch.setattr(PoseDataset, "cache_sources",
+                        lambda self, d, **kw: sources.append(d) or real_cache(self, d, **kw))
     cam = Camera.default().scaled((320, 240))
     box = load_object(str(box_mesh), scale=0.001)
     plan = FitPlan(budget_min=2.0, train_views=32, test_views=44, epochs=1, train_min=1.0, render_s_per_view=0.05,

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .fit_plan import (IMAGE_SIZE, TRAIN_BATCH, FitPlan, cache_fits, make_plan, measure_speeds, measure_train_speed, parse_budget,
-                       plan_training, working_distances)
+from .fit_plan import (IMAGE_SIZE, TRAIN_BATCH, FitPlan, cache_fits, make_plan, measure_speeds, measure_train_speed,
+                       parse_budget, plan_training, working_distances)
 from .geometry import Camera
 from .io import atomic_write_json, atomic_write_text, read_json
 from .objects import ObjectModel

@@ -136,7 +136,8 @@ def measure_train_speed(obj: ObjectModel) -> float:
     t0 = time.perf_counter()
     for _ in range(steps):
         step()
-    # × 1.5: augmentation and validation beside the bare steps (one loader process decodes beside them)
+    # × 1.5: augmentation and validation beside the bare steps (one loader process cuts the crops beside
+    # them, and decodes each view too where the fit keeps no decoded copy: cache_fits)
     return 1.5 * (time.perf_counter() - t0) / (steps * TRAIN_BATCH)
 
 

@@ -50,6 +50,12 @@ def _cache_record(path: Path) -> dict | None:
         return None
 
 
+def _cache_is_current(path: Path, record: dict) -> bool:
+    """Whether the image cache ``path`` (with its source sizes beside it) was made as ``record`` says."""
+    return (path.exists() and path.with_suffix(".shapes.npy").exists()
+            and _cache_record(path.with_suffix(".json")) == record)
+
+
 class PoseDataset(Dataset):
     """Images and labels of one or more BOP scenes for training a pose regressor.
 
@@ -197,7 +203,7 @@ class PoseDataset(Dataset):
         record = {"format": 1, "size": list(self.size), "crop": self.crop, "crop_margin": self.crop_margin,
                   "views": self._views_fingerprint()}
         meta = path.with_suffix(".json")
-        if not (path.exists() and path.with_suffix(".shapes.npy").exists() and _cache_record(meta) == record):
+        if not _cache_is_current(path, record):
             self._build_cache(path, meta, record, workers, (*self.size[::-1], 3), self._cache_row)
         self._cache_path, self._cache = path, None
         return path
@@ -220,7 +226,7 @@ class PoseDataset(Dataset):
         path = directory / f"source_{w}x{h}.npy"
         record = {"format": 1, "source": [w, h], "views": self._views_fingerprint()}
         meta = path.with_suffix(".json")
-        if not (path.exists() and path.with_suffix(".shapes.npy").exists() and _cache_record(meta) == record):
+        if not _cache_is_current(path, record):
             def row(idx: int) -> tuple[np.ndarray, tuple[int, int]]:
                 scene_i, im_id = self.samples[idx]
                 img = self.scenes[scene_i].rgb(im_id)

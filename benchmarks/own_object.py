@@ -12,8 +12,9 @@ vs hybrid on sequences of it in front of a real photo the fit never saw.
 3. renders thirty 60-frame sequences — tumble, approach, fly-around, with and without the arm passing in
    front, five seeds each — over crops of ``grace_hopper.jpg`` — a photograph that ships with matplotlib
    and that no training view used — one look per sequence;
-4. ``hybridpose bench --data`` on them with the fitted checkpoint, and rewrites the ``own-object`` block
-   of ``benchmarks/RESULTS.md``.
+4. ``hybridpose bench --data`` on them with the fitted checkpoint (trackers ``edges`` and ``combined``,
+   the one ``hybridpose track`` picks on a lit scene), and rewrites the ``own-object`` block of
+   ``benchmarks/RESULTS.md``.
 
 Every step resumes. Seeds: the fit's 0 (training views) and 1 (held-out views); the sequences' 1–30.
 Nothing here was tuned on these sequences. ``--split tuning`` renders the box's tuning sequences instead —
@@ -39,6 +40,9 @@ SEEDS_PER_KIND = 5  # the spread over seeds (median, p90, worst of each kind), n
 # the library's default fusion first (its row carries the targets), the other one beside it: on the box's
 # tuning sequences ukf led where on the truss's isam2 did (docs/decisions.md)
 FUSIONS = ",".join(dict.fromkeys((DEFAULT_FUSION, "isam2", "ukf")))
+# edges (the space tracker the block began with) and combined (what `hybridpose track` picks on a lit
+# scene such as a box over a photo: edges, region and texture)
+TRACKERS = "edges,combined"
 # round r renders every kind once, kind k with seed 6·r + k + the split's first: report 1–30, tuning 101–130
 FIRST_SEED = {"report": 1, "tuning": 101}
 
@@ -123,7 +127,7 @@ def main() -> None:
            "--occlusion", occlusion, "--frames", 60, "--size", "640x480", "--seed", seed, "--appearance", "random",
            "--backgrounds", photos, "--photo-share", 1, "--out", seqs / f"{trajectory}_{occlusion}_s{seed}")
     hp("bench", "--data", seqs, "--object", mesh, "--scale", 0.001, "--regressor", fit / "best.pt",
-       "--trackers", "edges", "--fusions", FUSIONS, "--workers", args.workers,
+       "--trackers", TRACKERS, "--fusions", FUSIONS, "--workers", args.workers,
        "--out", out / ("bench" if args.split == "report" else "bench_tuning"), *results)
 
 

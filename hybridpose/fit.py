@@ -298,11 +298,11 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         cfg = TrainConfig(model="default", data=str(out / "data" / "train"), out=str(out / "run"),
                           epochs=plan.epochs, batch=TRAIN_BATCH, lr=start_learning_rate(start, obj),
                           image_size=IMAGE_SIZE, val_fraction=0.05, seed=seed, patience=0, schedule="cosine",
-                          init_from=start, time_limit_min=plan.train_min,
+                          init_from=start, time_limit_min=plan.train_min, fill_time=True,
                           full_view=FULL_VIEW if look == "random" else 0.0, workers=1,
                           cache_images=str(cache) if cache_fits(plan.train_views, camera, out) else None)
         record["learning_rate"] = cfg.lr
-        train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)
+        record["epochs_trained"] = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)["epochs_run"]
         if cfg.cache_images:  # rebuilt in under a minute by a resumed run: not worth gigabytes in the fit's folder
             shutil.rmtree(cache, ignore_errors=True)
         export_checkpoint(out / "run" / "best.pt", out / "best.pt")
@@ -318,7 +318,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         plan = plan_training(plan, sum(record["minutes"].values()))
         record.update(plan=asdict(plan), training_planned=True)
         atomic_write_json(record_path, record)
-        progress(f"fit: training re-planned for the time left — {plan.epochs} epochs within {plan.train_min:.0f} min")
+        progress(f"fit: training re-planned for the time left — about {plan.epochs} epochs within {plan.train_min:.0f} min "
+                 "(counted again after the first)")
     stage("train", run_training)
     if "hybrid_config" not in record:  # also brings a fit made before checkpoints carried their policy up to date
         start = None if init_from is None else str(checkpoint_or_shipped(init_from))
@@ -388,8 +389,9 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         f"- Trained the `default` network ({IMAGE_SIZE} px, "
         + ("found as the sunlit pixels" if req.get("look") == "space" else f"{FULL_VIEW:.0%} whole-frame crops")
         + (f"; one unlabelled heatmap of its {len(obj.keypoints)} keypoints, which look alike under its symmetries"
-           if obj.symmetric else "") + f") for up to "
-        f"{p['epochs']} epochs within {p['train_min']:.0f} min, from `{req['init_from']}`.",
+           if obj.symmetric else "") + ") for "
+        + (f"{record['epochs_trained']} epochs" if "epochs_trained" in record else f"up to {p['epochs']} epochs")
+        + f" within {p['train_min']:.0f} min, from `{req['init_from']}`.",
         f"- Minutes per stage: {minutes}.", "",
         f"Held-out views ({a['views']}, not those that calibrated the covariance): rotation error median "
         f"{a['rot_median_deg']:.2f}°, mean {a['rot_mean_deg']:.2f}°; translation median {a['trans_median_pct']:.2f} % "

@@ -10,6 +10,7 @@ from hybridpose.datasets import render_random_dataset
 from hybridpose.geometry import Camera, Pose
 from hybridpose.regressors import models
 from hybridpose.regressors.vgg import normalize_quat
+from hybridpose.training import train as train_module
 from hybridpose.training.train import run_summary, train, TrainConfig
 from hybridpose.regressors.checkpoints import load_checkpoint
 
@@ -186,6 +187,31 @@ def test_time_limit_stops_cleanly_and_amp_trains(data, tmp_path, tiny, caplog):
     assert ck["config"]["amp"] and all(v.dtype == torch.float32 for v in ck["model"].values() if v.is_floating_point())
     with pytest.raises(ValueError, match="time_limit_min"):
         TrainConfig(model="tiny", data=str(data), out=str(tmp_path), time_limit_min=0)
+
+
+def test_fill_time_replans_the_epochs_after_the_first_and_a_resume_keeps_them(data, tmp_path, tiny, monkeypatch):
+    """fill_time: one epoch planned, a limit far beyond it: the run takes as many as the cap allows, the
+    cosine schedule decays over them, the checkpoint records the count and a resume given the first guess keeps it."""
+    monkeypatch.setattr(train_module, "MAX_FILL_EPOCHS", 3)
+    cfg = TrainConfig(model="tiny", data=str(data), out=str(tmp_path / "fill"), epochs=1, batch=4, lr=1e-2,
+                      image_size=32, patience=0, schedule="cosine", time_limit_min=10.0, fill_time=True)
+    best = train(cfg, progress=False)
+    assert best["epochs_run"] == 3 and best["stopped"] == "ran all 3 epochs"
+    ck = load_checkpoint(tmp_path / "fill" / "last.pt")
+    assert ck["config"]["epochs"] == 3 and ck["scheduler"]["T_max"] == 3
+    lrs = [r["lr"] for r in json.loads((tmp_path / "fill" / "history.json").read_text())]
+    assert lrs[0] == pytest.approx(1e-2) and lrs[0] > lrs[1] > lrs[2] > 1e-4
+    again = train(cfg, resume=True, progress=False)
+    assert again["epochs_run"] == 3 and again["stopped"] == "ran all 3 epochs"
+
+
+def test_fill_time_shrinks_a_plan_the_first_epoch_shows_too_long():
+    cfg = TrainConfig(model="default", data="d", out="o", epochs=50,
+                      time_limit_min=2.0, fill_time=True)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(torch.optim.SGD([nn.Parameter(torch.zeros(1))], lr=1.0), 50)
+    shorter = train_module._filled(cfg, 0.5, sched, None)
+    assert shorter.epochs == 3 and sched.T_max == 3      # 2 min / (1.05 x 0.5 min)
+    assert train_module._filled(cfg, 1e-9, None, None).epochs == train_module.MAX_FILL_EPOCHS
 
 
 def test_train_errors(data, tmp_path, tiny):

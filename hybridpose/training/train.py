@@ -13,7 +13,7 @@ import logging
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -39,6 +39,10 @@ log = logging.getLogger(__name__)
 TWIN_CE_WEIGHT = 0.1  # the twin head's cross-entropy beside the keypoint loss (shipped default.pt)
 
 SCHEDULES = ("constant", "cosine")
+# fill_time: the epochs planned at this much slower than the first took (later ones ran 0.85-1.0 x its time
+# on a 2-core CPU; the time limit still stops a run that overruns)
+FILL_MARGIN = 1.05
+MAX_FILL_EPOCHS = 200  # fill_time never plans more (a tiny set on a fast machine)
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,9 @@ class TrainConfig:
             validation, calibration and checkpoints stay float32).
         time_limit_min: stop after the epoch that would make the next one end past this many
             minutes of training (best.pt is calibrated as after a normal end); None = no limit.
+        fill_time: with ``time_limit_min``, ``epochs`` is a first guess: after a fresh run's first epoch
+            the epochs are re-planned to fill the limit at its pace (``FILL_MARGIN``), the cosine schedule
+            following; the checkpoints keep the count for a resumed run. One process only (not DDP).
         cache_images: a directory where the direct (VGG) models' inputs are decoded and resized (or
             cropped) once and memory-mapped from then on (:meth:`PoseDataset.cache_images`; reused by
             later runs on the same views): 0.7 ms per item instead of 7.7 (1.8 instead of 10.1 for the
@@ -115,6 +122,7 @@ class TrainConfig:
     init_from: str | None = None
     amp: bool = False
     time_limit_min: float | None = None
+    fill_time: bool = False
     checkpoint_every: int = 1
     cache_images: str | None = None
     full_view: float = 0.0
@@ -249,6 +257,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         torch.set_rng_state(ck["torch_rng"])
         gen.set_state(ck["loader_rng"])
         start_epoch, best, history, stale = ck["epoch"] + 1, ck["best"], ck["history"], ck["stale"]
+        if cfg.fill_time:  # the count its first epoch planned (the scheduler's state holds its length)
+            cfg = replace(cfg, epochs=ck["config"]["epochs"])
         log.info("resumed %s at epoch %d", last_path, start_epoch)
 
     bar = None
@@ -258,8 +268,9 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
     run_start = time.perf_counter()
     best_payload = None  # a best.pt not written yet (checkpoint_every > 1)
-    stopped = f"ran all {_epochs(cfg.epochs)}"  # why the run ended, for the caller's summary
-    for epoch in range(start_epoch, cfg.epochs):
+    stopped = None  # why the run ended, for the caller's summary
+    epoch = start_epoch - 1
+    while (epoch := epoch + 1) < cfg.epochs:  # fill_time may re-plan cfg.epochs after the first
         if sampler is not None:
             sampler.set_epoch(epoch)
         net.train()
@@ -303,6 +314,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
                "lr": lr_used, "epoch_s": time.perf_counter() - t0, "train_images": n, "train_s": train_s,
                "loader_wait_s": loader_wait_s}
         history.append(row)
+        if cfg.fill_time and cfg.time_limit_min and epoch == 0 and world == 1:
+            cfg = _filled(cfg, row["epoch_s"] / 60, sched, bar)
         improved = row["val_loss"] < best
         best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)
         payload = {"config": asdict(cfg), "model": model.state_dict(), "build": kw_for_checkpoint(kw),
@@ -354,7 +367,24 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         dist.barrier()
         dist.destroy_process_group()
     best_row = min(history, key=lambda r: r["val_loss"]) if history else {}
-    return {**best_row, "epochs_run": len(history), "stopped": stopped}
+    return {**best_row, "epochs_run": len(history), "stopped": stopped or f"ran all {_epochs(cfg.epochs)}"}
+
+
+def _filled(cfg: TrainConfig, epoch_min: float, sched, bar) -> TrainConfig:
+    """``cfg`` with its epochs re-planned (``fill_time``) after a first epoch of ``epoch_min`` minutes; the
+    cosine ``sched`` (None: constant) and the progress ``bar`` (None: none) follow."""
+    epochs = int(np.clip(cfg.time_limit_min / (FILL_MARGIN * max(epoch_min, 1e-6)), 1, MAX_FILL_EPOCHS))
+    if epochs == cfg.epochs:
+        return cfg
+    log.info("fill_time: %d epochs, not %d (the first: %.2f of %g min)", epochs, cfg.epochs, epoch_min, cfg.time_limit_min)
+    if sched is not None:  # its rate after the first epoch as the new length has it; the chainable cosine goes on from there
+        for group, base in zip(sched.optimizer.param_groups, sched.base_lrs):
+            group["lr"] = sched.eta_min + (base - sched.eta_min) * (1 + math.cos(math.pi * sched.last_epoch / epochs)) / 2
+        sched.T_max = epochs
+    if bar is not None:
+        bar.total = epochs
+        bar.refresh()
+    return replace(cfg, epochs=epochs)
 
 
 def channels_last(model: torch.nn.Module) -> torch.nn.Module:

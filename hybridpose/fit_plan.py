@@ -23,8 +23,9 @@ TEST_VIEWS = (60, 300)  # held-out views: at least, at most (half calibrate the 
 IMAGE_SIZE = 128  # the shipped keypoint network's crop side: a part's fit starts from its weights
 TRAIN_BATCH = 32  # images a training step (also how a fit times one, to plan its budget)
 # a training epoch's wall time over its bare forward + backward steps (augmentation, the loader cutting
-# crops beside them, validation): two 60-minute box fits' epochs from decoded views took 1.26–1.49 × the
-# steps (1.5 left a quarter of their training time unused)
+# crops beside them, validation): three 60-minute box fits' epochs from decoded views took 1.07–1.49 × the
+# steps timed before them (the timing swings by a fifth from run to run: the training re-plans its epochs
+# from its first one, TrainConfig.fill_time)
 TRAIN_OVERHEAD = 1.35  # with REPLAN_MARGIN, the slowest of those epochs still fits the time planned
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
 # the training re-planned from its speed measured just before it starts: a 60-minute box fit planned at

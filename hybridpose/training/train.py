@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 TWIN_CE_WEIGHT = 0.1  # the twin head's cross-entropy beside the keypoint loss (shipped default.pt)
 
 SCHEDULES = ("constant", "cosine")
-# fill_time: the epochs planned at this much slower than the first took (later ones ran 0.85-1.0 x its time
+# fill_time: the epochs planned at this much slower than the first took (later ones ran 0.7-1.0 x its time
 # on a 2-core CPU; the time limit still stops a run that overruns)
 FILL_MARGIN = 1.05
 MAX_FILL_EPOCHS = 200  # fill_time never plans more (a tiny set on a fast machine)

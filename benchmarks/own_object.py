@@ -1,7 +1,7 @@
 """Your own object, end to end: a CNN fitted to a part nobody trained for, then tracker-only vs CNN-only
 vs hybrid on sequences of it in front of a real photo the fit never saw.
 
-    python benchmarks/own_object.py --out runs/own_object [--budget 60m] [--workers 1]
+    python benchmarks/own_object.py --out runs/own_object [--budget 60m] [--workers N]
     python benchmarks/own_object.py --out runs/own_object --split tuning --tuning-photos DIR
 
 1. writes a plain box mesh (180 × 110 × 70 mm, in millimetres as CAD exports are);
@@ -33,6 +33,7 @@ from pathlib import Path
 import matplotlib
 
 from hybridpose.hybrid_config import DEFAULT_FUSION
+from hybridpose.workers import usable_cores
 
 KINDS = (("tumble", "none"), ("tumble", "arm-full"), ("approach", "none"), ("approach", "arm-partial"),
          ("fly-around", "none"), ("fly-around", "arm-full"))
@@ -87,7 +88,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/own_object")
     ap.add_argument("--budget", default="60m")
-    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--workers", type=int, default=None,
+                    help="processes for the fit's renders and the benchmark's sequences (default: one per core)")
     ap.add_argument("--results-md", default=str(Path(__file__).parent / "RESULTS.md"))
     ap.add_argument("--train-photos", choices=("skimage", "none"), default="skimage",
                     help="backgrounds of the training views: half from scikit-image's sample photos (default), "
@@ -114,7 +116,8 @@ def main() -> None:
     extra = [] if args.textured_share is None else ["--textured-share", args.textured_share]
     # its own photos, or none at all (procedural clutter alone), never the fit's default ones
     extra += ["--backgrounds", training_photos(out / "train_photos") if args.train_photos == "skimage" else "none"]
-    hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, "--workers", args.workers, *extra)
+    hp("fit", mesh, "--scale", 0.001, "--out", fit, "--budget", args.budget, *extra,
+       *([] if args.workers is None else ["--workers", args.workers]))
     if args.split == "tuning":
         photos, seqs, results = Path(args.tuning_photos), out / "tuning_seqs", []
     else:
@@ -127,7 +130,7 @@ def main() -> None:
            "--occlusion", occlusion, "--frames", 60, "--size", "640x480", "--seed", seed, "--appearance", "random",
            "--backgrounds", photos, "--photo-share", 1, "--out", seqs / f"{trajectory}_{occlusion}_s{seed}")
     hp("bench", "--data", seqs, "--object", mesh, "--scale", 0.001, "--regressor", fit / "best.pt",
-       "--trackers", TRACKERS, "--fusions", FUSIONS, "--workers", args.workers,
+       "--trackers", TRACKERS, "--fusions", FUSIONS, "--workers", args.workers or usable_cores(),
        "--out", out / ("bench" if args.split == "report" else "bench_tuning"), *results)
 
 

@@ -167,7 +167,7 @@ def record_hybrid_policy(start, checkpoint, refit: bool) -> dict:
 
 
 def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m", seed: int = 0,
-        backgrounds=SHIPPED, workers: int = 1, init_from="default", progress=print,
+        backgrounds=SHIPPED, workers: int | None = None, init_from="default", progress=print,
         plan: FitPlan | None = None, bar=None, occluded_share: float = OCCLUDED_SHARE,
         textured_share: float | None = None, look: str = "random",
         distance_range_m: tuple[float, float] | None = None) -> dict:
@@ -185,7 +185,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         backgrounds: a folder of photos: half the training backgrounds are crops of them; ``"shipped"``
             (default): the few public-domain photos that come with hybridpose (``"random"`` look;
             ``"space"`` has none); None: procedural clutter alone.
-        workers: render processes.
+        workers: render processes; None: one per usable core. The software GL renderer spreads one
+            process over the cores only partly: a box fit's views rendered at 0.069 s a view on one
+            process of a 2-core CPU, 0.042 on two, 0.051 on three.
         init_from: the checkpoint the training starts from (its matching weights): ``"default"``
             (the shipped truss network's features), a path, or None (from scratch).
         occluded_share: share of the training views with the arm partly in front of the part
@@ -212,6 +214,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     from .training.evaluate import calibrate_checkpoint, evaluate_checkpoint
     from .training.train import TrainConfig, train
     from .datasets import render_random_dataset
+    from .workers import usable_cores
 
     out = Path(out)
     obj = load_object(str(mesh), scale=scale)
@@ -238,6 +241,9 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                **({} if textured_share == 0 else {"textured_share": float(textured_share)}),
                **({} if look == "random" else {"look": look}),
                **({} if distance_range_m is None else {"distance_range_m": list(distances)})}
+    workers = usable_cores() if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"workers: expected ≥ 1 render processes (or None: one per core), got {workers}")
     if not 0.0 <= occluded_share <= 1.0:
         raise ValueError(f"occluded_share: expected a share of the training views in [0, 1], got {occluded_share}")
     if not 0.0 <= textured_share <= 1.0:

@@ -42,6 +42,14 @@ def pool_options() -> dict:
     return {"initializer": exit_with_parent, "initargs": (os.getpid(),)}
 
 
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity where the system tells it, else all)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS and Windows have no affinity call
+        return max(1, os.cpu_count() or 1)
+
+
 def spawn_executor(max_workers: int) -> ProcessPoolExecutor:
     """A ``ProcessPoolExecutor`` of ``max_workers`` fresh interpreters (``spawn``) that end with this process."""
     return ProcessPoolExecutor(max_workers, mp_context=multiprocessing.get_context("spawn"), **pool_options())

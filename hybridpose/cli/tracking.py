@@ -460,7 +460,7 @@ def add_commands(sub) -> None:
     f.add_argument("--backgrounds", default="shipped", metavar="DIR",
                    help="photos: half the training backgrounds are crops of them (look random); default: a few "
                         "public-domain photos that come with hybridpose; none: procedural clutter alone")
-    f.add_argument("--workers", type=int, default=1, help="render processes")
+    f.add_argument("--workers", type=int, default=None, help="render processes (default: one per core)")
     f.add_argument("--init-from", default="default",
                    help="checkpoint to start from: 'default' (the shipped network's weights), a path, or 'none'")
     f.add_argument("--occluded-share", type=float, default=OCCLUDED_SHARE, metavar="SHARE",

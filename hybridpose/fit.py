@@ -325,7 +325,7 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
         record.update(plan=asdict(plan), training_planned=True)
         atomic_write_json(record_path, record)
         progress(f"fit: training re-planned for the time left — about {plan.epochs} epochs within {plan.train_min:.0f} min "
-                 "(counted again after the first)")
+                 "(counted again after each)")
     stage("train", run_training)
     if "hybrid_config" not in record:  # also brings a fit made before checkpoints carried their policy up to date
         start = None if init_from is None else str(checkpoint_or_shipped(init_from))

@@ -212,6 +212,23 @@ def test_fill_time_shrinks_a_plan_the_first_epoch_shows_too_long():
     shorter = train_module._filled(cfg, 0.5, sched, None)
     assert shorter.epochs == 3 and sched.T_max == 3      # 2 min / (1.05 x 0.5 min)
     assert train_module._filled(cfg, 1e-9, None, None).epochs == train_module.MAX_FILL_EPOCHS
+    assert train_module._filled(cfg, 0.5, None, None, done=5).epochs == 5  # never fewer than those run
+
+
+def test_fill_time_replans_after_every_epoch_of_a_fresh_run_at_the_pace_so_far(data, tmp_path, tiny, monkeypatch):
+    """A first epoch that also builds caches is slower than the rest: planned from it alone, 20-minute fits
+    ended 2-4 minutes early. Each epoch of a fresh run re-plans from the mean pace so far."""
+    seen = []
+
+    def spy(cfg, epoch_min, sched, bar, done=1):
+        seen.append(done)
+        return cfg
+
+    monkeypatch.setattr(train_module, "_filled", spy)
+    cfg = TrainConfig(model="tiny", data=str(data), out=str(tmp_path / "each"), epochs=3, batch=4, image_size=32,
+                      patience=0, time_limit_min=10.0, fill_time=True)
+    train(cfg, progress=False)
+    assert seen == [1, 2, 3]
 
 
 def test_train_errors(data, tmp_path, tiny):

@@ -39,8 +39,8 @@ log = logging.getLogger(__name__)
 TWIN_CE_WEIGHT = 0.1  # the twin head's cross-entropy beside the keypoint loss (shipped default.pt)
 
 SCHEDULES = ("constant", "cosine")
-# fill_time: the epochs planned at this much slower than the first took (later ones ran 0.7-1.0 x its time
-# on a 2-core CPU; the time limit still stops a run that overruns)
+# fill_time: the epochs planned at this much slower than the epochs so far took on average (on a 2-core
+# CPU later epochs ran 0.7-1.1 x the first; the time limit still stops a run that overruns)
 FILL_MARGIN = 1.05
 MAX_FILL_EPOCHS = 200  # fill_time never plans more (a tiny set on a fast machine)
 
@@ -77,9 +77,9 @@ class TrainConfig:
             validation, calibration and checkpoints stay float32).
         time_limit_min: stop after the epoch that would make the next one end past this many
             minutes of training (best.pt is calibrated as after a normal end); None = no limit.
-        fill_time: with ``time_limit_min``, ``epochs`` is a first guess: after a fresh run's first epoch
-            the epochs are re-planned to fill the limit at its pace (``FILL_MARGIN``), the cosine schedule
-            following; the checkpoints keep the count for a resumed run. One process only (not DDP).
+        fill_time: with ``time_limit_min``, ``epochs`` is a first guess: after each epoch of a fresh run
+            the epochs are re-planned to fill the limit at the pace so far (``FILL_MARGIN``), the cosine
+            schedule following; the checkpoints keep the count for a resumed run. One process only (not DDP).
         cache_images: a directory where the direct (VGG) models' inputs are decoded and resized (or
             cropped) once and memory-mapped from then on (:meth:`PoseDataset.cache_images`; reused by
             later runs on the same views): 0.7 ms per item instead of 7.7 (1.8 instead of 10.1 for the
@@ -270,7 +270,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
     best_payload = None  # a best.pt not written yet (checkpoint_every > 1)
     stopped = None  # why the run ended, for the caller's summary
     epoch = start_epoch - 1
-    while (epoch := epoch + 1) < cfg.epochs:  # fill_time may re-plan cfg.epochs after the first
+    while (epoch := epoch + 1) < cfg.epochs:  # fill_time may re-plan cfg.epochs after each
         if sampler is not None:
             sampler.set_epoch(epoch)
         net.train()
@@ -314,8 +314,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
                "lr": lr_used, "epoch_s": time.perf_counter() - t0, "train_images": n, "train_s": train_s,
                "loader_wait_s": loader_wait_s}
         history.append(row)
-        if cfg.fill_time and cfg.time_limit_min and epoch == 0 and world == 1:
-            cfg = _filled(cfg, row["epoch_s"] / 60, sched, bar)
+        if cfg.fill_time and cfg.time_limit_min and start_epoch == 0 and world == 1:
+            cfg = _filled(cfg, (time.perf_counter() - run_start) / 60 / (epoch + 1), sched, bar, done=epoch + 1)
         improved = row["val_loss"] < best
         best, stale = (row["val_loss"], 0) if improved else (best, stale + 1)
         payload = {"config": asdict(cfg), "model": model.state_dict(), "build": kw_for_checkpoint(kw),
@@ -370,14 +370,14 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
     return {**best_row, "epochs_run": len(history), "stopped": stopped or f"ran all {_epochs(cfg.epochs)}"}
 
 
-def _filled(cfg: TrainConfig, epoch_min: float, sched, bar) -> TrainConfig:
-    """``cfg`` with its epochs re-planned (``fill_time``) after a first epoch of ``epoch_min`` minutes; the
-    cosine ``sched`` (None: constant) and the progress ``bar`` (None: none) follow."""
-    epochs = int(np.clip(cfg.time_limit_min / (FILL_MARGIN * max(epoch_min, 1e-6)), 1, MAX_FILL_EPOCHS))
+def _filled(cfg: TrainConfig, epoch_min: float, sched, bar, done: int = 1) -> TrainConfig:
+    """``cfg`` with its epochs re-planned (``fill_time``) after ``done`` epochs of ``epoch_min`` minutes on
+    average (never fewer than ``done``); the cosine ``sched`` and the progress ``bar`` (None: none) follow."""
+    epochs = int(np.clip(cfg.time_limit_min / (FILL_MARGIN * max(epoch_min, 1e-6)), done, MAX_FILL_EPOCHS))
     if epochs == cfg.epochs:
         return cfg
-    log.info("fill_time: %d epochs, not %d (the first: %.2f of %g min)", epochs, cfg.epochs, epoch_min, cfg.time_limit_min)
-    if sched is not None:  # its rate after the first epoch as the new length has it; the chainable cosine goes on from there
+    log.info("fill_time: %d epochs, not %d (%.2f min an epoch of %g)", epochs, cfg.epochs, epoch_min, cfg.time_limit_min)
+    if sched is not None:  # its rate now as the new length has it; the chainable cosine goes on from there
         for group, base in zip(sched.optimizer.param_groups, sched.base_lrs):
             group["lr"] = sched.eta_min + (base - sched.eta_min) * (1 + math.cos(math.pi * sched.last_epoch / epochs)) / 2
         sched.T_max = epochs

@@ -105,14 +105,14 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, workers: i
     from .datasets.generate import CHECKPOINT_EVERY
     from .render import AppearanceSpec
 
+    workers = max(1, int(workers))
     render_kw = {"appearance": AppearanceSpec("random"), "distance_range_m": working_distances(obj, camera),
-                 "in_view": True, **render_kw, "workers": max(1, int(workers))}
+                 "in_view": True, **render_kw, "workers": workers}
     # Several processes render only a job of more than one work unit, each process starting (an
     # interpreter, GL, the mesh) within the timed run: on a pool both runs give every process whole
     # units, the longer one twice as many, so that the start-ups cancel out (a 2-process box fit that
     # timed 2 views on one process against 34 on two planned 0.138 s a view and rendered at 0.042).
-    unit = CHECKPOINT_EVERY * render_kw["workers"]
-    counts = (2, 2 + views) if render_kw["workers"] == 1 else (unit, 2 * unit)
+    counts = (2, 2 + views) if workers == 1 else (CHECKPOINT_EVERY * workers, 2 * CHECKPOINT_EVERY * workers)
     with tempfile.TemporaryDirectory() as tmp:
         render_random_dataset(Path(tmp) / "warm", obj, camera, 1, seed=0, **render_kw)
         spent = []

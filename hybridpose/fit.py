@@ -212,6 +212,8 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
     from .objects import load_object
     from .regressors.checkpoints import checkpoint_or_shipped, export_checkpoint
     from .training.evaluate import calibrate_checkpoint, evaluate_checkpoint
+    from .regressors.models import torch_device
+    from .training.precision import fast_bf16
     from .training.train import TrainConfig, train
     from .datasets import render_random_dataset
     from .workers import usable_cores
@@ -306,8 +308,10 @@ def fit(mesh, out, camera: Camera | None = None, scale: float = 1.0, budget="60m
                           image_size=IMAGE_SIZE, val_fraction=0.05, seed=seed, patience=0, schedule="cosine",
                           init_from=start, time_limit_min=plan.train_min, fill_time=True,
                           full_view=FULL_VIEW if look == "random" else 0.0, workers=1,
+                          amp=fast_bf16(torch_device("auto")),
                           cache_images=str(cache) if cache_fits(plan.train_views, camera, out) else None)
         record["learning_rate"] = cfg.lr
+        record["training_bf16"] = cfg.amp
         record["epochs_trained"] = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=bar is not None)["epochs_run"]
         if cfg.cache_images:  # rebuilt in under a minute by a resumed run: not worth gigabytes in the fit's folder
             shutil.rmtree(cache, ignore_errors=True)
@@ -397,7 +401,8 @@ def fit_report(record: dict, obj: ObjectModel) -> str:
         + (f"; one unlabelled heatmap of its {len(obj.keypoints)} keypoints, which look alike under its symmetries"
            if obj.symmetric else "") + ") for "
         + (f"{record['epochs_trained']} epochs" if "epochs_trained" in record else f"up to {p['epochs']} epochs")
-        + f" within {p['train_min']:.0f} min, from `{req['init_from']}`.",
+        + f" within {p['train_min']:.0f} min" + (", its forward passes in bfloat16" if record.get("training_bf16") else "")
+        + f", from `{req['init_from']}`.",
         f"- Minutes per stage: {minutes}.", "",
         f"Held-out views ({a['views']}, not those that calibrated the covariance): rotation error median "
         f"{a['rot_median_deg']:.2f}°, mean {a['rot_mean_deg']:.2f}°; translation median {a['trans_median_pct']:.2f} % "

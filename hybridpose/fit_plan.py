@@ -126,18 +126,22 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, workers: i
 
 def measure_train_speed(obj: ObjectModel) -> float:
     """Training s/view on this machine now: forward + backward passes of the ``default`` network on
-    128-px crops, × ``TRAIN_OVERHEAD`` for augmentation and validation beside the bare steps."""
+    128-px crops, × ``TRAIN_OVERHEAD`` for augmentation and validation beside the bare steps; in the
+    training's layout and precision (:mod:`~hybridpose.training.precision`)."""
     import torch
 
     from .regressors.models import build_model
+    from .training.precision import channels_last, fast_bf16
 
     torch.manual_seed(0)
-    net = build_model("default", image_size=IMAGE_SIZE, keypoints_m=obj.keypoints)
+    net = channels_last(build_model("default", image_size=IMAGE_SIZE, keypoints_m=obj.keypoints))
     opt = torch.optim.Adam(net.parameters(), 1e-4)
     x = torch.rand(TRAIN_BATCH, 3, IMAGE_SIZE, IMAGE_SIZE)
+    bf16 = fast_bf16(torch.device("cpu"))
 
     def step():
-        out = net(x)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            out = net(x)
         outs = out.values() if isinstance(out, dict) else out if isinstance(out, (tuple, list)) else [out]
         loss = sum(v.float().mean() for v in outs if isinstance(v, torch.Tensor))
         opt.zero_grad()

@@ -13,7 +13,9 @@ from hybridpose.fit_plan import (EVAL_RESERVE_MIN, PLAN_MARGIN, RENDER_SHARE, RE
                                  measure_speeds, parse_budget, plan_training, working_distances)
 from hybridpose.geometry import Camera
 from hybridpose.objects import load_object
+from hybridpose.regressors.models import torch_device
 from hybridpose.render import SpaceLighting
+from hybridpose.training.precision import fast_bf16
 
 
 @pytest.fixture(scope="module")
@@ -103,6 +105,7 @@ def test_a_measured_plan_trains_for_the_time_left_after_rendering(box_mesh, tmp_
     assert record["plan"]["epochs"] == min(200, int(60 * record["plan"]["train_min"] / (REPLAN_MARGIN * 32 * 0.01)))
     assert record["plan"]["epochs"] > int(60 * record["plan"]["train_min"] / (REPLAN_MARGIN * 32 * 0.05))
     assert runs[0].time_limit_min == record["plan"]["train_min"] and runs[0].epochs == record["plan"]["epochs"] > 1
+    assert runs[0].amp == fast_bf16(torch_device("auto"))  # bf16 forward passes where the device is fast at them
     # resumed, the training keeps the plan it was given (its schedule runs over those epochs)
     with pytest.raises(Stop):
         fit(box_mesh, out, camera=cam, scale=0.001, budget="6m", progress=lambda *_: None)
@@ -323,6 +326,9 @@ def test_a_tiny_fit_renders_trains_calibrates_evaluates_and_resumes(box_mesh, tm
     assert np.isfinite(acc["rot_median_deg"]) and acc["rot_twin_median_deg"] <= acc["rot_median_deg"]
     report = (out / "report.md").read_text()
     assert "within a tracker's basin" in report and "32 training and 44 held-out views" in report and "equivalent poses" in report
+    # the training's precision is the machine's fast one, and the report says which
+    assert record["training_bf16"] == fast_bf16(torch_device("auto"))
+    assert ("its forward passes in bfloat16" in report) == record["training_bf16"]
     # a new part's network carries the hybrid policy it wants, and the estimator applies it
     assert record["hybrid_config"] == {"reacquire_deg": 20.0} and "hybrid policy `reacquire_deg=20`" in report
     # the rendered views have random looks, not black space

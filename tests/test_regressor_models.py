@@ -180,9 +180,9 @@ def test_gradcam_and_timing_of_every_direct_model(name, tmp_path):
 @pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
 @pytest.mark.parametrize("name", ["parallel-vgg19", "default"])  # parallel: both VGG streams and the branch
 def test_channels_last_layout_gives_the_same_outputs_and_gradients(name, truss):
-    """Training on a GPU puts the weights in NHWC (train.channels_last); flattening, the branch and the
+    """Training puts the weights in NHWC (precision.channels_last); flattening, the branch and the
     two streams must read the same numbers as in NCHW."""
-    from hybridpose.training.train import channels_last
+    from hybridpose.training.precision import channels_last
 
     torch.manual_seed(0)
     build = {"image_size": 64, **({"keypoints_m": truss.keypoints} if name == "default" else {})}

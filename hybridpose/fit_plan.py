@@ -24,9 +24,11 @@ IMAGE_SIZE = 128  # the shipped keypoint network's crop side: a part's fit start
 TRAIN_BATCH = 32  # images a training step (also how a fit times one, to plan its budget)
 # a training epoch's wall time over its bare forward + backward steps (augmentation, the loader cutting
 # crops beside them, validation): three 60-minute box fits' epochs from decoded views took 1.07–1.49 × the
-# steps timed before them (the timing swings by a fifth from run to run: the training re-plans its epochs
-# from its first one, TrainConfig.fill_time)
-TRAIN_OVERHEAD = 1.35  # with REPLAN_MARGIN, the slowest of those epochs still fits the time planned
+# float32 steps timed before them (the timing swings by a fifth from run to run: the training re-plans its
+# epochs after each one, TrainConfig.fill_time). In bf16 (precision.fast_bf16) the steps shrink and the
+# rest does not: a 60-minute box fit's epochs took 2.6 × its timed steps (7.1 ms an image against 2.7), so
+# its first count was high (22 epochs planned, 13 run) until the first epoch's re-plan
+TRAIN_OVERHEAD = 1.35  # with REPLAN_MARGIN, the slowest of those float32 epochs still fits the time planned
 PLAN_MARGIN = 1.3  # the machine is rarely all ours: plan for this much slower than measured
 # the training re-planned from its speed measured just before it starts: a 60-minute box fit planned at
 # PLAN_MARGIN trained its 16 epochs in 32 of its 43 minutes

@@ -15,8 +15,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   its fit standing out from its own view slid across the image: clutter matches a wrong outline as well as
   its neighbours, ``start_contrast``; a plain part's in lit clutter, where another of the network's passes
   saw it too, ``start_sighting_iou``); the tracker's fit starts the fusion — or, where not convincing
-  (``start_sure_quality``), a clearly better one from the start turned a few degrees; a printed part's,
-  moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
+  (``start_sure_quality``), a clearly better one from the start turned a few degrees; a plain part's in a lit
+  scene, a clearly better one from the poses that cast its outline too (``start_rival_margin``); a printed
+  part's, moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is gated
   (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where the tracker
   sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``: an arm covering half
@@ -80,7 +81,7 @@ from .objects import ObjectModel
 from .regressors.colour_starts import SOURCE as COLOUR_SOURCE, ColourStarts
 from .regressors.keypoint_memory import SOURCE as MEMORY_SOURCE, KeypointMemory
 from .starts import (CnnCheck, confirmed_start, cues_vouch, edges_alone_in_clutter, image_test, plain_alternatives, print_backs,
-                     print_climber, print_fails, print_prefers, print_view, start_refused_in_light, unseen_in_clutter)
+                     print_climber, print_fails, print_prefers, print_view, rival_test, start_refused_in_light, unseen_in_clutter)
 from .threads import set_threads
 
 MAX_TWIST_GAP_S = 0.2  # a twist measured from two tracker poses further apart than this is not worth keeping
@@ -357,8 +358,9 @@ class HybridEstimator:
         floor = c.colour_start_print if m.source == COLOUR_SOURCE else 0.0  # 32 blind tries: the print must show well
         stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin, floor)
         climb = print_climber(fit, self._print, frame, self.object, c.start_print_turn_deg)
+        rivals = rival_test(self._view, frame, self._print is not None, c.start_rival_margin)
         return confirmed_start(m, fit, c if m.source != MEMORY_SOURCE else replace(c, start_quality=c.memory_start_quality),
-                               depth_search, stands_out, climb)
+                               depth_search, stands_out, climb, rivals)
 
     def _edges_alone(self, frame: Frame, m: Measurement) -> bool:
         """Whether the fit ``m`` in ``frame`` stands on its edges alone in a lit scene: no start, nor a take-up (a start too)."""

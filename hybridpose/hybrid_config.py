@@ -105,6 +105,12 @@ class HybridConfig:
         start_wide_turn_deg: where none of those turns fits better, the same six turns by this much
             are tried (0: off): a plain cube's edges held a start 15° off at 0.8 where the truth fits
             at 0.96 (hand-held tuning scenes; docs/decisions.md).
+        start_rival_margin: a start of a part with no print in a lit scene is also fitted from the poses
+            whose outline may match its own (:func:`~hybridpose.starts.outline_rivals`: its box's axes
+            carried onto each other, seen the same size); one whose fit reaches ``start_quality`` and
+            beats the start's by this much starts the track instead, wherever the CNN put it (None: off).
+            A plain box seen near end-on casts the outline of the box turned 90–120° (own-object tuning
+            seeds: docs/decisions.md).
         start_print_turn_deg: a start of a part whose print is known climbs the print's score
             (:func:`~hybridpose.starts.print_climb`): its pose turned by this much about each camera axis
             through the part's centre, the best turn by the print fitted again while the print scores
@@ -256,6 +262,7 @@ class HybridConfig:
     start_sure_quality: float = 0.8
     start_wide_turn_deg: float = 10.0
     start_print_turn_deg: float = 3.0
+    start_rival_margin: float | None = 0.05
     start_contrast: float = 0.3
     start_print_margin: float = 0.2
     track_print_floor: float = 0.15
@@ -308,6 +315,8 @@ class HybridConfig:
                 raise ValueError(f"{name}: expected a tracker quality in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.start_sighting_iou <= 1:
             raise ValueError(f"start_sighting_iou: expected an intersection over union in [0, 1] (0: off), got {self.start_sighting_iou}")
+        if self.start_rival_margin is not None and not 0 <= self.start_rival_margin <= 1:
+            raise ValueError(f"start_rival_margin: expected a quality difference in [0, 1] or None, got {self.start_rival_margin}")
         if not 0 <= self.switch_quality_margin <= 1:
             raise ValueError(f"switch_quality_margin: expected a quality difference in [0, 1], got {self.switch_quality_margin}")
         if not 0 <= self.start_depth_step < 1 or not 0 <= self.start_depth_span < 1:

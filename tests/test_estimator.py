@@ -1061,3 +1061,98 @@ def test_slid_starts_go_along_the_viewing_ray_nearest_first():
     assert np.allclose(scales, [1, 0.97, 1.03, 0.94, 1.06, 0.91, 1.09, 0.88, 1.12])
     assert all(np.allclose(np.cross(s.t, pose.t), 0) and np.allclose(s.R, pose.R) for s in starts)
     assert slid_starts(pose, 0.0, 0.12) == [pose]
+
+
+PLAIN_BOX = None
+
+
+def _plain_box():
+    global PLAIN_BOX
+    if PLAIN_BOX is None:
+        import trimesh
+
+        from hybridpose.objects import ObjectModel
+
+        PLAIN_BOX = ObjectModel("plain-box", trimesh.creation.box((0.18, 0.11, 0.07)))
+    return PLAIN_BOX
+
+
+RIVAL_CAM = Camera.default().scaled(160)
+
+
+def _flipped(pose: Pose) -> Pose:
+    """The rival of ``pose`` (:func:`~hybridpose.starts.outline_rivals`) turned farthest from it: the
+    box's outline, cast by the box turned end over end."""
+    from hybridpose.starts import outline_rivals
+
+    return max(outline_rivals(_plain_box(), RIVAL_CAM, pose), key=lambda p: rotation_error_deg(p, pose))
+
+
+class OutlineTracker(ScriptedTracker):
+    """A plain box's edges and colours: from within 10° of the truth they fit it (0.95), from within 10°
+    of its end-over-end rival they fit the rival almost as well (0.8); elsewhere nothing."""
+
+    def track(self, frame, prior=None, **options):
+        k = frame.index
+        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
+        for pose, quality in ((truth(k), 0.95), (_flipped(truth(k)), 0.8)):
+            if rotation_error_deg(prior, pose) < 10:
+                return Measurement(pose, cov, quality, "tracker:scripted", frame.timestamp)
+        return Measurement(None, np.eye(6), 0.1, "tracker:scripted", frame.timestamp)
+
+
+class FlippedAtFirst(OracleRegressor):
+    """The box's end-over-end rival on frame 0 (a confident answer), the truth after."""
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return replace(m, pose=_flipped(m.pose)) if frame.index == 0 else m
+
+
+@pytest.mark.parametrize("grey, margin, right", [(120, 0.05, True), (120, None, False), (0, 0.05, False)])
+def test_a_plain_parts_start_is_checked_against_the_rivals_of_its_outline(grey, margin, right):
+    """A plain box in a lit scene, the network's first answer its end-over-end rival (whose outline
+    the edges fit at 0.8): fitted from the start's rivals too, the truth (0.95) beats it by more than
+    ``start_rival_margin`` and the track starts there. Off (None), or on black space (the space suites
+    measured the hybrid without it), the track starts at the rival."""
+    from hybridpose.starts import outline_rivals
+
+    rivals = outline_rivals(_plain_box(), RIVAL_CAM, truth(0))
+    assert 0 < len(rivals) <= 23 and rotation_error_deg(_flipped(truth(0)), truth(0)) > 60
+    est = HybridEstimator(OutlineTracker(object=_plain_box()), FlippedAtFirst(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, start_contrast=0, start_rival_margin=margin))
+    first = est.step(replace(frame(0, RIVAL_CAM), image=np.full((RIVAL_CAM.height, RIVAL_CAM.width, 3), grey, np.uint8)))
+    assert first.pose is not None
+    assert (rotation_error_deg(first.pose, truth(0)) < 0.5) == right
+    with pytest.raises(ValueError, match="start_rival_margin"):
+        HybridConfig(start_rival_margin=-0.1)
+
+
+def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_equivalents():
+    """Each rival: the box's centre on the same line of sight, its image box's diagonal the start's
+    (within 2 %), its rotation more than 30° from the start's and each other rival's equivalents (the
+    plain box's 180° turns); a cube has none (every turn of its axes is one of its symmetries)."""
+    import trimesh
+
+    from hybridpose.metrics import nearest_equivalent
+    from hybridpose.objects import ObjectModel
+    from hybridpose.starts import outline_rivals
+
+    box, pose = _plain_box(), Pose.from_rotvec_t([0.4, -0.7, 0.2], [0.03, -0.02, 0.6])
+    rivals = outline_rivals(box, RIVAL_CAM, pose)
+    assert len(box.symmetries) == 3 and len(rivals) == 5  # 24 turns of its axes / its 4 (identity and three 180° turns), less itself
+
+    def diagonal(p):
+        x0, y0, x1, y1 = RIVAL_CAM.image_box(box.bbox_corners, p)
+        return np.hypot(x1 - x0, y1 - y0)
+
+    centre = box.bbox_corners.mean(0)
+    ray = (pose.R @ centre + pose.t) / np.linalg.norm(pose.R @ centre + pose.t)
+    for i, rival in enumerate(rivals):
+        c = rival.R @ centre + rival.t
+        assert np.allclose(c / np.linalg.norm(c), ray, atol=1e-9)
+        assert abs(diagonal(rival) / diagonal(pose) - 1) < 0.02
+        for other in [pose] + rivals[:i]:
+            assert rotation_error_deg(rival, nearest_equivalent(rival, other, box.symmetries)) > 30
+    cube = ObjectModel("cube", trimesh.creation.box((0.1, 0.1, 0.1)))
+    assert outline_rivals(cube, RIVAL_CAM, pose) == []

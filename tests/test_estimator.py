@@ -1156,3 +1156,23 @@ def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_eq
             assert rotation_error_deg(rival, nearest_equivalent(rival, other, box.symmetries)) > 30
     cube = ObjectModel("cube", trimesh.creation.box((0.1, 0.1, 0.1)))
     assert outline_rivals(cube, RIVAL_CAM, pose) == []
+
+
+@pytest.mark.parametrize("rival_quality, taken", [(0.84, False), (0.86, True), (None, False)])
+def test_a_rival_is_taken_only_where_it_beats_the_start_by_the_margin(rival_quality, taken):
+    """``best_rival``: the start (0.8) gives way to a rival's fit only at 0.8 + ``start_rival_margin``
+    (0.05) or more, wherever the rival lies; a rival the tracker refuses (None) or loses leaves the start."""
+    from hybridpose.starts import best_rival
+
+    config = HybridConfig()
+    start = Measurement(truth(0), np.eye(6) * 1e-6, 0.8, "tracker:scripted", 0.0)
+    rival_pose = _flipped(truth(0))
+
+    def fit(pose):
+        if rival_quality is None:
+            return None
+        return Measurement(pose, np.eye(6) * 1e-6, rival_quality, "tracker:scripted", 0.0)
+
+    chosen = best_rival(start, [rival_pose], fit, config)
+    assert (chosen.pose is rival_pose) == taken
+    assert best_rival(start, [rival_pose], fit, replace(config, start_rival_margin=None)) is start

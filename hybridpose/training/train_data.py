@@ -4,7 +4,6 @@ the photometric augmentations, and the description of the data a checkpoint reco
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -12,6 +11,7 @@ import torch
 from torch.utils.data import Dataset, Subset
 
 from ..datasets.torch_dataset import PoseDataset, split_indices
+from ..workers import usable_cores
 
 if TYPE_CHECKING:  # the config lives with the training loop, which imports this module
     from .train import TrainConfig
@@ -45,7 +45,7 @@ def make_datasets(cfg: TrainConfig, keypoints_m=None) -> tuple[Dataset, Dataset]
     if keypoints_m is not None:
         crops = PoseDataset(cfg.data, size=cfg.image_size, crop=True, keypoints_m=keypoints_m, full_view=cfg.full_view)
         if cfg.cache_images:  # the decoded views: random crops differ every epoch and are cut from them
-            crops.cache_sources(cfg.cache_images, workers=max(cfg.workers, os.cpu_count() or 1))
+            crops.cache_sources(cfg.cache_images, workers=max(cfg.workers, usable_cores()))
         train_idx, val_idx = split_indices(len(crops), cfg.val_fraction, cfg.seed)
         return crops.subset(train_idx, jitter=cfg.augment), crops.subset(val_idx)
     inputs = [PoseDataset(cfg.data, size=cfg.image_size)]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .core import Frame, Measurement
-from .edges import ModelView, coarse_to_fine, placement_contrast, to_gray
+from .edges import ModelView, coarse_to_fine, placement_contrast, projected_diagonal_px, to_gray
 from .edges.fit import dark_surround
 from .edges.print_match import PrintView, print_agreement
 from .fusion.base import equivalent_measurement, pose_mahalanobis2
@@ -158,7 +158,7 @@ def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridC
     Why: a plain box seen near end-on shows an outline that the box turned 90–120° also casts, nearer or
     farther; the network can give that pose, and the edges and colours confirm it (own-object tuning
     seeds: five starts 106–114° off, scoring 0.78–0.86 with ``combined``). Fitted from the rival poses,
-    the truth scored 0.09–0.16 higher in four of them; of the 40 right starts none had a rival within 0.10
+    the truth scored 0.09–0.16 higher in four of them; of the 39 right starts none had a rival within 0.10
     of its own score."""
     margin = config.start_rival_margin
     best = first
@@ -170,16 +170,18 @@ def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridC
     return best
 
 
-def outline_rivals(obj, camera, pose: Pose) -> list[Pose]:
-    """The poses of ``obj`` (an :class:`~hybridpose.objects.ObjectModel`) whose outline in ``camera`` may
-    match its outline at ``pose`` (``T_cam_obj``): its bounding box's axes carried onto each other about
-    its centre (``AXIS_TURNS``), the centre kept on its line of sight, the image box's diagonal kept;
-    none equivalent to ``pose`` or to each other under the object's symmetries (``RIVAL_APART_DEG``)."""
+def outline_rivals(view: ModelView, camera, pose: Pose) -> list[Pose]:
+    """The poses of ``view``'s object whose outline in ``camera`` may match its outline at ``pose``
+    (``T_cam_obj``): its bounding box's axes carried onto each other about its centre (``AXIS_TURNS``),
+    the centre kept on its line of sight, the image box's diagonal kept; none equivalent to ``pose`` or
+    to each other under the object's symmetries (``RIVAL_APART_DEG``); none where the part reaches
+    behind the camera."""
+    obj = view.object
     centre = obj.bbox_corners.mean(0)
     centre_cam = pose.R @ centre + pose.t
-    size = _diagonal(obj, camera, pose)
+    size = projected_diagonal_px(view, pose, camera)
     out: list[Pose] = []
-    if size is None:
+    if not np.isfinite(size):
         return out
     for P in AXIS_TURNS:
         R = pose.R @ P
@@ -188,8 +190,8 @@ def outline_rivals(obj, camera, pose: Pose) -> list[Pose]:
                for other in (pose, *out)):
             continue
         for _ in range(RIVAL_SIZE_STEPS):
-            other_size = _diagonal(obj, camera, rival)
-            if other_size is None:
+            other_size = projected_diagonal_px(view, rival, camera)
+            if not np.isfinite(other_size):
                 break
             moved = (rival.R @ centre + rival.t) * (other_size / size)
             rival = Pose(rival.R, moved - rival.R @ centre)
@@ -211,15 +213,9 @@ def rival_test(view: ModelView | None, frame: Frame, printed: bool, margin: floa
         # axes), beyond the tracker's reach at full resolution: each is brought in over the image pyramid first
         if not lit_around(frame, view, pose):
             return []
-        return [coarse_to_fine(view, frame, rival) for rival in outline_rivals(view.object, frame.camera, pose)]
+        return [coarse_to_fine(view, frame, rival) for rival in outline_rivals(view, frame.camera, pose)]
 
     return rivals
-
-
-def _diagonal(obj, camera, pose: Pose) -> float | None:
-    """Length (px) of the diagonal of ``obj``'s image box at ``pose``; None where it reaches behind the camera."""
-    box = camera.image_box(obj.bbox_corners, pose)
-    return None if box is None else float(np.hypot(box[2] - box[0], box[3] - box[1]))
 
 
 def print_fails(print_view: PrintView | None, frame: Frame, pose: Pose | None, floor: float) -> bool:

@@ -1,6 +1,7 @@
 """HybridEstimator: the policy with scripted backends (what it does with a silent drift, a CNN outlier,
 a loss), user-defined and plug-in backends, bad input; and the real backends on a rendered
 arm-occlusion sequence with no ground truth given."""
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -1063,18 +1064,19 @@ def test_slid_starts_go_along_the_viewing_ray_nearest_first():
     assert slid_starts(pose, 0.0, 0.12) == [pose]
 
 
-PLAIN_BOX = None
+@functools.cache
+def _plain_box_view():
+    """The ModelView of a plain 180 × 110 × 70 mm box, built once (the scripted tracker asks for its rivals at every fit)."""
+    import trimesh
+
+    from hybridpose.edges import ModelView
+    from hybridpose.objects import ObjectModel
+
+    return ModelView(ObjectModel("plain-box", trimesh.creation.box((0.18, 0.11, 0.07))))
 
 
 def _plain_box():
-    global PLAIN_BOX
-    if PLAIN_BOX is None:
-        import trimesh
-
-        from hybridpose.objects import ObjectModel
-
-        PLAIN_BOX = ObjectModel("plain-box", trimesh.creation.box((0.18, 0.11, 0.07)))
-    return PLAIN_BOX
+    return _plain_box_view().object
 
 
 RIVAL_CAM = Camera.default().scaled(160)
@@ -1083,10 +1085,9 @@ RIVAL_CAM = Camera.default().scaled(160)
 def _flipped(pose: Pose) -> Pose:
     """The rival of ``pose`` (:func:`~hybridpose.starts.outline_rivals`) turned farthest from it: the
     box's outline, cast by the box turned end over end."""
-    from hybridpose.edges import ModelView
     from hybridpose.starts import outline_rivals
 
-    return max(outline_rivals(ModelView(_plain_box()), RIVAL_CAM, pose), key=lambda p: rotation_error_deg(p, pose))
+    return max(outline_rivals(_plain_box_view(), RIVAL_CAM, pose), key=lambda p: rotation_error_deg(p, pose))
 
 
 class OutlineTracker(ScriptedTracker):
@@ -1138,7 +1139,7 @@ def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_eq
     from hybridpose.starts import outline_rivals
 
     box, pose = _plain_box(), Pose.from_rotvec_t([0.4, -0.7, 0.2], [0.03, -0.02, 0.6])
-    rivals = outline_rivals(ModelView(box), RIVAL_CAM, pose)
+    rivals = outline_rivals(_plain_box_view(), RIVAL_CAM, pose)
     assert len(box.symmetries) == 3 and len(rivals) == 5  # 24 turns of its axes / its 4 (identity and three 180° turns), less itself
 
     def diagonal(p):
@@ -1155,7 +1156,7 @@ def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_eq
             assert rotation_error_deg(rival, nearest_equivalent(rival, other, box.symmetries)) > 30
     cube = ObjectModel("cube", trimesh.creation.box((0.1, 0.1, 0.1)))
     assert outline_rivals(ModelView(cube), RIVAL_CAM, pose) == []
-    assert outline_rivals(ModelView(box), RIVAL_CAM, Pose.from_rotvec_t([0.4, -0.7, 0.2], [0.0, 0.0, 0.05])) == []  # reaches behind
+    assert outline_rivals(_plain_box_view(), RIVAL_CAM, Pose.from_rotvec_t([0.4, -0.7, 0.2], [0.0, 0.0, 0.05])) == []  # reaches behind
 
 
 @pytest.mark.parametrize("rival_quality, taken", [(0.84, False), (0.86, True), (None, False)])

@@ -255,7 +255,7 @@ class HybridEstimator:
         check = self._check(frame, m, timings) if due else None
         if check is None:
             return self._estimate(Status.TRACKING, tuple(sources))
-        if rejected and self.config.check_on_rejection and self._vouched(m, check.cnn, check.fit):
+        if rejected and self.config.check_on_rejection and check.vouches_for(m, self.config.disagreement_chi2):
             # the edges from the CNN pose land on the refused measurement: the motion model was
             # wrong, not the tracker; start the fusion over from the tracker
             self._restart(frame, m, timings, measured_twist(previous, m, MAX_TWIST_GAP_S))
@@ -380,12 +380,6 @@ class HybridEstimator:
         ``retry_after`` frames since its last (re)start (a younger one may be a wrong start a second chance keeps alive)."""
         after = self.config.retry_after
         return after is not None and previous is not None and previous.pose is not None and self._n.since_start >= after
-
-    def _vouched(self, m: Measurement, c: Measurement, fit: Measurement) -> bool:
-        """Whether the CNN pose ``c`` and the tracker's fit from it both agree with the tracker's ``m`` (``disagreement_chi2``)."""
-        chi2 = self.config.disagreement_chi2
-        return (fit.pose is not None and _mahalanobis2(m.pose, m.covariance, fit.pose, fit.covariance) <= chi2
-                and _mahalanobis2(m.pose, m.covariance, c.pose, c.covariance) <= chi2)
 
     def _track_from(self, frame: Frame, start: Pose, timings: dict, search_px: float | None = None,
                     lost_quality: float | None = None, covered_lost_quality: float | None = None,

@@ -409,3 +409,8 @@ class CnnCheck:
     def backed_by(self, track: Measurement, margin: float) -> bool:
         """Whether the ``track`` measurement fits the image better than the fit from the CNN by ``margin``."""
         return not track.lost and track.quality >= self.fit.quality + margin
+
+    def vouches_for(self, track: Measurement, chi2: float) -> bool:
+        """Whether the CNN's pose and the fit from it both lie within ``chi2`` (squared Mahalanobis) of ``track``."""
+        return (self.fit.pose is not None and pose_mahalanobis2(track.pose, track.covariance, self.fit.pose, self.fit.covariance) <= chi2
+                and pose_mahalanobis2(track.pose, track.covariance, self.cnn.pose, self.cnn.covariance) <= chi2)

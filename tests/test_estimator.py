@@ -1177,3 +1177,22 @@ def test_a_rival_is_taken_only_where_it_beats_the_start_by_the_margin(rival_qual
     chosen = best_rival(start, [rival_pose], fit, config)
     assert (chosen.pose is rival_pose) == taken
     assert best_rival(start, [rival_pose], fit, replace(config, start_rival_margin=None)) is start
+
+
+def test_cnn_check_vouches_for_a_track_only_where_its_pose_and_its_fit_both_agree():
+    """``CnnCheck.vouches_for``: the CNN's pose and the tracker's fit from it both within the χ² bound of the
+    track (2° apart, each 1° σ: a squared distance of 2), neither where one of them is 10° away or the fit is lost."""
+    from hybridpose.starts import CnnCheck
+
+    cov = np.diag(np.r_[np.full(3, np.radians(1.0)) ** 2, np.full(3, 1e-3 ** 2)])
+    base = Pose(np.eye(3), np.array([0.0, 0.0, 0.5]))
+
+    def at(deg, source="tracker:scripted"):
+        return Measurement(tilt(base, deg), cov, 0.8, source, 0.0)
+
+    track = at(0.0)
+    assert CnnCheck(at(2.0, "regressor:oracle"), at(2.0), disagrees=False, stayed=True).vouches_for(track, 16.0)
+    assert not CnnCheck(at(10.0, "regressor:oracle"), at(2.0), disagrees=False, stayed=True).vouches_for(track, 16.0)
+    assert not CnnCheck(at(2.0, "regressor:oracle"), at(10.0), disagrees=False, stayed=True).vouches_for(track, 16.0)
+    lost = Measurement(None, cov, 0.0, "tracker:scripted", 0.0)
+    assert not CnnCheck(at(2.0, "regressor:oracle"), lost, disagrees=False, stayed=False).vouches_for(track, 16.0)

@@ -126,23 +126,26 @@ def measure_speeds(obj: ObjectModel, camera: Camera, views: int = 32, workers: i
     return render_s, measure_train_speed(obj)
 
 
-def measure_train_speed(obj: ObjectModel) -> float:
+def measure_train_speed(obj: ObjectModel, device="auto") -> float:
     """Training s/view on this machine now: forward + backward passes of the ``default`` network on
-    128-px crops, × ``TRAIN_OVERHEAD`` for augmentation and validation beside the bare steps; in the
-    training's layout and precision (:mod:`~hybridpose.training.precision`)."""
+    128-px crops, × ``TRAIN_OVERHEAD`` for augmentation and validation beside the bare steps; on the
+    device the training takes (``device``: as :func:`~hybridpose.regressors.models.torch_device` reads
+    it; "auto", the fit's, is a CUDA GPU where torch sees one), in its layout and precision
+    (:mod:`~hybridpose.training.precision`)."""
     import torch
 
-    from .regressors.models import build_model
+    from .regressors.models import build_model, torch_device
     from .training.precision import channels_last, fast_bf16
 
+    dev = torch_device(device)
     torch.manual_seed(0)
-    net = channels_last(build_model("default", image_size=IMAGE_SIZE, keypoints_m=obj.keypoints))
+    net = channels_last(build_model("default", image_size=IMAGE_SIZE, keypoints_m=obj.keypoints)).to(dev)
     opt = torch.optim.Adam(net.parameters(), 1e-4)
-    x = torch.rand(TRAIN_BATCH, 3, IMAGE_SIZE, IMAGE_SIZE)
-    bf16 = fast_bf16(torch.device("cpu"))
+    x = torch.rand(TRAIN_BATCH, 3, IMAGE_SIZE, IMAGE_SIZE, device=dev)
+    bf16 = fast_bf16(dev)
 
     def step():
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=bf16):
             out = net(x)
         outs = out.values() if isinstance(out, dict) else out if isinstance(out, (tuple, list)) else [out]
         loss = sum(v.float().mean() for v in outs if isinstance(v, torch.Tensor))
@@ -150,12 +153,17 @@ def measure_train_speed(obj: ObjectModel) -> float:
         loss.backward()
         opt.step()
 
+    def synchronised():  # a GPU's steps are queued: the clock reads when they are done
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+        return time.perf_counter()
+
     step()  # untimed: the first step allocates (timed with the others, it read 0.021 s a view, not 0.015)
     steps = 3
-    t0 = time.perf_counter()
+    t0 = synchronised()
     for _ in range(steps):
         step()
-    return TRAIN_OVERHEAD * (time.perf_counter() - t0) / (steps * TRAIN_BATCH)
+    return TRAIN_OVERHEAD * (synchronised() - t0) / (steps * TRAIN_BATCH)
 
 
 def cache_fits(views: int, camera: Camera, folder) -> bool:

@@ -29,12 +29,13 @@ def test_channels_last_keeps_the_values_and_moves_the_layout():
 
 @pytest.mark.parametrize("amx", [True, False])
 def test_the_plans_training_speed_is_timed_in_the_trainings_precision(monkeypatch, truss, amx):
-    """measure_train_speed times the steps the fit's training will run: NHWC weights, and bf16
-    activations exactly where fast_bf16 turns the training's autocast on."""
+    """measure_train_speed times the steps the fit's training will run: on its device, NHWC weights, and
+    bf16 activations exactly where fast_bf16 turns the training's autocast on for that device."""
     import hybridpose.regressors.models as models
     from hybridpose.fit_plan import measure_train_speed
 
-    monkeypatch.setattr(precision, "fast_bf16", lambda device: amx)
+    asked = []
+    monkeypatch.setattr(precision, "fast_bf16", lambda device: asked.append(device) or amx)
     seen = []
     real_build = models.build_model
 
@@ -50,3 +51,11 @@ def test_the_plans_training_speed_is_timed_in_the_trainings_precision(monkeypatc
     monkeypatch.setattr(models, "build_model", spied_build)
     assert measure_train_speed(truss) > 0
     assert seen and set(seen) == {(torch.bfloat16 if amx else torch.float32, True)}
+    assert asked == [models.torch_device("auto")]  # the device the fit's training takes (TrainConfig.device)
+
+
+def test_the_plans_training_speed_names_a_device_it_cannot_reach(truss):
+    from hybridpose.fit_plan import measure_train_speed
+
+    with pytest.raises(ValueError, match="device"):
+        measure_train_speed(truss, device="tpu")

@@ -8,7 +8,7 @@ import trimesh
 
 import hybridpose.edges.fit as edge_fit
 from hybridpose.core import Frame
-from hybridpose.edges import ModelView, explained_edge_share
+from hybridpose.edges import ModelView, explained_edge_share, printed_faces
 from hybridpose.geometry import Camera, Pose
 from hybridpose.objects.base import ObjectModel
 
@@ -30,13 +30,13 @@ def _scribbles(shape, rng, count: int) -> np.ndarray:
     return img
 
 
-def _scene(cube, textured: bool, cluttered: bool, seed: int = 0) -> Frame:
-    """The cube at POSE on a plain (or cluttered) grey background, its faces shaded apart and (optionally)
+def _scene(cube, textured: bool, cluttered: bool, seed: int = 0, pose: Pose = POSE) -> Frame:
+    """The cube at ``pose`` on a plain (or cluttered) grey background, its faces shaded apart and (optionally)
     scribbled over."""
     rng = np.random.default_rng(seed)
     h, w = CAMERA.height, CAMERA.width
     image = _scribbles((h, w), rng, 400) // 2 + 60 if cluttered else np.full((h, w), 90, np.uint8)
-    ids = ModelView(cube).facet_ids(POSE, CAMERA)
+    ids = ModelView(cube).facet_ids(pose, CAMERA)
     ids = cv2.resize(ids.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(int)
     texture = _scribbles((h, w), rng, 600) if textured else np.full((h, w), 255, np.uint8)
     for k, facet in enumerate(np.unique(ids[ids > 0])):
@@ -149,3 +149,21 @@ def test_a_restart_in_a_video_that_showed_black_space_keeps_its_strict_slope(nam
     assert quality() <= 0.4 + 1e-9
     tracker.reset()
     assert quality() == pytest.approx(0.7, abs=0.1)
+
+
+@pytest.mark.parametrize("shift", [(0.0, 0.0), (-0.2, 0.0), (0.0, -0.15), (0.2, 0.15)])
+@pytest.mark.parametrize("textured", [True, False])
+def test_a_print_is_found_on_the_part_wherever_it_lies_in_the_frame(cube, shift, textured):
+    """``printed_faces`` works on the part's box, not the whole frame: it answers as the whole frame's
+    morphology does (computed here), the part in the middle or cut by an image border."""
+    pose = Pose(POSE.R, POSE.t + [shift[0], shift[1], 0.0])
+    view = ModelView(cube)
+    frame = _scene(cube, textured=textured, cluttered=False, pose=pose)
+    ids = view.facet_ids(pose, CAMERA, scale=1.0).astype(np.uint16)
+    k = np.ones((2 * edge_fit.TEXTURE_CLEAR_PX + 1,) * 2, np.uint8)
+    interior = (ids > 0) & (cv2.dilate(ids, k) == cv2.erode(ids, k))
+    gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
+    density = (cv2.Canny(gray, edge_fit.CANNY_LOW, edge_fit.CANNY_HIGH) > 0)[interior].mean()
+    on_border = bool((ids[:, [0, -1]] > 0).any() or (ids[[0, -1], :] > 0).any())
+    assert interior.sum() > 100 and on_border == (shift != (0.0, 0.0))  # the shifted part is cut by a border
+    assert printed_faces(view, frame, pose) == bool(density > edge_fit.TEXTURE_EDGE_DENSITY) == textured

@@ -305,15 +305,24 @@ def printed_faces(view: ModelView, frame: Frame, pose: Pose, gray: np.ndarray | 
     (a tracker's initial pose): at a wrong pose the faces may lie over a cluttered background.
     ``gray``: (H, W) float32 intensity, ``ids``: the full-resolution facet-id raster of ``pose``, where
     the caller has them."""
-    ids = (view.facet_ids(pose, frame.camera, scale=1.0) if ids is None else ids).astype(np.uint16)
-    k = np.ones((2 * TEXTURE_CLEAR_PX + 1,) * 2, np.uint8)
-    interior = (ids > 0) & (cv2.dilate(ids, k) == cv2.erode(ids, k))
+    ids = view.facet_ids(pose, frame.camera, scale=1.0) if ids is None else ids
+    # the morphology on the part's box padded by the kernel's reach gives the whole frame's (nothing but
+    # background beyond it) for less: 3.2 → 2.2 ms a call on the truss at 640 × 480, once per tracker start
+    bx, by, bw, bh = cv2.boundingRect((ids > 0).astype(np.uint8))
+    if bw == 0:
+        return False
+    r = TEXTURE_CLEAR_PX
+    oy, ox = max(by - r, 0), max(bx - r, 0)
+    crop = np.ascontiguousarray(ids[oy:by + bh + r, ox:bx + bw + r], np.uint16)
+    k = np.ones((2 * r + 1,) * 2, np.uint8)
+    interior = (crop > 0) & (cv2.dilate(crop, k) == cv2.erode(crop, k))
     if interior.sum() < 100:
         return False
     ys, xs = np.nonzero(interior)
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     gray = to_gray(frame.image) if gray is None else gray
-    edges = cv2.Canny(np.clip(gray[y0:y1, x0:x1], 0, 255).astype(np.uint8), CANNY_LOW, CANNY_HIGH) > 0
+    patch = gray[oy + y0:oy + y1, ox + x0:ox + x1]
+    edges = cv2.Canny(np.clip(patch, 0, 255).astype(np.uint8), CANNY_LOW, CANNY_HIGH) > 0
     return float(edges[interior[y0:y1, x0:x1]].mean()) > TEXTURE_EDGE_DENSITY
 
 

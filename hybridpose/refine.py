@@ -6,7 +6,8 @@ user's video (its print, the lens, the light, the scene). No labels come with th
 tracker that holds the part through a stretch of it gives a pose per frame, good to a degree or two
 where it is sure — from the hybrid's own start, or from an initial pose the user gives (as ViSP's
 trackers start from one). Those frames become training views: the network is fine-tuned on them
-from the fit's weights at the re-fit learning rate, within a budget.
+from the fit's weights at the re-fit learning rate, within a budget, as the fit trains (bfloat16 where
+the device runs it fast, crops cut from the frames decoded once).
 
 What it gained is measured, not assumed: the last ``HELD_BACK`` share of the tracked frames (a later
 stretch of the footage) is kept out of the training, and the report gives the network's errors there before and after — against the
@@ -21,6 +22,7 @@ fit's), ``refine/eval_before`` and ``refine/eval_after``, ``refine/refine.json``
 """
 from __future__ import annotations
 
+import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -107,9 +109,12 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
         many the tracker held and what to try).
     """
     from .fit import FULL_VIEW, IMAGE_SIZE, REFIT_LR, TRAIN_BATCH, held_out_accuracy, record_hybrid_policy
+    from .fit_plan import cache_fits
     from .regressors.checkpoints import export_checkpoint, load_checkpoint
+    from .regressors.models import torch_device
     from .tracking import read_frames
     from .training.evaluate import calibrate_checkpoint, evaluate_checkpoint
+    from .training.precision import fast_bf16
     from .training.train import TrainConfig, train
 
     fit_dir = Path(fit_dir)
@@ -149,10 +154,16 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     progress(f"refine: {n_train} tracked frames to train on, {n_held} held back (from frame {cut} on)")
     t0 = time.perf_counter()
     size = int(load_checkpoint(checkpoint)["config"].get("image_size", IMAGE_SIZE))  # the fit's crop scale
+    cache = out / "data" / "decoded"
     cfg = TrainConfig(model="default", data=str(roots[0]), out=str(out / "run"), epochs=1000, batch=TRAIN_BATCH,
                       lr=REFIT_LR, image_size=size, val_fraction=0.1, seed=seed, patience=0, schedule="constant",
-                      init_from=str(checkpoint), time_limit_min=budget_min, full_view=FULL_VIEW, workers=1)
-    train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=False)
+                      init_from=str(checkpoint), time_limit_min=budget_min, full_view=FULL_VIEW, workers=1,
+                      # as the fit trains: bfloat16 where the device runs it fast, crops cut from frames decoded once
+                      amp=fast_bf16(torch_device("auto")),
+                      cache_images=str(cache) if cache_fits(n_train, camera, out) else None)
+    record["training_bf16"] = cfg.amp
+    record["epochs_trained"] = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=False)["epochs_run"]
+    shutil.rmtree(cache, ignore_errors=True)  # rebuilt in seconds by a resumed run
     export_checkpoint(out / "run" / "best.pt", out / "best.pt")
     record_hybrid_policy(checkpoint, out / "best.pt", refit=True)  # the fit's own policy
     try:

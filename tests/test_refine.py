@@ -50,8 +50,11 @@ def test_the_fit_command_checks_its_refine_options_before_fitting(tmp_path, caps
 
 
 @pytest.mark.slow  # tens of seconds on a 2-core CPU: CI runs it in its slow step
-def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_checkpoint, tmp_path):
+def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_checkpoint, tmp_path, monkeypatch):
     import shutil
+
+    import hybridpose.training.precision as precision
+    import hybridpose.training.train as train_module
 
     from hybridpose.datasets import render_sequence_dataset
     from hybridpose.datasets.bop import BopScene
@@ -66,8 +69,16 @@ def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_che
     scene = render_sequence_dataset(tmp_path / "seq", truss, CAM, SequenceSpec(trajectory="tumble", frames=48, fps=30.0,
                                                                                 seed=4))
     first = BopScene(scene).image(0).pose
+    # the refinement trains as the fit does: in bfloat16 where the device runs it fast (said so here, where
+    # this CPU may have no AMX), its crops cut from frames decoded once
+    monkeypatch.setattr(precision, "fast_bf16", lambda device: True)
+    configs, real_train = [], train_module.train
+    monkeypatch.setattr(train_module, "train", lambda cfg, **kw: configs.append(cfg) or real_train(cfg, **kw))
     record = refine_on_footage(fit_dir, scene / "rgb", truss, CAM, budget_min=0.05, tracker="edges", init_pose=first,
                                progress=lambda *_: None)
+    assert [(c.amp, bool(c.cache_images)) for c in configs] == [(True, True)]
+    assert record["training_bf16"] is True and record["epochs_trained"] >= 1
+    assert not (fit_dir / "refine" / "data" / "decoded").exists()  # the decoded frames are not kept
     tracked = record["train_frames"] + record["held_back_frames"]
     assert record["frames"] == 48
     assert record["train_frames"] >= MIN_TRAIN_FRAMES and tracked <= 48

@@ -96,15 +96,15 @@ def _within(pose, truth, deg: float, metres: float) -> bool:
     return bool(rotation_error_deg(pose, truth) <= deg and np.linalg.norm(pose.t - truth.t) <= metres)
 
 
-def score_cnn(regressor, frames, obj, reference) -> dict:
+def score_cnn(regressor, frames, obj, reference, every: int = CNN_EVERY) -> dict:
     """The fitted network (a checkpoint; or any ``predict(frame)`` giving a Measurement or None) alone on
-    every ``CNN_EVERY``-th frame with a reference: frames in a tracker's basin."""
+    every ``every``-th frame with a reference: frames in a tracker's basin."""
     from hybridpose.bench.modes import BASIN_DEG, BASIN_PCT
     from hybridpose.metrics import nearest_equivalent, rotation_error_deg
     from hybridpose.registry import create_regressor
 
     predict = create_regressor(regressor, object=obj).predict if isinstance(regressor, str) else regressor
-    sampled = [f for f in frames[::CNN_EVERY] if reference[f.index] is not None]
+    sampled = [f for f in frames[::every] if reference[f.index] is not None]
     inside, rot = 0, []
     for frame in sampled:
         m, ref = predict(frame), reference[frame.index]

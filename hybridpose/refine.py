@@ -113,7 +113,7 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     from .regressors.checkpoints import export_checkpoint, load_checkpoint
     from .regressors.models import torch_device
     from .tracking import read_frames
-    from .training.evaluate import calibrate_checkpoint, evaluate_checkpoint
+    from .training.evaluate import evaluate_checkpoint
     from .training.precision import fast_bf16
     from .training.train import TrainConfig, train
 
@@ -166,10 +166,9 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     shutil.rmtree(cache, ignore_errors=True)  # rebuilt in seconds by a resumed run
     export_checkpoint(out / "run" / "best.pt", out / "best.pt")
     record_hybrid_policy(checkpoint, out / "best.pt", refit=True)  # the fit's own policy
-    try:
-        calibrate_checkpoint(out / "best.pt", fit_dir / "data" / "calib", out / "best.pt")
-    except ValueError as exc:  # too few poses on the fit's calibration renders: the report says so
-        record["calibration_skipped"] = str(exc)
+    skipped = recalibrated(out / "best.pt", fit_dir / "data" / "calib")
+    if skipped:
+        record["calibration_skipped"] = skipped
     record["minutes"]["train"] = (time.perf_counter() - t0) / 60
     if n_held:
         for name, ck in (("before", checkpoint), ("after", out / "best.pt")):
@@ -183,6 +182,21 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     atomic_write_text(report_md, previous + "\n\n## Refined on your footage\n\n" + text + "\n")
     progress(f"refine: {text}")
     return record
+
+
+def recalibrated(checkpoint: Path, calib: Path) -> str | None:
+    """Calibrate ``checkpoint``'s covariance in place on the fit's calibration renders ``calib``; None
+    where done, else why not (the report says so, the refinement stands): too few poses there, or the
+    renders are gone (a fit folder whose ``data/`` was deleted to save space)."""
+    from .training.evaluate import calibrate_checkpoint
+
+    if not Path(calib).is_dir():
+        return f"the fit's calibration renders are gone: {calib} not found"
+    try:
+        calibrate_checkpoint(checkpoint, calib, checkpoint)
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 def hybrid_from(frames: Iterator[Frame], cut: int, obj: ObjectModel, checkpoint, tracker: str,

@@ -161,3 +161,22 @@ def test_the_no_pose_hand_held_benchmark_takes_more_tuning_seeds_and_keeps_the_r
         handheld_no_pose.scene_entries("tuning", seeds="5")  # a report seed
     with pytest.raises(SystemExit, match="only with --split tuning"):
         handheld_no_pose.main(["--seeds", "121"])
+
+
+def test_the_refine_benchmark_refuses_a_fit_it_cannot_use_before_any_work(tmp_path, capsys):
+    import refine_on_footage
+
+    with pytest.raises(SystemExit, match="unknown video.*'castle'"):
+        refine_on_footage.main(["--visp-repo", str(tmp_path), "--fit", f"castle={tmp_path}"])
+    with pytest.raises(SystemExit, match="no best.pt in"):
+        refine_on_footage.main(["--visp-repo", str(tmp_path), "--fit", f"teabox_left={tmp_path / 'nofit'}"])
+
+
+def test_the_refine_benchmark_cells_read_before_and_after():
+    import refine_on_footage
+
+    assert refine_on_footage._cnn_cell({"in_basin": 3, "frames": 65, "rot_median_deg": 27.43}) == "3 of 65 (27.4°)"
+    assert refine_on_footage._cnn_cell({"in_basin": 0, "frames": 0, "rot_median_deg": None}) == "0 of 0 (—)"
+    h = {"first_pose": None, "held": 0, "frames": 30, "wrong": 0}
+    assert refine_on_footage._hybrid_cell(h) == "never; 0 of 30; 0"
+    assert refine_on_footage._hybrid_cell({**h, "first_pose": 197, "held": 64, "frames": 64}) == "frame 197; 64 of 64; 0"

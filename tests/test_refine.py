@@ -101,3 +101,12 @@ def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_che
     # without an initial pose the hybrid labels the frames: a network that never finds the part gives none
     with pytest.raises(ValueError, match="on 0 frames.*--init-pose"):
         refine_on_footage(fit_dir, scene / "rgb", truss, CAM, budget_min=0.05, tracker="edges", progress=lambda *_: None)
+
+
+def test_a_fit_folder_without_its_calibration_renders_is_refined_uncalibrated_and_says_why(tmp_path):
+    from hybridpose.refine import recalibrated
+
+    checkpoint = tmp_path / "best.pt"
+    checkpoint.write_bytes(b"not read")
+    assert "calibration renders are gone" in recalibrated(checkpoint, tmp_path / "fit" / "data" / "calib")
+    assert checkpoint.read_bytes() == b"not read"

@@ -162,6 +162,8 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
                       amp=fast_bf16(torch_device("auto")),
                       cache_images=str(cache) if cache_fits(n_train, camera, out) else None)
     record["training_bf16"] = cfg.amp
+    progress(f"refine: training for {budget_min:g} minutes from the fit's weights"
+             f"{' in bfloat16' if cfg.amp else ''} (the report follows)")
     record["epochs_trained"] = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=False)["epochs_run"]
     shutil.rmtree(cache, ignore_errors=True)  # rebuilt in seconds by a resumed run
     export_checkpoint(out / "run" / "best.pt", out / "best.pt")

@@ -74,9 +74,11 @@ def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_che
     monkeypatch.setattr(precision, "fast_bf16", lambda device: True)
     configs, real_train = [], train_module.train
     monkeypatch.setattr(train_module, "train", lambda cfg, **kw: configs.append(cfg) or real_train(cfg, **kw))
+    said = []
     record = refine_on_footage(fit_dir, scene / "rgb", truss, CAM, budget_min=0.05, tracker="edges", init_pose=first,
-                               progress=lambda *_: None)
+                               progress=said.append)
     assert [(c.amp, bool(c.cache_images)) for c in configs] == [(True, True)]
+    assert any("training for 0.05 minutes from the fit's weights in bfloat16" in line for line in said)
     assert record["training_bf16"] is True and record["epochs_trained"] >= 1
     assert not (fit_dir / "refine" / "data" / "decoded").exists()  # the decoded frames are not kept
     tracked = record["train_frames"] + record["held_back_frames"]

@@ -175,6 +175,7 @@ class HybridEstimator:
         self.last_tracker: Measurement | None = None  # the tracker's last measurement (for plots and logs)
         self.memory: KeypointMemory | None = None  # the part's look, made at the first frame (none on black space)
         self.colour_starts: ColourStarts | None = None  # a printed part's last-resort starts (the same)
+        self._lit = True  # whether the video's first frame is off black space (_meet_scene)
         self.tracker.reset()
 
     def step(self, frame: Frame) -> Estimate:
@@ -338,7 +339,8 @@ class HybridEstimator:
     def _confirmed(self, frame: Frame, m: Measurement, timings: dict, depth_search=False, sightings=None) -> Measurement | None:
         """The start the CNN measurement ``m`` gives in ``frame`` (:func:`~hybridpose.starts.confirmed_start`; ``sightings``:
         the network's other sightings of the part there, for a part with no print, :func:`~hybridpose.starts.unseen_in_clutter`)."""
-        c = self.config  # a start from the memory's keypoints has its own bar (memory_start_quality)
+        # the wide turns are for a plain part's minima in light (on the truss's tuning sequences none helped)
+        c = self.config if self._lit else replace(self.config, start_wide_turn_deg=0.0)
         plain_bar = c.plain_start_quality if m.source != MEMORY_SOURCE and self._print is None else 0.0
         seen = sightings if self._print is None else None  # a printed part's start answers to its print
 
@@ -411,9 +413,10 @@ class HybridEstimator:
 
     def _meet_scene(self, frame: Frame) -> None:
         """At a video's first frame, off black space: the part's keypoint memory (``keypoint_memory``), a printed
-        part's colour starts (``colour_start_every``) and a hand's motion model (``handheld_accel_rad_s2``); on black space none."""
+        part's colour starts (``colour_start_every``), a hand's motion model (``handheld_accel_rad_s2``) and the
+        starts' wide turns (``start_wide_turn_deg``); on black space none."""
         own = self._own_motion_noise
-        lit = dark_share(to_gray8(frame.image)) < SPACE_DARK_SHARE
+        lit = self._lit = dark_share(to_gray8(frame.image)) < SPACE_DARK_SHARE
         if self.config.keypoint_memory and self._view is not None and lit:
             self.memory = KeypointMemory.for_part(self._view, frame.camera, self._print)
         if self.config.colour_start_every and self._print is not None and lit:

@@ -103,8 +103,9 @@ class HybridConfig:
             mostly score 0.8 and more: on the tuning seeds a third of the starts tried the six extra
             fits, about 0.2 ms a frame amortised.
         start_wide_turn_deg: where none of those turns fits better, the same six turns by this much
-            are tried (0: off): a plain cube's edges held a start 15° off at 0.8 where the truth fits
-            at 0.96 (hand-held tuning scenes; docs/decisions.md).
+            are tried (0: off), off black space only: a plain cube's edges held a start 15° off at 0.8
+            where the truth fits at 0.96 (hand-held tuning scenes); on the truss's 140 tuning sequences
+            they changed no frame and cost 29 ms a start (docs/decisions.md).
         start_rival_margin: a start of a part with no print in a lit scene is also fitted from the poses
             whose outline may match its own (:func:`~hybridpose.starts.outline_rivals`: its box's axes
             carried onto each other, seen the same size); one whose fit reaches ``start_quality`` and

@@ -5,7 +5,9 @@ frames; its stereo tea box's left camera, 121), each with a network ``hybridpose
 at its defaults (``--fit KEY=FIT_DIR``): the fit's ``best.pt`` is copied into ``--out`` and refined there
 as ``fit --refine-on VIDEO`` refines it — the hybrid from no initial pose labels the frames it holds
 with confidence, the network trains on the earlier three quarters of them for ``--budget`` minutes (the
-command's default) and the last quarter, a later stretch, is held back. Scored on that stretch before
+command's default) or until its loss on a tenth of them kept out stops improving (``--patience``: one
+row for each value given; by default 0, training to the budget, and the command's default) and the last
+quarter, a later stretch, is held back. Scored on that stretch before
 and after against the ``combined`` track from the hand-labelled first pose (as
 ``megapose_no_pose.py`` scores; not the refinement's own labels): the network alone on every frame
 (in a tracker's basin: ≤ 10° and ≤ 5 % of the distance, up to the part's symmetries), and the hybrid
@@ -30,7 +32,8 @@ from real_video import REPO_VIDEOS, repo_camera, repo_frames  # noqa: E402
 VIDEO_KEYS = ("detection_cube", "teabox_left")  # long enough for 30 training frames before the held-back quarter
 
 
-def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: float, tracker: str) -> dict:
+def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: float, tracker: str,
+                 patience: int | None = None) -> dict:
     """One video's row: the refinement's record and the before/after scores on its held-back stretch."""
     from hybridpose.refine import refine_on_footage
 
@@ -38,7 +41,7 @@ def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: flo
     frames, camera, model, pose0 = repo_frames(repo, video)
     obj = replace(model, texture=None, face_uv=None)  # the shape alone, as the plain CAD model gives it
     reference = reference_track(frames, obj, pose0)
-    work = out / key / "fit"
+    work = out / key / ("fit" if patience is None else f"patience{patience}") / "fit"
     if not (work / "refine" / "refine.json").is_file():  # a run cut short starts its refinement over
         shutil.rmtree(work, ignore_errors=True)
         work.mkdir(parents=True)
@@ -46,7 +49,7 @@ def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: flo
         if (fit_dir / "data" / "calib").is_dir():
             shutil.copytree(fit_dir / "data" / "calib", work / "data" / "calib")
         refine_on_footage(work, repo / video.video, obj, repo_camera(repo / video.camera), budget_min=budget_min,
-                          tracker=tracker, progress=print)
+                          tracker=tracker, progress=print, **({} if patience is None else {"patience": patience}))
     from hybridpose.io import read_json
 
     record = read_json(work / "refine" / "refine.json")
@@ -70,6 +73,12 @@ def _fit_cell(fit_dir: Path) -> str:
             f"{fit.get('epochs_trained', '?')} epochs")
 
 
+def _training_cell(rec: dict) -> str:
+    why = (f"no better for {rec['patience_epochs']} epochs" if rec.get("stopped_early") else "the budget")
+    bf16 = ", bfloat16" if rec.get("training_bf16") else ""
+    return f"{rec['epochs_trained']}, {rec['minutes']['train']:.1f} ({why}{bf16})"
+
+
 def _cnn_cell(c: dict) -> str:
     med = "—" if c["rot_median_deg"] is None else f"{c['rot_median_deg']:.1f}°"
     return f"{c['in_basin']} of {c['frames']} ({med})"
@@ -87,10 +96,13 @@ def main(argv=None) -> None:
                     help="VIDEO=FIT_DIR[,VIDEO=FIT_DIR...]: a `hybridpose fit` folder for each video's part "
                          f"(videos: {', '.join(VIDEO_KEYS)})")
     ap.add_argument("--budget", type=float, default=None, help="minutes of refinement (default: the command's)")
+    ap.add_argument("--patience", default=None,
+                    help="EPOCHS[,EPOCHS...]: one row each, the training stopped after that many epochs without "
+                         "a better loss on its kept-out frames (0: trains to the budget; default: 0 and the command's)")
     ap.add_argument("--tracker", default="combined", help="the tracker that labels the frames (default combined)")
     ap.add_argument("--out", default="runs/refine_on_footage", help="where the copied fits are refined")
     args = ap.parse_args(argv)
-    from hybridpose.refine import DEFAULT_BUDGET_MIN
+    from hybridpose.refine import DEFAULT_BUDGET_MIN, PATIENCE_EPOCHS
     from hybridpose.threads import set_threads
 
     fits = dict(item.split("=", 1) for item in args.fit.split(","))
@@ -102,13 +114,19 @@ def main(argv=None) -> None:
         raise SystemExit(f"--fit: no best.pt in {missing} (a `hybridpose fit` folder)")
     set_threads(1)
     budget = DEFAULT_BUDGET_MIN if args.budget is None else args.budget
-    rows = [refine_video(Path(args.visp_repo), key, Path(d), Path(args.out), budget, args.tracker)
-            for key, d in fits.items()]
+    try:
+        patiences = ([0, PATIENCE_EPOCHS] if args.patience is None
+                     else [int(p) for p in str(args.patience).split(",")])
+    except ValueError:
+        raise SystemExit(f"--patience: expected whole numbers of epochs, comma-separated, got {args.patience!r}") from None
+    rows = [refine_video(Path(args.visp_repo), key, Path(d), Path(args.out), budget, args.tracker, patience)
+            for key, d in fits.items() for patience in patiences]
     lines = [f"`hybridpose fit --refine-on` from no initial pose on ViSP's real videos (`python "
              f"benchmarks/refine_on_footage.py`, commit `{environment()['git']}`, {budget:g} minutes of refinement, "
              f"`{args.tracker}` labelling): scored on the held-back last quarter of the tracked frames against the "
              "`combined` track from the hand-labelled first pose. Nothing was tuned on these figures.", "",
-             "| video | the fit refined | frames trained on / held back (from frame) | epochs (bfloat16) | "
+             "| video | the fit refined | frames trained on / held back (from frame) | training: epochs, minutes "
+             "(stopped by) | "
              "network alone on the held-back frames, in a tracker's basin (rotation median): before → after | "
              "hybrid from no initial pose over them (first pose; within 5° and 2 cm of the scored; trusted > 10° off): "
              "before → after |",
@@ -116,8 +134,7 @@ def main(argv=None) -> None:
     for r in rows:
         rec, b, a = r["refine"], r["before"], r["after"]
         lines.append(f"| {r['video']} | {r['fit_cell']} | {rec['train_frames']} / {rec['held_back_frames']} "
-                     f"({rec['held_back_from']}) | {rec.get('epochs_trained', '—')} "
-                     f"({'yes' if rec.get('training_bf16') else 'no'}) | {_cnn_cell(b['cnn'])} → {_cnn_cell(a['cnn'])} | "
+                     f"({rec['held_back_from']}) | {_training_cell(rec)} | {_cnn_cell(b['cnn'])} → {_cnn_cell(a['cnn'])} | "
                      f"{_hybrid_cell(b['hybrid'])} → {_hybrid_cell(a['hybrid'])} |")
     uncalibrated = [r["video"] for r in rows if r["refine"].get("calibration_skipped")]
     if uncalibrated:

@@ -38,6 +38,7 @@ HELD_BACK = 0.25  # the last share of the tracked frames, never trained on: wher
 MIN_QUALITY = 0.6  # a tracker's frame below this (or lost) is neither a label nor scored
 MIN_TRAIN_FRAMES = 30  # fewer tracked frames than this teach nothing but the frames themselves
 DEFAULT_BUDGET_MIN = 10.0  # a sixth of the fit's default hour: the network already knows the part, it adapts to the footage
+PATIENCE_EPOCHS = 30  # epochs without a better loss on the frames kept out of the training before it stops short of the budget
 
 
 def labelled_frames(frames: Iterator[Frame], obj: ObjectModel, checkpoint, tracker: str = "combined",
@@ -99,12 +100,18 @@ def write_views(frames: Iterator[Frame], poses: dict[int, Pose], obj: ObjectMode
 
 
 def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_min: float = DEFAULT_BUDGET_MIN,
-                      tracker: str = "combined", init_pose: Pose | None = None, seed: int = 0, progress=print) -> dict:
+                      tracker: str = "combined", init_pose: Pose | None = None, seed: int = 0,
+                      patience: int = PATIENCE_EPOCHS, progress=print) -> dict:
     """Refine the fit in ``fit_dir`` (its ``best.pt``) on the video or image folder ``source`` (seen
     with ``camera``; see the module doc). Returns the record written to ``refine/refine.json``.
 
+    The training stops at ``budget_min`` minutes or sooner, once ``patience`` epochs in a row (0:
+    never) brought no better loss on a tenth of the training frames kept out of it: the network has
+    learnt the frames' labels and more epochs at a constant rate only spend the user's time.
+
     Raises:
-        FileNotFoundError: no ``best.pt`` in ``fit_dir`` (fit first). ValueError: no budget, or fewer
+        FileNotFoundError: no ``best.pt`` in ``fit_dir`` (fit first). ValueError: no budget, a patience
+        that is not a whole number of epochs >= 0, or fewer
         than ``MIN_TRAIN_FRAMES`` tracked frames before the held-back share (the message says how
         many the tracker held and what to try).
     """
@@ -123,6 +130,8 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
         raise FileNotFoundError(f"{checkpoint}: no fitted network to refine — run `hybridpose fit` into that folder first")
     if not budget_min > 0:
         raise ValueError(f"budget: expected minutes of training > 0, got {budget_min!r}")
+    if isinstance(patience, bool) or not isinstance(patience, int) or patience < 0:
+        raise ValueError(f"patience: expected a whole number of epochs >= 0 (0: train to the budget), got {patience!r}")
     out = fit_dir / "refine"
     roots = (out / "data" / "train", out / "data" / "held_back")
     t0 = time.perf_counter()
@@ -156,7 +165,7 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     size = int(load_checkpoint(checkpoint)["config"].get("image_size", IMAGE_SIZE))  # the fit's crop scale
     cache = out / "data" / "decoded"
     cfg = TrainConfig(model="default", data=str(roots[0]), out=str(out / "run"), epochs=1000, batch=TRAIN_BATCH,
-                      lr=REFIT_LR, image_size=size, val_fraction=0.1, seed=seed, patience=0, schedule="constant",
+                      lr=REFIT_LR, image_size=size, val_fraction=0.1, seed=seed, patience=patience, schedule="constant",
                       init_from=str(checkpoint), time_limit_min=budget_min, full_view=FULL_VIEW, workers=1,
                       # as the fit trains: bfloat16 where the device runs it fast, crops cut from frames decoded once
                       amp=fast_bf16(torch_device("auto")),
@@ -164,7 +173,9 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     record["training_bf16"] = cfg.amp
     progress(f"refine: training for {budget_min:g} minutes from the fit's weights"
              f"{' in bfloat16' if cfg.amp else ''} (the report follows)")
-    record["epochs_trained"] = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=False)["epochs_run"]
+    trained = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=False)
+    record["epochs_trained"], record["patience_epochs"] = trained["epochs_run"], patience
+    record["stopped_early"] = trained["stopped"].startswith("early stop")
     shutil.rmtree(cache, ignore_errors=True)  # rebuilt in seconds by a resumed run
     export_checkpoint(out / "run" / "best.pt", out / "best.pt")
     record_hybrid_policy(checkpoint, out / "best.pt", refit=True)  # the fit's own policy
@@ -237,6 +248,10 @@ def refine_report(record: dict) -> str:
     text = (f"`{record['tracker']}` tracked `{record['source']}` {how}; the network was refined on the "
             f"{record['train_frames']} frames it held with confidence before frame {record['held_back_from']} "
             f"(`refine/best.pt`; the fit's `best.pt` is unchanged).")
+    if "epochs_trained" in record:
+        why = (f"its loss on frames kept out of the training no better for {record['patience_epochs']} epochs"
+               if record.get("stopped_early") else "the budget")
+        text += f" It trained {record['epochs_trained']} epochs (stopped by {why})."
     if "calibration_skipped" in record:
         text += f" **Its covariance was not re-calibrated** ({record['calibration_skipped']})."
     if "before" not in record:

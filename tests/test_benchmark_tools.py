@@ -170,6 +170,11 @@ def test_the_refine_benchmark_refuses_a_fit_it_cannot_use_before_any_work(tmp_pa
         refine_on_footage.main(["--visp-repo", str(tmp_path), "--fit", f"castle={tmp_path}"])
     with pytest.raises(SystemExit, match="no best.pt in"):
         refine_on_footage.main(["--visp-repo", str(tmp_path), "--fit", f"teabox_left={tmp_path / 'nofit'}"])
+    (tmp_path / "fit").mkdir()
+    (tmp_path / "fit" / "best.pt").write_bytes(b"")
+    with pytest.raises(SystemExit, match="--patience: expected whole numbers"):
+        refine_on_footage.main(["--visp-repo", str(tmp_path), "--fit", f"teabox_left={tmp_path / 'fit'}",
+                                "--patience", "0,ten"])
 
 
 def test_the_refine_benchmark_cells_read_before_and_after():
@@ -180,3 +185,7 @@ def test_the_refine_benchmark_cells_read_before_and_after():
     h = {"first_pose": None, "held": 0, "frames": 30, "wrong": 0}
     assert refine_on_footage._hybrid_cell(h) == "never; 0 of 30; 0"
     assert refine_on_footage._hybrid_cell({**h, "first_pose": 197, "held": 64, "frames": 64}) == "frame 197; 64 of 64; 0"
+    rec = {"epochs_trained": 57, "minutes": {"train": 1.84}, "stopped_early": True, "patience_epochs": 30,
+           "training_bf16": True}
+    assert refine_on_footage._training_cell(rec) == "57, 1.8 (no better for 30 epochs, bfloat16)"
+    assert refine_on_footage._training_cell({**rec, "stopped_early": False, "training_bf16": False}) == "57, 1.8 (the budget)"

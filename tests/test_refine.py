@@ -8,7 +8,7 @@ import pytest
 from hybridpose.geometry import Camera
 from hybridpose.io import write_image
 from hybridpose.objects import load_object
-from hybridpose.refine import HELD_BACK, MIN_TRAIN_FRAMES, refine_on_footage
+from hybridpose.refine import HELD_BACK, MIN_TRAIN_FRAMES, PATIENCE_EPOCHS, refine_on_footage, refine_report
 
 CAM = Camera.default().scaled(160)
 
@@ -16,6 +16,23 @@ CAM = Camera.default().scaled(160)
 def test_nothing_to_refine_without_a_fit(tmp_path):
     with pytest.raises(FileNotFoundError, match="hybridpose fit"):
         refine_on_footage(tmp_path / "nofit", tmp_path, load_object("truss"), CAM)
+
+
+@pytest.mark.parametrize("patience", [-1, 2.5, True, "30"])
+def test_a_patience_that_is_not_a_whole_number_of_epochs_is_refused_before_any_work(tmp_path, patience):
+    (tmp_path / "fit").mkdir()
+    (tmp_path / "fit" / "best.pt").write_bytes(b"")
+    with pytest.raises(ValueError, match="patience: expected a whole number of epochs >= 0"):
+        refine_on_footage(tmp_path / "fit", tmp_path / "none.mp4", load_object("truss"), CAM, patience=patience)
+    assert not (tmp_path / "fit" / "refine").exists()
+
+
+def test_the_report_says_what_stopped_the_training():
+    record = {"tracker": "combined", "source": "v.mp4", "from_initial_pose": False, "train_frames": 90,
+              "held_back_from": 91, "epochs_trained": 57, "patience_epochs": 30, "stopped_early": True}
+    assert "It trained 57 epochs (stopped by its loss on frames kept out of the training no better for 30 epochs)" \
+        in refine_report(record)
+    assert "It trained 57 epochs (stopped by the budget)" in refine_report({**record, "stopped_early": False})
 
 
 def test_an_initial_pose_the_tracker_cannot_hold_and_too_few_tracked_frames_are_refused(tmp_path):
@@ -77,9 +94,10 @@ def test_a_fit_refined_on_tracked_frames_is_measured_on_a_later_stretch(tiny_che
     said = []
     record = refine_on_footage(fit_dir, scene / "rgb", truss, CAM, budget_min=0.05, tracker="edges", init_pose=first,
                                progress=said.append)
-    assert [(c.amp, bool(c.cache_images)) for c in configs] == [(True, True)]
+    assert [(c.amp, bool(c.cache_images), c.patience) for c in configs] == [(True, True, PATIENCE_EPOCHS)]
     assert any("training for 0.05 minutes from the fit's weights in bfloat16" in line for line in said)
     assert record["training_bf16"] is True and record["epochs_trained"] >= 1
+    assert record["patience_epochs"] == PATIENCE_EPOCHS and record["stopped_early"] in (True, False)
     assert not (fit_dir / "refine" / "data" / "decoded").exists()  # the decoded frames are not kept
     tracked = record["train_frames"] + record["held_back_frames"]
     assert record["frames"] == 48

@@ -339,6 +339,7 @@ def sites_picture(frame, estimate, sites, obj, width_px: int = 560):
 def add_commands(sub) -> None:
     """Add this module's subcommands to the ``hybridpose`` parser's ``sub``."""
     from ..fit import LOOKS, OCCLUDED_SHARE, TEXTURED_SHARE
+    from ..refine import PATIENCE_EPOCHS
 
     k = sub.add_parser("track", help="track your object through a video or image folder (the hybrid: the CNN "
                                      "initialises; --init-pose: the tracker alone from that pose)")
@@ -480,7 +481,10 @@ def add_commands(sub) -> None:
     f.add_argument("--init-pose", default=None, metavar="FILE",
                    help="the part's pose in the --refine-on video's first frame (as for `track --init-pose`): the "
                         "tracker starts from it; without it, from the hybrid's own start")
-    f.add_argument("--refine-budget", default="10m", help="training time of --refine-on (default 10m)")
+    f.add_argument("--refine-budget", default="10m",
+                   help="the most training time of --refine-on (default 10m; it stops sooner once the network's "
+                        "loss on a tenth of the tracked frames kept out of the training has not improved for "
+                        f"{PATIENCE_EPOCHS} epochs)")
     f.add_argument("--textured-share", type=float, default=None, metavar="SHARE",
                    help="share of the training views with a random print on the part, as real parts often are "
                         f"(default {TEXTURED_SHARE:g}, 0 in space; 0 for a part you know to be plain)")

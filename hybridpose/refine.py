@@ -38,7 +38,7 @@ HELD_BACK = 0.25  # the last share of the tracked frames, never trained on: wher
 MIN_QUALITY = 0.6  # a tracker's frame below this (or lost) is neither a label nor scored
 MIN_TRAIN_FRAMES = 30  # fewer tracked frames than this teach nothing but the frames themselves
 DEFAULT_BUDGET_MIN = 10.0  # a sixth of the fit's default hour: the network already knows the part, it adapts to the footage
-PATIENCE_EPOCHS = 30  # epochs without a better loss on the frames kept out of the training before it stops short of the budget
+PATIENCE_EPOCHS = 60  # epochs without a better loss on the frames kept out of the training before it stops short of the budget
 
 
 def labelled_frames(frames: Iterator[Frame], obj: ObjectModel, checkpoint, tracker: str = "combined",
@@ -164,7 +164,8 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
     t0 = time.perf_counter()
     size = int(load_checkpoint(checkpoint)["config"].get("image_size", IMAGE_SIZE))  # the fit's crop scale
     cache = out / "data" / "decoded"
-    cfg = TrainConfig(model="default", data=str(roots[0]), out=str(out / "run"), epochs=1000, batch=TRAIN_BATCH,
+    # no epoch cap of its own: the budget or the patience ends the training
+    cfg = TrainConfig(model="default", data=str(roots[0]), out=str(out / "run"), epochs=100_000, batch=TRAIN_BATCH,
                       lr=REFIT_LR, image_size=size, val_fraction=0.1, seed=seed, patience=patience, schedule="constant",
                       init_from=str(checkpoint), time_limit_min=budget_min, full_view=FULL_VIEW, workers=1,
                       # as the fit trains: bfloat16 where the device runs it fast, crops cut from frames decoded once

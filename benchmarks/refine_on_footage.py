@@ -33,7 +33,7 @@ VIDEO_KEYS = ("detection_cube", "teabox_left")  # long enough for 30 training fr
 
 
 def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: float, tracker: str,
-                 patience: int | None = None) -> dict:
+                 patience: int) -> dict:
     """One video's row: the refinement's record and the before/after scores on its held-back stretch."""
     from hybridpose.refine import refine_on_footage
 
@@ -41,7 +41,7 @@ def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: flo
     frames, camera, model, pose0 = repo_frames(repo, video)
     obj = replace(model, texture=None, face_uv=None)  # the shape alone, as the plain CAD model gives it
     reference = reference_track(frames, obj, pose0)
-    work = out / key / ("fit" if patience is None else f"patience{patience}") / "fit"
+    work = out / key / f"patience{patience}" / "fit"
     if not (work / "refine" / "refine.json").is_file():  # a run cut short starts its refinement over
         shutil.rmtree(work, ignore_errors=True)
         work.mkdir(parents=True)
@@ -49,7 +49,7 @@ def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: flo
         if (fit_dir / "data" / "calib").is_dir():
             shutil.copytree(fit_dir / "data" / "calib", work / "data" / "calib")
         refine_on_footage(work, repo / video.video, obj, repo_camera(repo / video.camera), budget_min=budget_min,
-                          tracker=tracker, progress=print, **({} if patience is None else {"patience": patience}))
+                          tracker=tracker, patience=patience, progress=print)
     from hybridpose.io import read_json
 
     record = read_json(work / "refine" / "refine.json")
@@ -76,7 +76,7 @@ def _fit_cell(fit_dir: Path) -> str:
 def _training_cell(rec: dict) -> str:
     why = (f"no better for {rec['patience_epochs']} epochs" if rec.get("stopped_early") else "the budget")
     bf16 = ", bfloat16" if rec.get("training_bf16") else ""
-    return f"{rec['epochs_trained']}, {rec['minutes']['train']:.1f} ({why}{bf16})"
+    return f"{rec.get('patience_epochs') or 'none'}; {rec['epochs_trained']}, {rec['minutes']['train']:.1f} ({why}{bf16})"
 
 
 def _cnn_cell(c: dict) -> str:
@@ -125,8 +125,8 @@ def main(argv=None) -> None:
              f"benchmarks/refine_on_footage.py`, commit `{environment()['git']}`, {budget:g} minutes of refinement, "
              f"`{args.tracker}` labelling): scored on the held-back last quarter of the tracked frames against the "
              "`combined` track from the hand-labelled first pose. Nothing was tuned on these figures.", "",
-             "| video | the fit refined | frames trained on / held back (from frame) | training: epochs, minutes "
-             "(stopped by) | "
+             "| video | the fit refined | frames trained on / held back (from frame) | training: patience (epochs); "
+             "epochs, minutes (stopped by) | "
              "network alone on the held-back frames, in a tracker's basin (rotation median): before → after | "
              "hybrid from no initial pose over them (first pose; within 5° and 2 cm of the scored; trusted > 10° off): "
              "before → after |",

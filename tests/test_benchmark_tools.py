@@ -187,5 +187,6 @@ def test_the_refine_benchmark_cells_read_before_and_after():
     assert refine_on_footage._hybrid_cell({**h, "first_pose": 197, "held": 64, "frames": 64}) == "frame 197; 64 of 64; 0"
     rec = {"epochs_trained": 57, "minutes": {"train": 1.84}, "stopped_early": True, "patience_epochs": 30,
            "training_bf16": True}
-    assert refine_on_footage._training_cell(rec) == "57, 1.8 (no better for 30 epochs, bfloat16)"
-    assert refine_on_footage._training_cell({**rec, "stopped_early": False, "training_bf16": False}) == "57, 1.8 (the budget)"
+    assert refine_on_footage._training_cell(rec) == "30; 57, 1.8 (no better for 30 epochs, bfloat16)"
+    assert refine_on_footage._training_cell({**rec, "stopped_early": False, "training_bf16": False,
+                                             "patience_epochs": 0}) == "none; 57, 1.8 (the budget)"

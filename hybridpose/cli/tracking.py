@@ -165,6 +165,7 @@ def cmd_bench(args) -> int:
 def cmd_fit(args) -> int:
     from ..fit import fit, parse_budget
     from ..geometry import NoImageSize, load_camera
+    from ..objects import load_object
     from ..registry import get
 
     try:
@@ -187,7 +188,6 @@ def cmd_fit(args) -> int:
     if args.video is not None:
         from ..footage_check import check_on_footage
         from ..io import atomic_write_text
-        from ..objects import load_object
 
         obj = load_object(args.mesh, scale=args.scale)
         check = check_on_footage(args.video, obj, camera or Camera.default(), str(Path(args.out) / "best.pt"),
@@ -196,14 +196,12 @@ def cmd_fit(args) -> int:
         atomic_write_text(report, report.read_text().rstrip("\n") + "\n\n## On your footage\n\n" + check.text() + "\n")
         print(f"fit: {check.text()}")
     if args.refine_on is not None:
-        from ..objects import load_object
         from ..refine import refine_on_footage
         from ..tracking import load_pose
 
-        init_pose = load_pose(args.init_pose) if args.init_pose else None
         refine_on_footage(args.out, args.refine_on, load_object(args.mesh, scale=args.scale), camera or Camera.default(),
-                          budget_min=parse_budget(args.refine_budget), tracker=args.video_tracker, init_pose=init_pose,
-                          seed=args.seed)
+                          budget_min=parse_budget(args.refine_budget), tracker=args.video_tracker, seed=args.seed,
+                          init_pose=load_pose(args.init_pose) if args.init_pose else None)
     return 0
 
 
@@ -481,10 +479,8 @@ def add_commands(sub) -> None:
     f.add_argument("--init-pose", default=None, metavar="FILE",
                    help="the part's pose in the --refine-on video's first frame (as for `track --init-pose`): the "
                         "tracker starts from it; without it, from the hybrid's own start")
-    f.add_argument("--refine-budget", default="10m",
-                   help="the most training time of --refine-on (default 10m; it stops sooner once the network's "
-                        "loss on a tenth of the tracked frames kept out of the training has not improved for "
-                        f"{PATIENCE_EPOCHS} epochs)")
+    f.add_argument("--refine-budget", default="10m", help="the most training time of --refine-on (default 10m; "
+                   f"less where its loss on a tenth of its frames, kept out, stops falling for {PATIENCE_EPOCHS} epochs)")
     f.add_argument("--textured-share", type=float, default=None, metavar="SHARE",
                    help="share of the training views with a random print on the part, as real parts often are "
                         f"(default {TEXTURED_SHARE:g}, 0 in space; 0 for a part you know to be plain)")

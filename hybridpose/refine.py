@@ -176,7 +176,7 @@ def refine_on_footage(fit_dir, source, obj: ObjectModel, camera: Camera, budget_
              f"{' in bfloat16' if cfg.amp else ''} (the report follows)")
     trained = train(cfg, resume=(out / "run" / "last.pt").is_file(), progress=False)
     record["epochs_trained"], record["patience_epochs"] = trained["epochs_run"], patience
-    record["stopped_early"] = trained["stopped"].startswith("early stop")
+    record["stopped_early"] = trained["early_stop"]
     shutil.rmtree(cache, ignore_errors=True)  # rebuilt in seconds by a resumed run
     export_checkpoint(out / "run" / "best.pt", out / "best.pt")
     record_hybrid_policy(checkpoint, out / "best.pt", refit=True)  # the fit's own policy

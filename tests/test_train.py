@@ -44,7 +44,7 @@ def test_train_writes_checkpoints_and_metrics_then_resumes(data, tmp_path, tiny)
                       image_size=32, patience=0)
     best = train(cfg, progress=False)
     assert set(best) >= {"val_loss", "rot_mean_deg", "rot_median_deg", "trans_mean_m", "epochs_run", "stopped"}
-    assert best["stopped"] == "ran all 2 epochs" and best["epochs_run"] == 2
+    assert best["stopped"] == "ran all 2 epochs" and best["epochs_run"] == 2 and best["early_stop"] is False
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
     assert [r["epoch"] for r in hist] == [0, 1]
     assert [r["train_images"] for r in hist] == [16, 16]       # 20 views, 4 held out for validation
@@ -167,6 +167,7 @@ def test_early_stop(data, tmp_path, tiny):
     ran = len(json.loads((tmp_path / "es" / "history.json").read_text()))
     assert ran < 50 and best["epochs_run"] == ran
     assert best["stopped"] == f"early stop after epoch {ran - 1}: no validation improvement for 2 epochs (--patience)"
+    assert best["early_stop"] is True
     line = run_summary(best, tmp_path / "es")
     assert line.startswith(f"train: {ran} epochs recorded (early stop after epoch {ran - 1}") and "best.pt" in line
     assert run_summary({"epochs_run": 0, "stopped": "ran all 3 epochs"}, "r").startswith("train: no epoch ran")
@@ -180,7 +181,7 @@ def test_time_limit_stops_cleanly_and_amp_trains(data, tmp_path, tiny, caplog):
     with caplog.at_level("INFO", logger="hybridpose.training.train"):
         best = train(cfg, progress=False)
     assert "time limit: stopping after epoch 0 of 5" in caplog.text
-    assert best["epochs_run"] == 1 and best["stopped"].startswith("time limit after epoch 0 of 5")
+    assert best["epochs_run"] == 1 and best["stopped"].startswith("time limit after epoch 0 of 5") and not best["early_stop"]
     hist = json.loads((tmp_path / "tl" / "history.json").read_text())
     assert len(hist) == 1 and all(map(torch.isfinite, torch.tensor([hist[0]["train_loss"], best["val_loss"]])))
     ck = load_checkpoint(tmp_path / "tl" / "best.pt")

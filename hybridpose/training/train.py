@@ -167,7 +167,9 @@ def _distributed(device: torch.device) -> tuple[int, int, torch.device]:
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
-    """Train ``cfg.model`` on ``cfg.data``; returns the best validation metrics.
+    """Train ``cfg.model`` on ``cfg.data``; returns the best validation epoch's metrics with
+    ``epochs_run``, ``stopped`` (why the run ended, in words) and ``early_stop`` (True where
+    ``cfg.patience`` ended it).
 
     Under ``torchrun --nproc_per_node N`` the run is data-parallel (DDP): each process trains on
     its shard of every epoch with ``cfg.batch`` images per step (global batch N × batch); rank 0
@@ -270,7 +272,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         bar = tqdm(total=cfg.epochs, initial=start_epoch, desc=f"train {cfg.model}", unit="epoch")
     run_start = time.perf_counter()
     best_payload = None  # a best.pt not written yet (checkpoint_every > 1)
-    stopped = None  # why the run ended, for the caller's summary
+    stopped, early_stop = None, False  # why the run ended, for the caller's summary
     epoch = start_epoch - 1
     while (epoch := epoch + 1) < cfg.epochs:  # fill_time may re-plan cfg.epochs after each
         if sampler is not None:
@@ -339,6 +341,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         if stop:
             log.info("early stop at epoch %d: no validation improvement for %d epochs", epoch, stale)
             stopped = f"early stop after epoch {epoch}: no validation improvement for {stale} epochs (--patience)"
+            early_stop = True
         written = stop or epoch + 1 == cfg.epochs or (epoch + 1) % cfg.checkpoint_every == 0
         if written:  # before the time limit is judged: the writes are part of an epoch's time
             write_checkpoints(out, best_payload, payload)
@@ -369,7 +372,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> dict:
         dist.barrier()
         dist.destroy_process_group()
     best_row = min(history, key=lambda r: r["val_loss"]) if history else {}
-    return {**best_row, "epochs_run": len(history), "stopped": stopped or f"ran all {_epochs(cfg.epochs)}"}
+    return {**best_row, "epochs_run": len(history), "stopped": stopped or f"ran all {_epochs(cfg.epochs)}",
+            "early_stop": early_stop}
 
 
 def _filled(cfg: TrainConfig, epoch_min: float, sched, bar, done: int = 1) -> TrainConfig:

@@ -33,32 +33,41 @@ VIDEO_KEYS = ("detection_cube", "teabox_left")  # long enough for 30 training fr
 
 
 def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: float, tracker: str,
-                 patience: int) -> dict:
-    """One video's row: the refinement's record and the before/after scores on its held-back stretch."""
+                 patiences: list[int]) -> list[dict]:
+    """One video's rows, one per patience: the refinement's record and the before/after scores on its
+    held-back stretch (the video decoded, its reference tracked and the fit scored once for all)."""
+    from hybridpose.io import read_json
     from hybridpose.refine import refine_on_footage
 
     video = next(v for v in REPO_VIDEOS if v.key == key)
     frames, camera, model, pose0 = repo_frames(repo, video)
     obj = replace(model, texture=None, face_uv=None)  # the shape alone, as the plain CAD model gives it
     reference = reference_track(frames, obj, pose0)
-    work = out / key / f"patience{patience}" / "fit"
-    if not (work / "refine" / "refine.json").is_file():  # a run cut short starts its refinement over
-        shutil.rmtree(work, ignore_errors=True)
-        work.mkdir(parents=True)
-        shutil.copy(fit_dir / "best.pt", work / "best.pt")
-        if (fit_dir / "data" / "calib").is_dir():
-            shutil.copytree(fit_dir / "data" / "calib", work / "data" / "calib")
-        refine_on_footage(work, repo / video.video, obj, repo_camera(repo / video.camera), budget_min=budget_min,
-                          tracker=tracker, patience=patience, progress=print)
-    from hybridpose.io import read_json
 
-    record = read_json(work / "refine" / "refine.json")
-    held = [f for f in frames if f.index >= record["held_back_from"]]
-    row = {"video": key, "fit": str(fit_dir), "fit_cell": _fit_cell(fit_dir), "refine": record, "reference_frames": sum(r is not None for r in reference)}
-    for side, checkpoint in (("before", work / "best.pt"), ("after", work / "refine" / "best.pt")):
-        row[side] = {"cnn": score_cnn(str(checkpoint), held, obj, reference, every=1),
-                     "hybrid": score_hybrid(str(checkpoint), held, obj, reference, tracker)}
-    return row
+    def scores(checkpoint: Path, cut: int) -> dict:
+        held = [f for f in frames if f.index >= cut]
+        return {"cnn": score_cnn(str(checkpoint), held, obj, reference, every=1),
+                "hybrid": score_hybrid(str(checkpoint), held, obj, reference, tracker)}
+
+    before, rows = {}, []  # the fit's scores by the first held-back frame (the same labelling gives the same)
+    for patience in patiences:
+        work = out / key / f"patience{patience}" / "fit"
+        if not (work / "refine" / "refine.json").is_file():  # a run cut short starts its refinement over
+            shutil.rmtree(work, ignore_errors=True)
+            work.mkdir(parents=True)
+            shutil.copy(fit_dir / "best.pt", work / "best.pt")
+            if (fit_dir / "data" / "calib").is_dir():
+                shutil.copytree(fit_dir / "data" / "calib", work / "data" / "calib")
+            refine_on_footage(work, repo / video.video, obj, repo_camera(repo / video.camera), budget_min=budget_min,
+                              tracker=tracker, patience=patience, progress=print)
+        record = read_json(work / "refine" / "refine.json")
+        cut = record["held_back_from"]
+        if cut not in before:
+            before[cut] = scores(fit_dir / "best.pt", cut)
+        rows.append({"video": key, "fit": str(fit_dir), "fit_cell": _fit_cell(fit_dir), "refine": record,
+                     "reference_frames": sum(r is not None for r in reference), "before": before[cut],
+                     "after": scores(work / "refine" / "best.pt", cut)})
+    return rows
 
 
 def _fit_cell(fit_dir: Path) -> str:
@@ -119,8 +128,8 @@ def main(argv=None) -> None:
                      else [int(p) for p in str(args.patience).split(",")])
     except ValueError:
         raise SystemExit(f"--patience: expected whole numbers of epochs, comma-separated, got {args.patience!r}") from None
-    rows = [refine_video(Path(args.visp_repo), key, Path(d), Path(args.out), budget, args.tracker, patience)
-            for key, d in fits.items() for patience in patiences]
+    rows = [row for key, d in fits.items()
+            for row in refine_video(Path(args.visp_repo), key, Path(d), Path(args.out), budget, args.tracker, patiences)]
     lines = [f"`hybridpose fit --refine-on` from no initial pose on ViSP's real videos (`python "
              f"benchmarks/refine_on_footage.py`, commit `{environment()['git']}`, {budget:g} minutes of refinement, "
              f"`{args.tracker}` labelling): scored on the held-back last quarter of the tracked frames against the "

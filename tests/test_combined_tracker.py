@@ -328,3 +328,46 @@ def test_a_plain_box_seen_near_head_on_is_fitted_again_from_the_mirrored_tilt(hy
         assert not m.lost and rotation_error_deg(m.pose, poses[2]) < 1.0
     else:
         assert not m.lost and rotation_error_deg(m.pose, poses[2]) > 30
+
+
+@pytest.mark.parametrize("second_look", [True, False])
+def test_where_an_occluders_edges_pull_the_edge_search_the_region_alone_finds_the_plain_part(second_look, monkeypatch):
+    """An arm sliding over a plain part brings edges of its own beside the part's, and the edge
+    cue's search locks onto them: here, from the third frame on, every edge search finds its edge where
+    the part would stand 15° turned (a decoy), while the frame itself shows the part where it is, so
+    the qualities read what the image shows. Every fit of all the cues is pulled towards the decoy;
+    the second look's fit on the region cue alone, from the frame's start, is not, and all the cues
+    judge it the better. Without the second look (the control) the pulled fit stays."""
+    from hybridpose.geometry import turned_about
+    from hybridpose.trackers.cues.edges import EdgeCue
+    import hybridpose.trackers.combined as combined_module
+
+    if not second_look:
+        monkeypatch.setattr(combined_module, "SECOND_LOOK_BELOW", 0.0)
+    rng = np.random.default_rng(5)
+    obj, camera = ObjectModel("plain-box", trimesh.creation.box((0.18, 0.11, 0.07))), Camera.default()
+    view = ModelView(obj)
+    background, palette = clutter_background(camera.width, camera.height, rng), rng.uniform(30, 255, (97, 3))
+    poses = [Pose.from_rotvec_t(np.radians([25 + k, 30, 5]), [0.003 * k, 0.0, 0.6]) for k in range(4)]
+    frames = [Frame(_draw(view, camera, p, background, palette, print_on=False), camera, k / 30, k)
+              for k, p in enumerate(poses)]
+    decoys = {k: turned_about(p, np.radians([15.0, 0, 0]), np.zeros(3)) for k, p in enumerate(poses)}
+    correspond = EdgeCue.correspond
+
+    def pulled(cue, frame, gray, pose, search_px):
+        correspond(cue, frame, gray, pose, search_px)
+        if frame.index >= 2 and len(cue.X):
+            cue.m = frame.camera.project(cue.X, decoys[frame.index])  # the decoy's edge, found along the line
+
+    monkeypatch.setattr(EdgeCue, "correspond", pulled)
+    tracker = create("tracker", "combined", object=obj)
+    tracker.init(frames[0], poses[0])
+    assert not tracker.track(frames[1]).lost and not tracker.printed
+    errors = []
+    for frame, truth in zip(frames[2:], poses[2:]):
+        m = tracker.track(frame)
+        errors.append(rotation_error_deg(tracker.pose, truth) if not m.lost else None)
+    if second_look:
+        assert all(e is not None and e < 1.5 for e in errors), errors
+    else:
+        assert any(e is not None and e > 3.0 for e in errors), errors

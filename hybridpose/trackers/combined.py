@@ -16,8 +16,10 @@ Each frame:
    part that shows a print but none of its points here scores 0 for texture);
 4. a plain part's trusted but mediocre fit gets a second look: fitted again from the pose turned about
    the image axes and from the other pose of the planar ambiguity (its largest face seen near head-on),
-   the best kept where the cues agree with it clearly more — under blur a plain part's outline fits a
-   pose 10–25° off almost as well, and the fit slides into it.
+   and on the region cue alone from the frame's start, the best kept where all the cues agree with it
+   clearly more — under blur a plain part's outline fits a pose 10–25° off almost as well, and the fit
+   slides into it; an occluder coming in front (an arm, a hand) brings edges of its own beside the
+   part's, which pull the edge cue, where the colours along the part's outline do not mislead.
 
 Which cues speak follows what the part and the frame offer, not a flag: texture where the part shows a print
 (corners inside its faces at the initial pose; a plain part's corners are corners of its shading and
@@ -222,6 +224,9 @@ class CombinedTracker(Tracker):
         ``SECOND_LOOK_BELOW``): the outline of a plain part under blur fits a pose turned 10–25° about an
         axis across the line of sight almost as well (seen near head-on, the two poses of the planar
         ambiguity: :func:`~hybridpose.geometry.mirrored_tilt`), and the Gauss–Newton fit slides into it.
+        Where the region cue speaks, also its fit alone from ``start``: an occluder's edges beside the
+        part's (an arm sliding over it) pull the edge cue and the fit of every cue with it, not the
+        colours along the part's outline. Every fit is judged by all the cues.
         A printed part's texture points pin the pose; a track not held the frame before has no right
         pose to slide from. Else ``pose`` and its ``quality`` as they were."""
         texture = self._cue("texture")
@@ -234,13 +239,20 @@ class CombinedTracker(Tracker):
         self._since_look = 0
         frame, camera, information = sight.frame, sight.frame.camera, self._information
         best = None
-        for other_start in self._other_starts(pose, camera):
+        # (start, the cues its fit leaves out); every fit is judged by all of them
+        candidates = [(other_start, set()) for other_start in self._other_starts(pose, camera)]
+        region = self._cue("region")
+        if region is not None and region.active:
+            candidates.append((start, {"edges", "texture"}))
+        for other_start, left_out in candidates:
             ids = self.view.facet_ids(other_start, camera)
             other = Sight(frame, sight.gray, sight.gray8, other_start, ids,
                           self.view.visible_index(other_start, camera, margin_px=2, ids=ids))
             for cue in self.cues:
                 cue.begin(other)
+            deaf, self._deaf = self._deaf, self._deaf | left_out
             fitted = self._search_fit(frame, sight.gray, other_start, start, search_px)
+            self._deaf = deaf
             if fitted is not None:
                 q = self._quality(frame, sight.gray, fitted)
                 if best is None or q > best[1]:

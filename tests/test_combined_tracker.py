@@ -300,6 +300,17 @@ def test_the_patch_steps_part_mask_picks_the_pixels_opencvs_nearest_resize_picks
         assert np.array_equal(_nearest_mask(ids, (h, w)), oracle), ((H, W), (h, w))
 
 
+def _plain_box_frames(seed: int, poses: list[Pose]):
+    """(frames, object): the plain 180 × 110 × 70 mm box at ``poses`` over procedural clutter."""
+    rng = np.random.default_rng(seed)
+    obj, camera = ObjectModel("plain-box", trimesh.creation.box((0.18, 0.11, 0.07))), Camera.default()
+    view = ModelView(obj)
+    background, palette = clutter_background(camera.width, camera.height, rng), rng.uniform(30, 255, (97, 3))
+    frames = [Frame(_draw(view, camera, p, background, palette, print_on=False), camera, k / 30, k)
+              for k, p in enumerate(poses)]
+    return frames, obj
+
+
 @pytest.mark.parametrize("hypotheses", [True, False])
 def test_a_plain_box_seen_near_head_on_is_fitted_again_from_the_mirrored_tilt(hypotheses, monkeypatch):
     """The planar ambiguity: a plain box's large face seen 15° from head-on, the fit started from the
@@ -311,13 +322,8 @@ def test_a_plain_box_seen_near_head_on_is_fitted_again_from_the_mirrored_tilt(hy
 
     if not hypotheses:
         monkeypatch.setattr(combined_module, "SECOND_LOOK_BELOW", 0.0)
-    rng = np.random.default_rng(3)
-    obj, camera = ObjectModel("plain-box", trimesh.creation.box((0.18, 0.11, 0.07))), Camera.default()
-    view = ModelView(obj)
-    background, palette = clutter_background(camera.width, camera.height, rng), rng.uniform(30, 255, (97, 3))
     poses = [Pose.from_rotvec_t(np.radians([14 + k, 6, 3]), [0.01 * k, 0.0, 0.6]) for k in range(3)]
-    frames = [Frame(_draw(view, camera, p, background, palette, print_on=False), camera, k / 30, k)
-              for k, p in enumerate(poses)]
+    frames, obj = _plain_box_frames(3, poses)
     tracker = create("tracker", "combined", object=obj)
     tracker.init(frames[0], poses[0])
     assert not tracker.track(frames[1]).lost  # a track held, then the ambiguous start
@@ -344,13 +350,8 @@ def test_where_an_occluders_edges_pull_the_edge_search_the_region_alone_finds_th
 
     if not second_look:
         monkeypatch.setattr(combined_module, "SECOND_LOOK_BELOW", 0.0)
-    rng = np.random.default_rng(5)
-    obj, camera = ObjectModel("plain-box", trimesh.creation.box((0.18, 0.11, 0.07))), Camera.default()
-    view = ModelView(obj)
-    background, palette = clutter_background(camera.width, camera.height, rng), rng.uniform(30, 255, (97, 3))
     poses = [Pose.from_rotvec_t(np.radians([25 + k, 30, 5]), [0.003 * k, 0.0, 0.6]) for k in range(4)]
-    frames = [Frame(_draw(view, camera, p, background, palette, print_on=False), camera, k / 30, k)
-              for k, p in enumerate(poses)]
+    frames, obj = _plain_box_frames(5, poses)
     decoys = {k: turned_about(p, np.radians([15.0, 0, 0]), np.zeros(3)) for k, p in enumerate(poses)}
     correspond = EdgeCue.correspond
 

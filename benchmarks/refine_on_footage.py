@@ -50,6 +50,7 @@ def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: flo
                 "hybrid": score_hybrid(str(checkpoint), held, obj, reference, tracker)}
 
     before, rows = {}, []  # the fit's scores by the first held-back frame (the same labelling gives the same)
+    fit_cell, reference_frames = _fit_cell(fit_dir), sum(r is not None for r in reference)
     for patience in patiences:
         work = out / key / f"patience{patience}" / "fit"
         if not (work / "refine" / "refine.json").is_file():  # a run cut short starts its refinement over
@@ -64,8 +65,8 @@ def refine_video(repo: Path, key: str, fit_dir: Path, out: Path, budget_min: flo
         cut = record["held_back_from"]
         if cut not in before:
             before[cut] = scores(fit_dir / "best.pt", cut)
-        rows.append({"video": key, "fit": str(fit_dir), "fit_cell": _fit_cell(fit_dir), "refine": record,
-                     "reference_frames": sum(r is not None for r in reference), "before": before[cut],
+        rows.append({"video": key, "fit": str(fit_dir), "fit_cell": fit_cell, "refine": record,
+                     "reference_frames": reference_frames, "before": before[cut],
                      "after": scores(work / "refine" / "best.pt", cut)})
     return rows
 

@@ -245,9 +245,11 @@ class CombinedTracker(Tracker):
         if region is not None and region.active:
             candidates.append((start, {"edges", "texture"}))
         for other_start, left_out in candidates:
-            ids = self.view.facet_ids(other_start, camera)
-            other = Sight(frame, sight.gray, sight.gray8, other_start, ids,
-                          self.view.visible_index(other_start, camera, margin_px=2, ids=ids))
+            other = sight  # the frame's own start: its raster and visible samples are those of the frame's sight
+            if other_start is not sight.start:
+                ids = self.view.facet_ids(other_start, camera)
+                other = Sight(frame, sight.gray, sight.gray8, other_start, ids,
+                              self.view.visible_index(other_start, camera, margin_px=2, ids=ids))
             for cue in self.cues:
                 cue.begin(other)
             deaf, self._deaf = self._deaf, self._deaf | left_out

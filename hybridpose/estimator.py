@@ -16,8 +16,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   its neighbours, ``start_contrast``; a plain part's in lit clutter, where another of the network's passes
   saw it too, ``start_sighting_iou``); the tracker's fit starts the fusion — or, where not convincing
   (``start_sure_quality``), a clearly better one from the start turned a few degrees; a plain part's in a lit
-  scene, a clearly better one from the poses that cast its outline too (``start_rival_margin``); a printed
-  part's, moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
+  scene, a clearly better one from the poses that cast its outline too, none where one fits about as well
+  (``start_rival_margin``); a printed part's, moved up the print's score (``start_print_turn_deg``). Every
+  start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is gated
   (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where the tracker
   sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``: an arm covering half

@@ -109,9 +109,10 @@ class HybridConfig:
         start_rival_margin: a start of a part with no print in a lit scene is also fitted from the poses
             whose outline may match its own (:func:`~hybridpose.starts.outline_rivals`: its box's axes
             carried onto each other, seen the same size); one whose fit reaches ``start_quality`` and
-            beats the start's by this much starts the track instead, wherever the CNN put it (None: off).
-            A plain box seen near end-on casts the outline of the box turned 90–120° (own-object tuning
-            seeds: docs/decisions.md).
+            beats the start's by this much starts the track instead, wherever the CNN put it; where a
+            fit elsewhere comes within this much of the chosen one, the image does not tell them apart
+            and the start waits for a frame that does (None: off). A plain box seen near end-on casts
+            the outline of the box turned 90–120° (own-object tuning seeds: docs/decisions.md).
         start_print_turn_deg: a start of a part whose print is known climbs the print's score
             (:func:`~hybridpose.starts.print_climb`): its pose turned by this much about each camera axis
             through the part's centre, the best turn by the print fitted again while the print scores

@@ -43,13 +43,12 @@ AXIS_TURNS = tuple(P for P in (np.array([[s[i] * (p[i] == r) for i in range(3)] 
                                for p in itertools.permutations(range(3)) for s in itertools.product((1, -1), repeat=3))
                    if np.linalg.det(P) > 0 and not np.array_equal(P, np.eye(3)))
 RIVAL_APART_DEG, RIVAL_SIZE_STEPS = 30.0, 3  # the comment above: the same pose within 30°, three size steps
-Rivals = Callable[[Pose], "list[Pose]"]
 
 
 def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search: bool = False,
                     stands_out: StandsOut | None = None,
                     climb: Callable[[Measurement], Measurement] | None = None,
-                    rivals: Rivals | None = None) -> Measurement | None:
+                    rivals: RivalTest | None = None) -> Measurement | None:
     """The tracker's fit started from the CNN measurement ``m``, or None when the CNN found nothing,
     the fit does not reach ``start_quality`` (the model's edges do not match the image), it left
     the CNN pose's uncertainty (``disagreement_chi2``, both covariances: it found something else) or
@@ -63,8 +62,8 @@ def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search
     ``start_quality`` and beat the fit from ``m`` by ``switch_quality_margin`` is taken (every extra
     try is another chance for a wrong pose to pass the threshold: the image must decide). The taken
     fit goes through :func:`best_turned`, then :func:`best_rival` where ``rivals`` is given (the
-    caller's poses whose outline may match the fit's: :func:`rival_test`), then ``climb`` where given
-    (:func:`print_climb`)."""
+    poses whose outline may match the fit's: :func:`rival_test`; where the image does not single one
+    of them out, that start is not confirmed), then ``climb`` where given (:func:`print_climb`)."""
     if m.pose is None:
         return None
     starts = slid_starts(m.pose, config.start_depth_step, config.start_depth_span) if depth_search else [m.pose]
@@ -76,8 +75,8 @@ def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search
                 and pose_mahalanobis2(m.pose, m.covariance, result.pose, result.covariance) <= config.disagreement_chi2):
             chosen = best_turned(m, start, result, fit, config)
             if rivals is not None:
-                chosen = best_rival(chosen, rivals(chosen.pose), fit, config)
-            S = Pose.identity() if stands_out is None else stands_out(chosen.pose)
+                chosen = best_rival(chosen, rivals.poses(chosen.pose), fit, config, rivals.apart)
+            S = None if chosen is None else Pose.identity() if stands_out is None else stands_out(chosen.pose)
             if S is not None:
                 chosen = chosen if _is_identity(S) else equivalent_measurement(chosen, S)
                 return chosen if climb is None else climb(chosen)
@@ -150,24 +149,32 @@ def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, confi
     return best
 
 
-def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridConfig) -> Measurement:
+def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridConfig,
+               apart: Callable[[Pose, Pose], bool] | None = None) -> Measurement | None:
     """``first`` (a start's fit), or the best of the fits from ``rivals`` that reaches ``start_quality``
-    and beats it by ``start_rival_margin``. Unlike :func:`best_turned`, a rival need not stay within the
-    CNN pose's uncertainty: the network's answer is the very pose in doubt.
+    and beats it by ``start_rival_margin``; None where the image does not single one pose out: another
+    of these fits, elsewhere (``apart(a, b)``: whether two poses are different poses of the part; None:
+    any two fits are), scores within the margin of the chosen one. Unlike :func:`best_turned`, a rival
+    need not stay within the CNN pose's uncertainty: the network's answer is the very pose in doubt.
 
     Why: a plain box seen near end-on shows an outline that the box turned 90–120° also casts, nearer or
     farther; the network can give that pose, and the edges and colours confirm it (own-object tuning
     seeds: five starts 106–114° off, scoring 0.78–0.86 with ``combined``). Fitted from the rival poses,
     the truth scored 0.09–0.16 higher in four of them; of the 39 right starts none had a rival within 0.10
-    of its own score."""
+    of its own score. In the fifth the truth's fit scored 0.01–0.02 either side of the wrong start's for
+    six frames and the wrong one, taken, was held 34 frames; from the seventh frame the truth led by 0.05
+    (the view had turned). Both within the margin, the start waits for the frame that tells them apart."""
     margin = config.start_rival_margin
+    if margin is None:
+        return first
+    others = [f for f in map(fit, rivals) if f is not None and not f.lost]
     best = first
-    for pose in rivals if margin is not None else ():
-        other = fit(pose)
-        if (other is not None and not other.lost and other.quality >= max(config.start_quality, first.quality + margin)
-                and other.quality > best.quality):
+    for other in others:
+        if other.quality >= max(config.start_quality, first.quality + margin) and other.quality > best.quality:
             best = other
-    return best
+    close = [f for f in (first, *others) if f is not best and f.quality > best.quality - margin
+             and (apart is None or apart(f.pose, best.pose))]
+    return None if close else best
 
 
 def outline_rivals(view: ModelView, camera, pose: Pose) -> list[Pose]:
@@ -199,23 +206,35 @@ def outline_rivals(view: ModelView, camera, pose: Pose) -> list[Pose]:
     return out
 
 
-def rival_test(view: ModelView | None, frame: Frame, printed: bool, margin: float | None) -> Rivals | None:
-    """The ``rivals`` of :func:`confirmed_start` in ``frame``: :func:`outline_rivals` of a part with no
-    print (``printed``: its print tells its faces apart) where the scene around the start is lit
-    (:func:`lit_around`; on black space the space suites measured the hybrid without them), each brought
-    in by :func:`~hybridpose.edges.coarse_to_fine`, else none; None without a ``view`` or with ``margin``
-    (``start_rival_margin``) None."""
-    if view is None or printed or margin is None:
-        return None
+@dataclass(frozen=True)
+class RivalTest:
+    """A plain part's start rivals in ``frame`` (:func:`rival_test`): :meth:`poses` for :func:`best_rival`
+    to fit, :meth:`apart` to tell a rival's fit from the start's."""
 
-    def rivals(pose: Pose) -> list[Pose]:
+    view: ModelView
+    frame: Frame
+
+    def poses(self, pose: Pose) -> list[Pose]:
+        """:func:`outline_rivals` of ``pose`` where the scene around it is lit (:func:`lit_around`), else none."""
         # a rival lies 10-25° from the pose it stands for (the network's answer is no exact turn of the box's
         # axes), beyond the tracker's reach at full resolution: each is brought in over the image pyramid first
-        if not lit_around(frame, view, pose):
+        if not lit_around(self.frame, self.view, pose):
             return []
-        return [coarse_to_fine(view, frame, rival) for rival in outline_rivals(view, frame.camera, pose)]
+        return [coarse_to_fine(self.view, self.frame, rival) for rival in outline_rivals(self.view, self.frame.camera, pose)]
 
-    return rivals
+    def apart(self, a: Pose, b: Pose) -> bool:
+        """Whether ``a`` and ``b`` are ``RIVAL_APART_DEG`` or more apart under the part's symmetries: two poses, not one
+        (a rival's fit may come back to the start's own pose)."""
+        return rotation_error_deg(a, nearest_equivalent(a, b, self.view.object.symmetries)) >= RIVAL_APART_DEG
+
+
+def rival_test(view: ModelView | None, frame: Frame, printed: bool, margin: float | None) -> RivalTest | None:
+    """The ``rivals`` of :func:`confirmed_start` in ``frame``: those of a part with no print (``printed``:
+    its print tells its faces apart); None without a ``view`` or with ``margin`` (``start_rival_margin``)
+    None. On black space (:func:`lit_around`) there are none: the space suites measured the hybrid without them."""
+    if view is None or printed or margin is None:
+        return None
+    return RivalTest(view, frame)
 
 
 def print_fails(print_view: PrintView | None, frame: Frame, pose: Pose | None, floor: float) -> bool:

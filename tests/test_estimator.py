@@ -1129,6 +1129,40 @@ def test_a_plain_parts_start_is_checked_against_the_rivals_of_its_outline(grey, 
         HybridConfig(start_rival_margin=-0.1)
 
 
+class CloseRivalTracker(OutlineTracker):
+    """As :class:`OutlineTracker`, but on the first three frames the rival's outline fits within 0.02 of the
+    truth's (a view that does not tell the box's ends apart)."""
+
+    def track(self, frame, prior=None, **options):
+        m = super().track(frame, prior, **options)
+        close = m.pose is not None and frame.index < 3 and rotation_error_deg(m.pose, truth(frame.index)) > 10
+        return replace(m, quality=0.93) if close else m
+
+
+class AlwaysFlipped(OracleRegressor):
+    """The box's end-over-end rival on every frame: a network sure of the wrong end."""
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return replace(m, pose=_flipped(m.pose))
+
+
+@pytest.mark.parametrize("margin", [0.05, None])
+def test_a_plain_parts_start_waits_for_the_frame_that_tells_its_outlines_rivals_apart(margin):
+    """A plain box whose outline its end-over-end rival casts as well (0.93 against the truth's 0.95) on
+    the first three frames, the network sure of the rival: no pose is given until the fourth frame, where
+    the truth stands out, and the track starts there. Off (None), the rival is taken at once."""
+    est = HybridEstimator(CloseRivalTracker(object=_plain_box()), AlwaysFlipped(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, start_contrast=0, start_rival_margin=margin))
+    grey = np.full((RIVAL_CAM.height, RIVAL_CAM.width, 3), 120, np.uint8)
+    poses = [est.step(replace(frame(k, RIVAL_CAM), image=grey)).pose for k in range(5)]
+    if margin is None:
+        assert rotation_error_deg(poses[0], _flipped(truth(0))) < 0.5
+        return
+    assert poses[:3] == [None] * 3
+    assert rotation_error_deg(poses[3], truth(3)) < 0.5 and rotation_error_deg(poses[4], truth(4)) < 0.5
+
+
 def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_equivalents():
     """Each rival: the box's centre on the same line of sight, its image box's diagonal the start's
     (within 2 %), its rotation more than 30° from the start's and each other rival's equivalents (the
@@ -1161,10 +1195,12 @@ def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_eq
     assert outline_rivals(_plain_box_view(), RIVAL_CAM, Pose.from_rotvec_t([0.4, -0.7, 0.2], [0.0, 0.0, 0.05])) == []  # reaches behind
 
 
-@pytest.mark.parametrize("rival_quality, taken", [(0.84, False), (0.86, True), (None, False)])
-def test_a_rival_is_taken_only_where_it_beats_the_start_by_the_margin(rival_quality, taken):
-    """``best_rival``: the start (0.8) gives way to a rival's fit only at 0.8 + ``start_rival_margin``
-    (0.05) or more, wherever the rival lies; a rival the tracker refuses (None) or loses leaves the start."""
+@pytest.mark.parametrize("rival_quality, chosen", [(0.74, "start"), (0.84, None), (0.86, "rival"), (None, "start")])
+def test_a_rival_is_taken_where_it_beats_the_start_by_the_margin_and_a_close_one_refuses_both(rival_quality, chosen):
+    """``best_rival``: the start (0.8) gives way to a rival's fit at 0.8 + ``start_rival_margin`` (0.05) or
+    more, wherever the rival lies; a rival's fit within the margin of it, elsewhere, leaves neither (None:
+    the image does not tell them apart), but one that came back to the start's own pose does not count;
+    a rival the tracker refuses (None), loses or fits far worse leaves the start."""
     from hybridpose.starts import best_rival
 
     config = HybridConfig()
@@ -1176,9 +1212,12 @@ def test_a_rival_is_taken_only_where_it_beats_the_start_by_the_margin(rival_qual
             return None
         return Measurement(pose, np.eye(6) * 1e-6, rival_quality, "tracker:scripted", 0.0)
 
-    chosen = best_rival(start, [rival_pose], fit, config)
-    assert (chosen.pose is rival_pose) == taken
+    expected = {"start": start.pose, "rival": rival_pose, None: None}[chosen]
+    got = best_rival(start, [rival_pose], fit, config, lambda a, b: rotation_error_deg(a, b) > 30)
+    assert (got if got is None else got.pose) is expected
     assert best_rival(start, [rival_pose], fit, replace(config, start_rival_margin=None)) is start
+    same_place = best_rival(start, [rival_pose], fit, config, lambda a, b: False)
+    assert same_place.pose is (rival_pose if chosen == "rival" else start.pose)
 
 
 def test_cnn_check_vouches_for_a_track_only_where_its_pose_and_its_fit_both_agree():

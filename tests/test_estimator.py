@@ -1195,6 +1195,21 @@ def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_eq
     assert outline_rivals(_plain_box_view(), RIVAL_CAM, Pose.from_rotvec_t([0.4, -0.7, 0.2], [0.0, 0.0, 0.05])) == []  # reaches behind
 
 
+def test_a_rival_test_tells_two_poses_from_one_up_to_the_parts_symmetries():
+    """``RivalTest.apart``: the box's pose and that pose half-turned about one of its axes (a symmetry) are one
+    pose; a quarter turn about its long axis, or a 40° turn, are two; a 20° turn is one (``RIVAL_APART_DEG``)."""
+    from hybridpose.starts import RivalTest
+
+    test = RivalTest(_plain_box_view(), frame(0, RIVAL_CAM))
+    pose = truth(0)
+    assert len(_plain_box().symmetries) == 3
+    for S in _plain_box().symmetries:
+        assert not test.apart(pose, pose @ S)
+    for deg, apart in ((90, True), (40, True), (20, False)):
+        turned = pose @ Pose.from_rotvec_t([np.radians(deg), 0, 0], [0, 0, 0])
+        assert test.apart(pose, turned) == apart and test.apart(turned, pose) == apart
+
+
 @pytest.mark.parametrize("rival_quality, chosen", [(0.74, "start"), (0.84, None), (0.86, "rival"), (None, "start")])
 def test_a_rival_is_taken_where_it_beats_the_start_by_the_margin_and_a_close_one_refuses_both(rival_quality, chosen):
     """``best_rival``: the start (0.8) gives way to a rival's fit at 0.8 + ``start_rival_margin`` (0.05) or

@@ -161,9 +161,10 @@ def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridC
     farther; the network can give that pose, and the edges and colours confirm it (own-object tuning
     seeds: five starts 106–114° off, scoring 0.78–0.86 with ``combined``). Fitted from the rival poses,
     the truth scored 0.09–0.16 higher in four of them; of the 39 right starts none had a rival within 0.10
-    of its own score. In the fifth the truth's fit scored 0.01–0.02 either side of the wrong start's for
-    six frames and the wrong one, taken, was held 34 frames; from the seventh frame the truth led by 0.05
-    (the view had turned). Both within the margin, the start waits for the frame that tells them apart."""
+    of its own score. With another fit a fly-around's start 115° off scored 0.84 and the rival nearest the
+    truth 0.86, 0.01–0.02 either side of it for six frames; taken, the wrong start was held 34 frames,
+    while from the seventh frame the truth led by 0.05 (the view had turned). Where both lie within the
+    margin, the start waits for the frame that tells them apart."""
     margin = config.start_rival_margin
     if margin is None:
         return first

@@ -194,8 +194,7 @@ def outline_rivals(view: ModelView, camera, pose: Pose) -> list[Pose]:
     for P in AXIS_TURNS:
         R = pose.R @ P
         rival = Pose(R, centre_cam - R @ centre)
-        if any(rotation_error_deg(rival, nearest_equivalent(rival, other, obj.symmetries)) < RIVAL_APART_DEG
-               for other in (pose, *out)):
+        if not all(poses_apart(rival, other, obj.symmetries) for other in (pose, *out)):
             continue
         for _ in range(RIVAL_SIZE_STEPS):
             other_size = projected_diagonal_px(view, rival, camera)
@@ -226,7 +225,12 @@ class RivalTest:
     def apart(self, a: Pose, b: Pose) -> bool:
         """Whether ``a`` and ``b`` are ``RIVAL_APART_DEG`` or more apart under the part's symmetries: two poses, not one
         (a rival's fit may come back to the start's own pose)."""
-        return rotation_error_deg(a, nearest_equivalent(a, b, self.view.object.symmetries)) >= RIVAL_APART_DEG
+        return poses_apart(a, b, self.view.object.symmetries)
+
+
+def poses_apart(a: Pose, b: Pose, symmetries=()) -> bool:
+    """Whether ``a`` and ``b`` are ``RIVAL_APART_DEG`` or more apart in rotation, up to the object's ``symmetries``."""
+    return rotation_error_deg(a, nearest_equivalent(a, b, symmetries)) >= RIVAL_APART_DEG
 
 
 def rival_test(view: ModelView | None, frame: Frame, printed: bool, margin: float | None) -> RivalTest | None:

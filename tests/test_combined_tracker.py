@@ -123,6 +123,27 @@ def test_a_second_fit_of_a_frame_on_a_trial_leaves_the_track_as_it_was(printed_b
     assert not all(np.allclose(a, b, atol=1e-6) for a, b in zip(alone, track("tracker")))
 
 
+@pytest.mark.parametrize("print_on", [True, False])
+def test_a_track_owes_nothing_to_the_trial_fits_of_the_starts_before_it(print_on, printed_box):
+    # a hybrid's start fits the frame from several poses (the network's, its rivals) before the one it takes:
+    # the track from that start must follow as a tracker started there alone would (the colour model's
+    # learning and the second looks count the track's own frames)
+    frames, poses, obj = printed_box if print_on else _sequence(10, seed=7, print_on=False)
+    wrong = poses[0].retract(np.r_[np.radians([20.0, -15.0, 10.0]), 0.01, -0.005, 0.0])
+
+    def track(trial_starts: int) -> list[np.ndarray]:
+        tracker = create("tracker", "combined", object=obj)
+        for _ in range(trial_starts):
+            tracker.init(frames[0], wrong)
+            tracker.track(frames[0], prior=wrong, search_px=12)
+        tracker.init(frames[0], poses[0])
+        return [tracker.track(frame).pose.matrix for frame in frames[1:10]]
+
+    alone = track(0)
+    assert all(np.array_equal(a, b) for a, b in zip(alone, track(1)))
+    assert all(np.array_equal(a, b) for a, b in zip(alone, track(2)))
+
+
 def test_the_part_covered_by_something_else_is_reported_lost(printed_box):
     frames, poses, obj = printed_box
     tracker = create("tracker", "combined", object=obj)

@@ -137,6 +137,7 @@ class CombinedTracker(Tracker):
         self._small = _shrunk(gray)
         self._init_frame = frame
         self._last_quality = 0.0
+        self._since_look, self._look_wait = 0, 1  # a new track's second looks owe nothing to the fits before it
 
     def _track(self, frame: Frame, start: Pose, search_px: int | None = None):
         gray8 = to_gray8(frame.image)  # to_gray's, kept in uint8 for KLT and corners

@@ -116,6 +116,7 @@ class RegionCue(Cue):
 
     def start(self, frame: Frame, gray: np.ndarray, pose: Pose, ids: np.ndarray) -> None:
         self.h_part = None
+        self._frames = 0  # the learning cadence counts this track's frames, not the trial fits before it
         self._learn(frame, ids, 1.0)
 
     def begin(self, sight) -> None:

@@ -112,7 +112,10 @@ class HybridConfig:
             beats the start's by this much starts the track instead, wherever the CNN put it; where a
             fit elsewhere comes within this much of the chosen one, the image does not tell them apart
             and the start waits for a frame that does (None: off). A plain box seen near end-on casts
-            the outline of the box turned 90–120° (own-object tuning seeds: docs/decisions.md).
+            the outline of the box turned 90–120° (own-object tuning seeds: docs/decisions.md). The
+            start also waits where one of the network's other sightings of the part at its place
+            (``start_sighting_iou``), another face arrangement (60° or more away), fits within this
+            much of it or better; a sighting never starts the track itself.
         start_print_turn_deg: a start of a part whose print is known climbs the print's score
             (:func:`~hybridpose.starts.print_climb`): its pose turned by this much about each camera axis
             through the part's centre, the best turn by the print fitted again while the print scores
@@ -223,7 +226,8 @@ class HybridConfig:
             — its image box over the start's by at least this intersection over union
             (:func:`~hybridpose.starts.unseen_in_clutter`; 0: off; a regressor that does not say: no
             verdict). A close look alone took a box or a bottle's label in the clutter for a far, small
-            part (docs/decisions.md).
+            part (docs/decisions.md). The sightings over the start's place by this much are also the
+            doubts a plain part's start answers to (``start_rival_margin``).
         handheld_accel_rad_s2, handheld_accel_m_s2: the fusion's motion model off black space (the
             first frame less than ``SPACE_DARK_SHARE`` dark, as for ``keypoint_memory``): white-
             acceleration densities (rad/s², m/s² per √Hz; :attr:`Fusion.motion_noise`) for a camera or

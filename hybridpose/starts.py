@@ -43,6 +43,10 @@ AXIS_TURNS = tuple(P for P in (np.array([[s[i] * (p[i] == r) for i in range(3)] 
                                for p in itertools.permutations(range(3)) for s in itertools.product((1, -1), repeat=3))
                    if np.linalg.det(P) > 0 and not np.array_equal(P, np.eye(3)))
 RIVAL_APART_DEG, RIVAL_SIZE_STEPS = 30.0, 3  # the comment above: the same pose within 30°, three size steps
+# a start's doubts (RivalTest.doubts): the network's other sightings at its place this far from it up to the symmetries
+# or more — nearer, the tracker's own minima lie (a tuning fly-around's right start fitted 0.82 where a sighting 26° off,
+# fitted, scored 0.93 at 35°; counted, that start waited and the track later went wrong)
+DOUBT_APART_DEG = 60.0
 
 
 def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search: bool = False,
@@ -75,7 +79,7 @@ def confirmed_start(m: Measurement, fit: Fit, config: HybridConfig, depth_search
                 and pose_mahalanobis2(m.pose, m.covariance, result.pose, result.covariance) <= config.disagreement_chi2):
             chosen = best_turned(m, start, result, fit, config)
             if rivals is not None:
-                chosen = best_rival(chosen, rivals.poses(chosen.pose), fit, config, rivals.apart)
+                chosen = best_rival(chosen, rivals.poses(chosen.pose), fit, config, rivals.apart, rivals.doubts(chosen.pose), rivals.far)
             S = None if chosen is None else Pose.identity() if stands_out is None else stands_out(chosen.pose)
             if S is not None:
                 chosen = chosen if _is_identity(S) else equivalent_measurement(chosen, S)
@@ -150,11 +154,15 @@ def best_turned(m: Measurement, start: Pose, first: Measurement, fit: Fit, confi
 
 
 def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridConfig,
-               apart: Callable[[Pose, Pose], bool] | None = None) -> Measurement | None:
+               apart: Callable[[Pose, Pose], bool] | None = None, doubts: list[Pose] = (),
+               far: Callable[[Pose, Pose], bool] | None = None) -> Measurement | None:
     """``first`` (a start's fit), or the best of the fits from ``rivals`` that reaches ``start_quality``
     and beats it by ``start_rival_margin``; None where the image does not single one pose out: another
     of these fits, elsewhere (``apart(a, b)``: whether two poses are different poses of the part; None:
-    any two fits are), scores within the margin of the chosen one. Unlike :func:`best_turned`, a rival
+    any two fits are), scores within the margin of the chosen one — or a fit from ``doubts`` (the
+    network's other sightings of the part there: :meth:`RivalTest.doubts`), elsewhere by ``far`` (None:
+    ``apart``), within the margin or above it. A doubt can only hold a start back, never be one: in
+    clutter a pass's pose can fit a wrong outline best. Unlike :func:`best_turned`, a rival
     need not stay within the CNN pose's uncertainty: the network's answer is the very pose in doubt.
 
     Why: a plain box seen near end-on shows an outline that the box turned 90–120° also casts, nearer or
@@ -164,7 +172,10 @@ def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridC
     of its own score. With another fit a fly-around's start 115° off scored 0.84 and the rival nearest the
     truth 0.86, 0.01–0.02 either side of it for six frames; taken, the wrong start was held 34 frames,
     while from the seventh frame the truth led by 0.05 (the view had turned). Where both lie within the
-    margin, the start waits for the frame that tells them apart."""
+    margin, the start waits for the frame that tells them apart. A doubt: on a fly-around over a photo
+    whose skin tones matched the box, the network's answer 102° off fitted at 0.89 and was held 59
+    frames, while its tile pass had seen the part at the same place 4° off, fitted at 0.90 (no turn of the
+    box's axes led there: the nearest rival lay 49° from the truth)."""
     margin = config.start_rival_margin
     if margin is None:
         return first
@@ -175,6 +186,9 @@ def best_rival(first: Measurement, rivals: list[Pose], fit: Fit, config: HybridC
             best = other
     close = [f for f in (first, *others) if f is not best and f.quality > best.quality - margin
              and (apart is None or apart(f.pose, best.pose))]
+    far = far or apart
+    close += [f for f in map(fit, doubts) if f is not None and not f.lost and f.quality > best.quality - margin
+              and (far is None or far(f.pose, best.pose))]
     return None if close else best
 
 
@@ -213,6 +227,8 @@ class RivalTest:
 
     view: ModelView
     frame: Frame
+    sightings: tuple = ()
+    min_iou: float = 0.0
 
     def poses(self, pose: Pose) -> list[Pose]:
         """:func:`outline_rivals` of ``pose`` where the scene around it is lit (:func:`lit_around`), else none."""
@@ -222,24 +238,43 @@ class RivalTest:
             return []
         return [coarse_to_fine(self.view, self.frame, rival) for rival in outline_rivals(self.view, self.frame.camera, pose)]
 
+    def doubts(self, pose: Pose) -> list[Pose]:
+        """The network's ``sightings`` of the part (``T_cam_obj`` each: its other passes' and proposals' poses in
+        the frame) whose image box lies over ``pose``'s by ``min_iou`` (intersection over union; 0: none) and
+        that are :meth:`far` from it, where the scene around ``pose`` is lit (:func:`lit_around`), else none;
+        brought in over the image pyramid as :meth:`poses`."""
+        box = _image_box(self.view, self.frame, pose)
+        if box is None or self.min_iou <= 0 or not self.sightings or not lit_around(self.frame, self.view, pose):
+            return []
+        return [coarse_to_fine(self.view, self.frame, other) for other in self.sightings if self.far(other, pose)
+                and (other_box := _image_box(self.view, self.frame, other)) is not None and box_iou(box, other_box) >= self.min_iou]
+
+    def far(self, a: Pose, b: Pose) -> bool:
+        """Whether ``a`` and ``b`` are ``DOUBT_APART_DEG`` or more apart under the part's symmetries: another face
+        arrangement, not a minimum of the tracker's beside the same one."""
+        return poses_apart(a, b, self.view.object.symmetries, DOUBT_APART_DEG)
+
     def apart(self, a: Pose, b: Pose) -> bool:
         """Whether ``a`` and ``b`` are ``RIVAL_APART_DEG`` or more apart under the part's symmetries: two poses, not one
         (a rival's fit may come back to the start's own pose)."""
         return poses_apart(a, b, self.view.object.symmetries)
 
 
-def poses_apart(a: Pose, b: Pose, symmetries=()) -> bool:
-    """Whether ``a`` and ``b`` are ``RIVAL_APART_DEG`` or more apart in rotation, up to the object's ``symmetries``."""
-    return rotation_error_deg(a, nearest_equivalent(a, b, symmetries)) >= RIVAL_APART_DEG
+def poses_apart(a: Pose, b: Pose, symmetries=(), deg: float = RIVAL_APART_DEG) -> bool:
+    """Whether ``a`` and ``b`` are ``deg`` or more apart in rotation, up to the object's ``symmetries``."""
+    return rotation_error_deg(a, nearest_equivalent(a, b, symmetries)) >= deg
 
 
-def rival_test(view: ModelView | None, frame: Frame, printed: bool, margin: float | None) -> RivalTest | None:
+def rival_test(view: ModelView | None, frame: Frame, printed: bool, margin: float | None,
+               sightings=None, min_iou: float = 0.0) -> RivalTest | None:
     """The ``rivals`` of :func:`confirmed_start` in ``frame``: those of a part with no print (``printed``:
-    its print tells its faces apart); None without a ``view`` or with ``margin`` (``start_rival_margin``)
-    None. On black space (:func:`lit_around`) there are none: the space suites measured the hybrid without them."""
+    its print tells its faces apart), with the network's ``sightings`` in the frame (None: it does not
+    say) over the start's place by ``min_iou``; None without a ``view`` or with ``margin``
+    (``start_rival_margin``) None. On black space (:func:`lit_around`) there are none: the space suites
+    measured the hybrid without them."""
     if view is None or printed or margin is None:
         return None
-    return RivalTest(view, frame)
+    return RivalTest(view, frame, tuple(sightings or ()), min_iou)
 
 
 def print_fails(print_view: PrintView | None, frame: Frame, pose: Pose | None, floor: float) -> bool:

@@ -1163,6 +1163,65 @@ def test_a_plain_parts_start_waits_for_the_frame_that_tells_its_outlines_rivals_
     assert rotation_error_deg(poses[3], truth(3)) < 0.5 and rotation_error_deg(poses[4], truth(4)) < 0.5
 
 
+def _askew(pose: Pose) -> Pose:
+    """``pose`` turned 75° about a slanted axis through the box's centre: no turn of the box's axes, so
+    none of the rivals of its outline (:func:`~hybridpose.starts.outline_rivals`) comes back to ``pose``."""
+    return pose @ Pose.from_rotvec_t(np.radians(75) * np.array([1.0, 2.0, 0.5]) / np.linalg.norm([1.0, 2.0, 0.5]), [0, 0, 0])
+
+
+class AskewTracker(ScriptedTracker):
+    """A plain box's edges and colours: from within 10° of the truth they fit it (0.95), from within 10° of
+    :func:`_askew` of it they fit that pose too (0.85: a wrong pose that clutter confirms); elsewhere nothing."""
+
+    def track(self, frame, prior=None, **options):
+        k = frame.index
+        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
+        for pose, quality in ((truth(k), 0.95), (_askew(truth(k)), 0.85)):
+            if rotation_error_deg(prior, pose) < 10:
+                return Measurement(pose, cov, quality, "tracker:scripted", frame.timestamp)
+        return Measurement(None, np.eye(6), 0.1, "tracker:scripted", frame.timestamp)
+
+
+class AskewWithASighting(OracleRegressor):
+    """A network whose answer is :func:`_askew` of the truth on the first three frames, the truth after, while
+    another of its passes over the frame saw the truth (:attr:`~hybridpose.regressors.base.Candidates.sightings`)."""
+
+    def predict(self, frame, roi=None):
+        m = super().predict(frame, roi)
+        return replace(m, pose=_askew(m.pose)) if frame.index < 3 else m
+
+    def candidates(self, frame, roi=None, limit=4):
+        from hybridpose.regressors.base import Candidates
+
+        return Candidates([self.predict(frame, roi)], sightings=[truth(frame.index)])
+
+
+@pytest.mark.parametrize("sighting_iou", [0.25, 0.0])
+def test_a_plain_parts_start_waits_while_the_network_saw_it_otherwise_at_its_place(sighting_iou):
+    """The network's answer 75° off on the first three frames (no turn of the box's axes away from the truth,
+    so no rival of its outline reaches the truth), confirmed by the edges at 0.85, while another of the
+    network's passes saw the part at the same place at its true pose, which the edges fit at 0.95: that doubt
+    refuses the start (it is never a start itself: in clutter a pass's pose can fit a wrong outline best), and
+    the track starts on the fourth frame at the truth. With ``start_sighting_iou`` 0 (sightings unused) the
+    track starts at the wrong pose."""
+    from hybridpose.metrics import nearest_equivalent
+    from hybridpose.starts import outline_rivals
+
+    wrong = _askew(truth(0))
+    assert rotation_error_deg(wrong, nearest_equivalent(wrong, truth(0), _plain_box().symmetries)) > 60
+    assert all(rotation_error_deg(r, nearest_equivalent(r, truth(0), _plain_box().symmetries)) > 10
+               for r in outline_rivals(_plain_box_view(), RIVAL_CAM, wrong))
+    est = HybridEstimator(AskewTracker(object=_plain_box()), AskewWithASighting(), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, start_contrast=0, start_sighting_iou=sighting_iou))
+    grey = np.full((RIVAL_CAM.height, RIVAL_CAM.width, 3), 120, np.uint8)
+    poses = [est.step(replace(frame(k, RIVAL_CAM), image=grey)).pose for k in range(5)]
+    if sighting_iou == 0:
+        assert rotation_error_deg(poses[0], wrong) < 0.5
+        return
+    assert poses[:3] == [None] * 3
+    assert rotation_error_deg(poses[3], truth(3)) < 0.5 and rotation_error_deg(poses[4], truth(4)) < 0.5
+
+
 def test_the_rivals_of_a_boxs_outline_keep_its_place_and_size_and_are_not_its_equivalents():
     """Each rival: the box's centre on the same line of sight, its image box's diagonal the start's
     (within 2 %), its rotation more than 30° from the start's and each other rival's equivalents (the
@@ -1233,6 +1292,26 @@ def test_a_rival_is_taken_where_it_beats_the_start_by_the_margin_and_a_close_one
     assert best_rival(start, [rival_pose], fit, replace(config, start_rival_margin=None)) is start
     same_place = best_rival(start, [rival_pose], fit, config, lambda a, b: False)
     assert same_place.pose is (rival_pose if chosen == "rival" else start.pose)
+    # the same pose as a doubt: it refuses the start where it fits within the margin or better, and is never taken
+    doubted = best_rival(start, [], fit, config, lambda a, b: rotation_error_deg(a, b) > 30, doubts=[rival_pose])
+    assert doubted is (start if chosen == "start" else None)
+
+
+def test_a_rival_tests_doubts_are_the_networks_sightings_over_the_start_apart_from_it():
+    """``RivalTest.doubts``: of the network's sightings, the one at the start's place turned 90° counts; the same
+    moved clear of the start's image box, or turned 40° (within ``DOUBT_APART_DEG``: a minimum of the tracker's
+    beside the start's own pose), does not; none with ``min_iou`` 0 or on black space."""
+    from hybridpose.starts import RivalTest
+
+    pose = truth(0)
+    turned = pose @ Pose.from_rotvec_t([0, np.radians(90), 0], [0, 0, 0])
+    aside = Pose(turned.R, turned.t + np.array([0.3, 0, 0]))
+    near = pose @ Pose.from_rotvec_t([0, np.radians(40), 0], [0, 0, 0])
+    lit = replace(frame(0, RIVAL_CAM), image=np.full((RIVAL_CAM.height, RIVAL_CAM.width, 3), 120, np.uint8))
+    dark = replace(lit, image=np.zeros_like(lit.image))
+    assert len(RivalTest(_plain_box_view(), lit, (turned, aside, near), 0.25).doubts(pose)) == 1
+    assert RivalTest(_plain_box_view(), lit, (turned,), 0.0).doubts(pose) == []
+    assert RivalTest(_plain_box_view(), dark, (turned,), 0.25).doubts(pose) == []
 
 
 def test_cnn_check_vouches_for_a_track_only_where_its_pose_and_its_fit_both_agree():

@@ -16,10 +16,9 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
   its neighbours, ``start_contrast``; a plain part's in lit clutter, where another of the network's passes
   saw it too, ``start_sighting_iou``); the tracker's fit starts the fusion — or, where not convincing
   (``start_sure_quality``), a clearly better one from the start turned a few degrees; a plain part's in a lit
-  scene, a clearly better one from the poses that cast its outline too, none where one fits about as well
-  or where another pass of the network saw it there otherwise and that pose fits about as well
-  (``start_rival_margin``); a printed part's, moved up the print's score (``start_print_turn_deg``). Every
-  start (init, reinit) does so.
+  scene, a clearly better one from the poses that cast its outline too, none where one of them (or, where the
+  tracker sees colours, a pose another pass of the network saw there) fits about as well (``start_rival_margin``);
+  a printed part's, moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is gated
   (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where the tracker
   sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``: an arm covering half
@@ -362,7 +361,9 @@ class HybridEstimator:
         floor = c.colour_start_print if m.source == COLOUR_SOURCE else 0.0  # 32 blind tries: the print must show well
         stands_out = image_test(self._view, frame, c.start_contrast, self._print, c.start_print_margin, floor)
         climb = print_climber(fit, self._print, frame, self.object, c.start_print_turn_deg)
-        rivals = rival_test(self._view, frame, self._print is not None, c.start_rival_margin, sightings, c.start_sighting_iou)
+        # the network's other sightings doubt a start only where the tracker's colours speak too (docs/decisions.md)
+        doubting = sightings if "region" in getattr(self.tracker, "modalities", ()) else None
+        rivals = rival_test(self._view, frame, self._print is not None, c.start_rival_margin, doubting, c.start_sighting_iou)
         return confirmed_start(m, fit, c if m.source != MEMORY_SOURCE else replace(c, start_quality=c.memory_start_quality),
                                depth_search, stands_out, climb, rivals)
 

@@ -112,10 +112,11 @@ class HybridConfig:
             beats the start's by this much starts the track instead, wherever the CNN put it; where a
             fit elsewhere comes within this much of the chosen one, the image does not tell them apart
             and the start waits for a frame that does (None: off). A plain box seen near end-on casts
-            the outline of the box turned 90–120° (own-object tuning seeds: docs/decisions.md). The
-            start also waits where one of the network's other sightings of the part at its place
-            (``start_sighting_iou``), another face arrangement (60° or more away), fits within this
-            much of it or better; a sighting never starts the track itself.
+            the outline of the box turned 90–120° (own-object tuning seeds: docs/decisions.md). With a
+            tracker that sees colours (a ``region`` cue), the start also waits where one of the
+            network's other sightings of the part at its place (``start_sighting_iou``), another face
+            arrangement (60° or more away), fits within this much of it or better; a sighting never
+            starts the track itself.
         start_print_turn_deg: a start of a part whose print is known climbs the print's score
             (:func:`~hybridpose.starts.print_climb`): its pose turned by this much about each camera axis
             through the part's centre, the best turn by the print fitted again while the print scores

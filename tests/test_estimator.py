@@ -1096,10 +1096,12 @@ class OutlineTracker(ScriptedTracker):
     """A plain box's edges and colours: from within 10° of the truth they fit it (0.95), from within 10°
     of its end-over-end rival they fit the rival almost as well (0.8); elsewhere nothing."""
 
+    wrong, wrong_quality = staticmethod(_flipped), 0.8  # the wrong pose (of the truth) the edges and colours fit too
+
     def track(self, frame, prior=None, **options):
         k = frame.index
         cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
-        for pose, quality in ((truth(k), 0.95), (_flipped(truth(k)), 0.8)):
+        for pose, quality in ((truth(k), 0.95), (self.wrong(truth(k)), self.wrong_quality)):
             if rotation_error_deg(prior, pose) < 10:
                 return Measurement(pose, cov, quality, "tracker:scripted", frame.timestamp)
         return Measurement(None, np.eye(6), 0.1, "tracker:scripted", frame.timestamp)
@@ -1169,7 +1171,7 @@ def _askew(pose: Pose) -> Pose:
     return pose @ Pose.from_rotvec_t(np.radians(75) * np.array([1.0, 2.0, 0.5]) / np.linalg.norm([1.0, 2.0, 0.5]), [0, 0, 0])
 
 
-class AskewTracker(ScriptedTracker):
+class AskewTracker(OutlineTracker):
     """A plain box's edges and colours: from within 10° of the truth they fit it (0.95), from within 10° of
     :func:`_askew` of it they fit that pose too (0.85: a wrong pose that clutter confirms); elsewhere nothing.
     ``modalities`` as the ``combined`` tracker's names them (None: the edges alone)."""
@@ -1179,13 +1181,7 @@ class AskewTracker(ScriptedTracker):
         if modalities is not None:
             self.modalities = modalities
 
-    def track(self, frame, prior=None, **options):
-        k = frame.index
-        cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.0005**2] * 3)
-        for pose, quality in ((truth(k), 0.95), (_askew(truth(k)), 0.85)):
-            if rotation_error_deg(prior, pose) < 10:
-                return Measurement(pose, cov, quality, "tracker:scripted", frame.timestamp)
-        return Measurement(None, np.eye(6), 0.1, "tracker:scripted", frame.timestamp)
+    wrong, wrong_quality = staticmethod(_askew), 0.85
 
 
 class AskewWithASighting(OracleRegressor):

@@ -223,7 +223,9 @@ def outline_rivals(view: ModelView, camera, pose: Pose) -> list[Pose]:
 @dataclass(frozen=True)
 class RivalTest:
     """A plain part's start rivals in ``frame`` (:func:`rival_test`): :meth:`poses` for :func:`best_rival`
-    to fit, :meth:`apart` to tell a rival's fit from the start's."""
+    to fit, :meth:`apart` to tell a rival's fit from the start's; :meth:`doubts`, from the network's
+    ``sightings`` in the frame (``T_cam_obj`` each) over the start's image box by ``min_iou``, for it to fit
+    as doubts, :meth:`far` to tell a doubt's fit from the start's."""
 
     view: ModelView
     frame: Frame

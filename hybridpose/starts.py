@@ -245,8 +245,10 @@ class RivalTest:
         the frame) whose image box lies over ``pose``'s by ``min_iou`` (intersection over union; 0: none) and
         that are :meth:`far` from it, where the scene around ``pose`` is lit (:func:`lit_around`), else none;
         brought in over the image pyramid as :meth:`poses`."""
+        if self.min_iou <= 0 or not self.sightings:
+            return []
         box = _image_box(self.view, self.frame, pose)
-        if box is None or self.min_iou <= 0 or not self.sightings or not lit_around(self.frame, self.view, pose):
+        if box is None or not lit_around(self.frame, self.view, pose):
             return []
         return [coarse_to_fine(self.view, self.frame, other) for other in self.sightings if self.far(other, pose)
                 and (other_box := _image_box(self.view, self.frame, other)) is not None and box_iou(box, other_box) >= self.min_iou]

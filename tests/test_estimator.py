@@ -1176,12 +1176,12 @@ class AskewTracker(OutlineTracker):
     :func:`_askew` of it they fit that pose too (0.85: a wrong pose that clutter confirms); elsewhere nothing.
     ``modalities`` as the ``combined`` tracker's names them (None: the edges alone)."""
 
+    wrong, wrong_quality = staticmethod(_askew), 0.85
+
     def __init__(self, modalities=("edges", "region"), **kwargs):
         super().__init__(**kwargs)
         if modalities is not None:
             self.modalities = modalities
-
-    wrong, wrong_quality = staticmethod(_askew), 0.85
 
 
 class AskewWithASighting(OracleRegressor):

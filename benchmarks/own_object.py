@@ -41,9 +41,9 @@ SEEDS_PER_KIND = 5  # the spread over seeds (median, p90, worst of each kind), n
 # the library's default fusion first (its row carries the targets), the other one beside it: on the box's
 # tuning sequences ukf led where on the truss's isam2 did (docs/decisions.md)
 FUSIONS = ",".join(dict.fromkeys((DEFAULT_FUSION, "isam2", "ukf")))
-# edges (the space tracker the block began with) and combined (what `hybridpose track` picks on a lit
-# scene such as a box over a photo: edges, region and texture)
-TRACKERS = "edges,combined"
+# combined first (what `hybridpose track` picks on a lit scene such as a box over a photo: edges, region
+# and texture; its rows carry the targets), then edges (the space tracker) beside it
+TRACKERS = "combined,edges"
 # round r renders every kind once, kind k with seed 6·r + k + the split's first: report 1–30, tuning 101–130
 FIRST_SEED = {"report": 1, "tuning": 101}
 

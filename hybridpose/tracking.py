@@ -45,8 +45,11 @@ COV_FIELDS = [f"cov_{a}_{b}" for i, a in enumerate(_AXES) for b in _AXES[i:]]
 HYBRID_FIELDS = POSE_FIELDS + SIGMA_FIELDS + COV_FIELDS + ["status", "sources", "ms"]
 TRACKER_FIELDS = POSE_FIELDS + SIGMA_FIELDS + COV_FIELDS + ["quality", "lost"]
 STATUS_COLOURS = {"tracking": (60, 255, 60), "init": (255, 220, 0), "reinit": (255, 220, 0), "lost": (255, 60, 60)}
-# browsers play H.264 .mp4 and VP9/VP8 .webm; MPEG-4 Part 2 ('mp4v') only as a last resort
-VIDEO_CODECS = (("avc1", ".mp4"), ("VP90", ".webm"), ("VP80", ".webm"), ("mp4v", ".mp4"))
+# browsers play H.264 .mp4 and VP8/VP9 .webm; MPEG-4 Part 2 ('mp4v') only as a last resort. VP8 before
+# VP9: on a 640×480 video OpenCV's VP9 took 99 ms a frame (and 3 s to finish), three quarters of `track`'s
+# time, where VP8 takes 23 ms
+VIDEO_CODECS = (("avc1", ".mp4"), ("VP80", ".webm"), ("VP90", ".webm"), ("mp4v", ".mp4"))
+OVERLAY_FPS = 30.0  # a one-frame run's overlay rate (longer runs take the source's, from two timestamps)
 
 
 # --- inputs ----------------------------------------------------------------------------------------
@@ -344,13 +347,18 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
     from .datasets.bop import pose_to_bop
 
     rows, scene_gt, video, ms, lost, reinits, interrupted = [], {}, None, [], 0, 0, False
+    held: list[tuple[float, np.ndarray]] = []  # overlays before the video opens at the source's rate
+
+    def open_video(size: tuple[int, int]) -> VideoFile:
+        gap = held[1][0] - held[0][0] if len(held) > 1 else 0.0
+        return VideoFile(out / "overlay", 1.0 / gap if gap > 0 else OVERLAY_FPS, size)
+
     try:
         try:
             for k, frame in enumerate(frames):
                 if max_frames is not None and k >= max_frames:
                     break
-                if video is None:
-                    video = VideoFile(out / "overlay", 30.0, (frame.camera.width, frame.camera.height))
+                size = (frame.camera.width, frame.camera.height)
                 result, pose, trusted, was_lost, reinit, elapsed, cells, overlay = step(frame)
                 ms.append(elapsed)
                 lost += int(was_lost)
@@ -358,7 +366,11 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
                 rows.append(_pose_cells(frame, pose) + cells)
                 if pose is not None and trusted:
                     scene_gt[str(frame.index)] = [{"obj_id": 1, **pose_to_bop(pose)}]
-                video.write(overlay)
+                held.append((frame.timestamp, overlay))
+                if video is None and len(held) > 1:
+                    video = open_video(size)
+                while video is not None and held:
+                    video.write(held.pop(0)[1])
                 if on_frame:
                     on_frame(frame, result, overlay)
                 if progress:
@@ -369,6 +381,10 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
             interrupted = True
         if not rows:
             raise ValueError("source: no frames to track")
+        if video is None:
+            video = open_video(size)
+        while held:
+            video.write(held.pop(0)[1])
         path = video.close()
         video = None
     finally:

@@ -46,7 +46,8 @@ def _read_poses(path):
 def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
     root, truth = clip
     rc = main(["track", str(root / "png"), "--object", "truss", "--camera", str(root / "camera.json"),
-               "--init-pose", str(root / "pose.json"), "--tracker", "edges", "--out", str(tmp_path / "run")])
+               "--init-pose", str(root / "pose.json"), "--tracker", "edges", "--fps", "25",
+               "--out", str(tmp_path / "run")])
     assert rc == 0
     out = tmp_path / "run"
     poses, rows = _read_poses(out / "poses.csv")
@@ -59,6 +60,8 @@ def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
     (video,) = out.glob("overlay.*")  # WebM, or H.264 .mp4 where OpenCV has it
     cap = cv2.VideoCapture(str(video))
     assert cap.isOpened() and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(truth)
+    assert cap.get(cv2.CAP_PROP_FPS) == pytest.approx(25, abs=0.01)  # plays at the source's rate
+    assert float(rows[1]["timestamp_s"]) == pytest.approx(1 / 25)
     assert "12 frames with edges" in capsys.readouterr().out
     # what was run, with what, on what: enough to run it again and compare
     record = json.loads((out / "run.json").read_text())

@@ -313,7 +313,8 @@ def _pose_cells(frame: Frame, pose: Pose | None) -> list:
 class RunResult:
     """What a run wrote: frames, frames lost, re-initialisations (hybrid), the cost, the video, the
     folder. ``ms_per_frame``: the mean over the frames after the first; ``first_frame_ms`` apart (it
-    loads and, on a cold cache, compiles the kernels: seconds, once)."""
+    loads and, on a cold cache, compiles the kernels: seconds, once); ``wall_ms_per_frame``: the same
+    frames' whole loop (reading the source, the run, drawing, encoding the overlay)."""
 
     frames: int
     lost: int
@@ -324,6 +325,7 @@ class RunResult:
     interrupted: bool = False  # stopped by the user (Ctrl-C): the outputs hold the frames done
     first_frame_ms: float = float("nan")
     note: str = ""  # what the user should hear of the run (a hybrid that never started: why, and what to do)
+    wall_ms_per_frame: float = float("nan")
 
 
 def _run(frames: Iterator[Frame], step: Callable[[Frame], tuple], out, fields: list[str], max_frames: int | None,
@@ -375,6 +377,8 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
                     on_frame(frame, result, overlay)
                 if progress:
                     progress(k + 1)
+                if k == 0:
+                    after_first = time.perf_counter()
         except KeyboardInterrupt:  # a long video stopped by hand: keep what was tracked
             if not rows:
                 raise
@@ -387,6 +391,7 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
             video.write(held.pop(0)[1])
         path = video.close()
         video = None
+        wall_ms = 1000 * (time.perf_counter() - after_first) / (len(rows) - 1) if len(rows) > 1 else float("nan")
     finally:
         if video is not None:
             video.close(keep=False)
@@ -397,7 +402,7 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
     atomic_write_text(out / "poses.csv", buf.getvalue())
     atomic_write_json(out / "scene_gt.json", scene_gt)
     return RunResult(frames=len(rows), lost=lost, reinits=reinits, ms_per_frame=float(np.mean(ms[1:] or ms)), video=path,
-                     out=out, interrupted=interrupted, first_frame_ms=float(ms[0]))
+                     out=out, interrupted=interrupted, first_frame_ms=float(ms[0]), wall_ms_per_frame=wall_ms)
 
 
 # --- the two runs ----------------------------------------------------------------------------------

@@ -62,12 +62,14 @@ def test_track_image_folder_writes_overlay_csv_and_bop(clip, tmp_path, capsys):
     assert cap.isOpened() and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(truth)
     assert cap.get(cv2.CAP_PROP_FPS) == pytest.approx(25, abs=0.01)  # plays at the source's rate
     assert float(rows[1]["timestamp_s"]) == pytest.approx(1 / 25)
-    assert "12 frames with edges" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "12 frames with edges" in said and "ms/frame with reading the source and writing the overlay" in said
     # what was run, with what, on what: enough to run it again and compare
     record = json.loads((out / "run.json").read_text())
     assert record["mode"] == "tracker" and record["frames"] == 12 and record["options"]["tracker"] == "edges"
     assert record["camera"]["width"] == 640 and record["object"]["name"] == "truss" and record["versions"]["numpy"]
     assert record["cpu"]["cpus"] >= 1 and "policy" not in record
+    assert record["wall_ms_per_frame"] > 0  # the whole loop's cost beside the tracker's own
 
 
 def test_a_run_stopped_by_the_user_keeps_the_frames_it_tracked(clip, tmp_path, monkeypatch, capsys):

@@ -12,9 +12,6 @@ from __future__ import annotations
 
 import csv
 import io
-import logging
-import os
-import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -27,10 +24,8 @@ from .core import Estimate, Frame, Measurement
 from .edges.silhouette import SPACE_DARK_SHARE, dark_share
 from .geometry import Camera, Pose, as_rgb_image
 from .hybrid_config import HybridConfig
-from .io import atomic_write_json, atomic_write_text, read_json
+from .io import VideoFile, atomic_write_json, atomic_write_text, read_json
 from .viz import SITE_LEGEND, draw_edge_sites, draw_wireframe, put_label
-
-log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
@@ -45,10 +40,6 @@ COV_FIELDS = [f"cov_{a}_{b}" for i, a in enumerate(_AXES) for b in _AXES[i:]]
 HYBRID_FIELDS = POSE_FIELDS + SIGMA_FIELDS + COV_FIELDS + ["status", "sources", "ms"]
 TRACKER_FIELDS = POSE_FIELDS + SIGMA_FIELDS + COV_FIELDS + ["quality", "lost"]
 STATUS_COLOURS = {"tracking": (60, 255, 60), "init": (255, 220, 0), "reinit": (255, 220, 0), "lost": (255, 60, 60)}
-# browsers play H.264 .mp4 and VP8/VP9 .webm; MPEG-4 Part 2 ('mp4v') only as a last resort. VP8 before
-# VP9: on a 640×480 video OpenCV's VP9 took 99 ms a frame (and 3 s to finish), three quarters of `track`'s
-# time, where VP8 takes 23 ms
-VIDEO_CODECS = (("avc1", ".mp4"), ("VP80", ".webm"), ("VP90", ".webm"), ("mp4v", ".mp4"))
 OVERLAY_FPS = 30.0  # a one-frame run's overlay rate (longer runs take the source's, from two timestamps)
 
 
@@ -244,56 +235,6 @@ def _frame(bgr: np.ndarray, camera: Camera, index: int, rate: float, where) -> F
 
 
 # --- outputs ---------------------------------------------------------------------------------------
-def _quiet_video_writer(path: str, fourcc: str, fps: float, size) -> cv2.VideoWriter:
-    """``cv2.VideoWriter``, with FFmpeg's complaints about codecs it lacks (printed straight to the
-    process's stderr while probing) kept off the user's terminal."""
-    try:
-        saved = os.dup(2)
-    except OSError:
-        return cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), fps, size)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            return cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), fps, size)
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
-class VideoFile:
-    """An RGB video written to a temporary file and renamed to ``<stem><ext>`` on :meth:`close`, in
-    the first codec of :data:`VIDEO_CODECS` this OpenCV build can write."""
-
-    def __init__(self, stem, fps: float, size: tuple[int, int]) -> None:
-        self.stem = Path(stem)
-        self.stem.parent.mkdir(parents=True, exist_ok=True)
-        for fourcc, ext in VIDEO_CODECS:
-            fd, tmp = tempfile.mkstemp(dir=self.stem.parent, prefix=f".{self.stem.name}.", suffix=ext)
-            os.close(fd)
-            writer = _quiet_video_writer(tmp, fourcc, float(fps), tuple(size))
-            if writer.isOpened():
-                self.writer, self.tmp, self.path, self.codec = writer, Path(tmp), self.stem.with_suffix(ext), fourcc
-                if fourcc == "mp4v":
-                    log.warning("this OpenCV writes neither H.264 nor VP9/VP8: %s is MPEG-4 Part 2, which "
-                                "browsers do not play (VLC and ffplay do)", self.path)
-                return
-            writer.release()
-            Path(tmp).unlink(missing_ok=True)
-        raise RuntimeError(f"{self.stem}: OpenCV cannot write any of {[c for c, _ in VIDEO_CODECS]}")
-
-    def write(self, rgb: np.ndarray) -> None:
-        self.writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-
-    def close(self, keep: bool = True) -> Path:
-        self.writer.release()
-        if keep:
-            os.chmod(self.tmp, 0o644)
-            os.replace(self.tmp, self.path)
-        else:
-            self.tmp.unlink(missing_ok=True)
-        return self.path
-
-
 def _sigma_cells(pose: Pose | None, covariance: np.ndarray | None) -> list[str]:
     """The ``SIGMA_FIELDS`` and ``COV_FIELDS`` cells of a pose and its (6, 6) right-perturbation covariance."""
     if pose is None or covariance is None:

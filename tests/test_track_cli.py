@@ -401,3 +401,38 @@ def test_auto_tracker_reads_the_dark_share_of_the_first_frame():
     assert auto_tracker(half)[0] == "edges"  # at the threshold: space
     with pytest.raises(ValueError, match="image: expected"):
         auto_tracker(np.zeros((48, 64), np.uint8))
+
+
+def test_an_overlay_is_encoded_beside_the_run_and_a_failed_encoding_is_said_at_close(tmp_path):
+    """The overlay's frames are encoded on a thread of their own: what the caller wrote is what the
+    video holds (it may reuse its image at once), at the rate asked; an encoder that fails says so at
+    close, in the caller's thread, and leaves no partial file."""
+    import threading
+
+    from hybridpose.io import VideoFile
+
+    video = VideoFile(tmp_path / "ok", 25.0, (64, 48))
+    for k in range(5):
+        image = np.full((48, 64, 3), 40 * k, np.uint8)
+        video.write(image)
+        image[:] = 255  # reused by the caller
+    cap = cv2.VideoCapture(str(video.close()))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 5 and cap.get(cv2.CAP_PROP_FPS) == pytest.approx(25)
+    shades = [cap.read()[1].mean() for _ in range(5)]
+    assert np.allclose(shades, [0, 40, 80, 120, 160], atol=8), shades
+
+    class FullDisk:
+        def write(self, bgr):
+            assert threading.current_thread() is not threading.main_thread()  # beside the run, not in it
+            raise cv2.error("no space left on device")
+
+        def release(self):
+            pass
+
+    video = VideoFile(tmp_path / "bad", 25.0, (64, 48))
+    video.writer.release()
+    video.writer = FullDisk()
+    video.write(np.zeros((48, 64, 3), np.uint8))
+    with pytest.raises(cv2.error, match="no space left"):
+        video.close()
+    assert not [p.name for p in tmp_path.iterdir() if "bad" in p.name]

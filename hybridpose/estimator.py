@@ -8,55 +8,52 @@ Status machine, one :meth:`HybridEstimator.step` per frame::
                           │  └─CNN disagrees k checks in a row─▶ reinit│
                           └──────────────────── reinit ◀──two CNN answers agree
 
-- **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker, started
-  from the CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest error; or from the
-  network's other poses in the frame, ``start_alternatives``), confirms it (not lost; off black space, where
-  it reports its cues, not by its edges alone unless the scene around is plain, ``plain_surround_quality``;
-  its fit standing out from its own view slid across the image: clutter matches a wrong outline as well as
-  its neighbours, ``start_contrast``; a plain part's in lit clutter, where another of the network's passes
-  saw it too, ``start_sighting_iou``); the tracker's fit starts the fusion — or, where not convincing
-  (``start_sure_quality``), a clearly better one from the start turned a few degrees; a plain part's in a lit
-  scene, a clearly better one from the poses that cast its outline too, none where one of them (or, where the
-  tracker sees colours, a pose another pass of the network saw there) fits about as well (``start_rival_margin``);
-  a printed part's, moved up the print's score (``start_print_turn_deg``). Every start (init, reinit) does so.
+- **init**: no pose yet; the CNN runs on the full image until it finds the object and the tracker, started from the
+  CNN pose (or from it slid along its viewing ray: the CNN's depth is its largest error; or from the network's other
+  poses in the frame, ``start_alternatives``), confirms it (not lost; off black space, where it reports its cues,
+  not by its edges alone unless the scene around is plain, ``plain_surround_quality``; its fit standing out from its
+  own view slid across the image: clutter matches a wrong outline as well as its neighbours, ``start_contrast``; a
+  plain part's in lit clutter, where another of the network's passes saw it too, ``start_sighting_iou``); the
+  tracker's fit starts the fusion — or, where not convincing (``start_sure_quality``), a clearly better one from the
+  start turned a few degrees; a plain part's in a lit scene, a clearly better one from the poses that cast its
+  outline too, none where one of them (or, where the tracker sees colours, a pose another pass of the network saw
+  there) fits about as well (``start_rival_margin``); a printed part's, moved up the print's score
+  (``start_print_turn_deg``). Every start (init, reinit) does so.
 - **tracking**: the fusion predicts; the tracker searches from the prediction; its measurement is gated
-  (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where the tracker
-  sees the object covered, or, for a tracker that cannot tell, down to ``keep_quality``: an arm covering half
-  the object lowers a right fit's quality under the tracker's own threshold). Every ``check_period`` frames
-  the CNN runs on a crop around the predicted projection, and the tracker fits the edges from the CNN pose too
-  (:class:`CnnCheck`). The check disagrees when the CNN pose is far from the fused one (``disagreement_chi2``
-  with both covariances; optionally ``disagreement_deg``) or when the fit from it lands elsewhere and matches
-  the image better than the track (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row
-  (the next check follows at once) restart everything from that fit — the drift the tracker did not flag. A
-  check whose CNN pose the edges cannot fit at all (typically its end-for-end twin) while the track fits
-  better does not count, nor, for a printed part, one whose fit shows the print worse than the track
-  (``print_prefers``). A CNN pose that agrees is fused. A tracker measurement the gate refuses calls a check
-  at once; where the CNN and the edges from its pose vouch for it, the fusion (not the tracker) was wrong and
-  starts over there. Where the tracker loses the object from the prediction, an established track
-  (``retry_after``) tries once more from the tracker's previous pose and, found there, starts the fusion over
-  from that fit: a hand-held camera stops where a constant-velocity model runs on.
-- **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The fusion
-  keeps predicting (the estimate's covariance grows); the CNN runs on every frame until two consecutive
-  answers agree (``reacquire_chi2``; optionally within ``reacquire_deg``) and the tracker, started from
-  the latest, confirms it (under the arm the CNN can repeat the same wrong answer, but the edges do not
-  match); then everything restarts from the tracker's fit (**reinit**). Meanwhile the tracker also tries
-  from the prediction each frame and takes up again when its fit is good, inside the gate and, for a
-  printed part, the pose its print shows best (``print_backs``).
+  (Mahalanobis) and fused (after ``keep_after`` frames, down to ``keep_covered_quality`` where the tracker sees the
+  object covered, or, for a tracker that cannot tell, down to ``keep_quality``: an arm covering half the object
+  lowers a right fit's quality under the tracker's own threshold). Every ``check_period`` frames the CNN runs on a
+  crop around the predicted projection, and the tracker fits the edges from the CNN pose too (:class:`CnnCheck`).
+  The check disagrees when the CNN pose is far from the fused one (``disagreement_chi2`` with both covariances;
+  optionally ``disagreement_deg``) or when the fit from it lands elsewhere and matches the image better than the
+  track (``switch_quality_margin``); ``confirm_checks`` disagreeing checks in a row (the next check follows at once)
+  restart everything from that fit — the drift the tracker did not flag. A check whose CNN pose the edges cannot fit
+  at all (typically its end-for-end twin) while the track fits better does not count, nor, for a printed part, one
+  whose fit shows the print worse than the track (``print_prefers``). A CNN pose that agrees is fused. A tracker
+  measurement the gate refuses calls a check at once; where the CNN and the edges from its pose vouch for it, the
+  fusion (not the tracker) was wrong and starts over there. Where the tracker loses the object from the prediction,
+  an established track (``retry_after``) tries once more from the tracker's previous pose and, found there, starts
+  the fusion over from that fit: a hand-held camera stops where a constant-velocity model runs on.
+- **lost**: the tracker said lost, or gating refused it ``lost_after_rejections`` frames in a row. The fusion keeps
+  predicting (the estimate's covariance grows); the CNN runs on every frame until two consecutive answers agree
+  (``reacquire_chi2``; optionally within ``reacquire_deg``) and the tracker, started from the latest, confirms it
+  (under the arm the CNN can repeat a wrong answer; the edges do not match it); then everything restarts from the
+  tracker's fit (**reinit**). Meanwhile the tracker also tries from the prediction each frame and takes up again
+  when its fit is good, inside the gate and, for a printed part, the pose its print shows best (``print_backs``).
 
-A start (init, reinit) may be put on probation (``confirm_frames``): not trusted until it has held. A
-printed part's tracked pose where its print does not show (``track_print_floor``) is reported lost.
+A start (init, reinit) may be put on probation (``confirm_frames``): not trusted until it has held. A printed part's
+tracked pose where its print does not show (``track_print_floor``) is reported lost; so is, in a lit scene, a frame
+that nothing measured (the tracker's fit refused by the gate, no CNN check to vouch): the fusion's prediction, the
+guess of a hand's motion. The track goes on from either. In a lit scene, wherever the CNN would run, the part's
+keypoint memory (``keypoint_memory``) answers first where it can: its print, where its model carries one, and its
+look in this video, learned where the track was sure (``learn_after``); its answers are confirmed as the CNN's are.
+Where neither finds a printed part at init, every few frames it is started from poses all round it where its print's
+colours stand out (``colour_start_every``). There the fusion's motion model is a hand's (``handheld_accel_rad_s2``).
 
-In a lit scene, wherever the CNN would run, the part's keypoint memory (``keypoint_memory``) answers
-first where it can: its print, where its model carries one, and its look in this video, learned where
-the track was sure (``learn_after``); its answers are confirmed as the CNN's are. Where neither finds a
-printed part at init, every few frames it is started from poses all round it where its print's colours
-stand out (``colour_start_every``). There the fusion's motion model is a hand's (``handheld_accel_rad_s2``).
-
-For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose
-nearest the track (or, while lost, nearest the previous answer): the CNN may give any of the poses that
-look the same, and only that one can be compared with the track or fused into it. A part that carries
-its print (``ObjectModel.texture``) starts at the equivalent pose its print shows, so its track gives
-which face is which.
+For a symmetric object (its ``symmetries``) each CNN answer is first restated as the equivalent pose nearest the
+track (or, while lost, nearest the previous answer): the CNN may give any of the poses that look the same, and only
+that one can be compared with the track or fused into it. A part that carries its print (``ObjectModel.texture``)
+starts at the equivalent pose its print shows, so its track gives which face is which.
 
 Every threshold is a field of :class:`HybridConfig`, its default chosen on the tuning seeds of the
 suites (``hybridpose bench --split tuning``; evidence in ``docs/decisions.md``).
@@ -195,6 +192,8 @@ class HybridEstimator:
                          and print_fails(self._print, frame, estimate.pose, self.config.track_print_floor)):
             estimate = replace(estimate, status=Status.LOST)
         estimate = self._on_probation(estimate, frame)
+        if self._lit and estimate.status == Status.TRACKING and not estimate.sources:  # a hand's motion, guessed
+            estimate = replace(estimate, status=Status.LOST)
         self.last_timestamp = frame.timestamp
         timings["total"] = 1000 * (time.perf_counter() - t_start)
         estimate.timings_ms.update(timings)

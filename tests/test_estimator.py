@@ -1334,3 +1334,31 @@ def test_cnn_check_vouches_for_a_track_only_where_its_pose_and_its_fit_both_agre
     assert not CnnCheck(at(2.0, "regressor:oracle"), at(10.0), disagrees=False, stayed=True).vouches_for(track, 16.0)
     lost = Measurement(None, cov, 0.0, "tracker:scripted", 0.0)
     assert not CnnCheck(at(2.0, "regressor:oracle"), lost, disagrees=False, stayed=False).vouches_for(track, 16.0)
+
+
+class JumpTracker(ScriptedTracker):
+    """Follows the truth, but on frame ``jump_at`` fits ``jump_deg`` off at full confidence (a wrong
+    minimum, as in a fast turn of the hand)."""
+
+    def __init__(self, jump_at: int, jump_deg: float = 25.0):
+        super().__init__()
+        self.jump_at, self.jump_deg = jump_at, jump_deg
+
+    def track(self, frame, prior=None, **options):
+        m = super().track(frame, prior, **options)
+        return replace(m, pose=tilt(m.pose, self.jump_deg)) if frame.index == self.jump_at else m
+
+
+@pytest.mark.parametrize("lit", [True, False])
+def test_in_a_lit_scene_a_frame_that_nothing_measured_is_not_trusted(lit):
+    """The gate refuses the tracker's fit of frame 12 (25° off) and the CNN check finds nothing: the
+    estimate is the fusion's prediction. In a lit scene, where a hand moves the part, that guess is
+    reported lost (its pose still given); on black space, where the motion is a spacecraft's drift, it
+    stays trusted. Either way the track goes on, and the frames around it are trusted."""
+    est = HybridEstimator(JumpTracker(12), OracleRegressor(blind={12}), registry.create("fusion", "ukf"),
+                          HybridConfig(check_period=0, start_contrast=0))
+    shade = 128 if lit else 0
+    out = [est.step(replace(frame(k), image=np.full((CAM.height, CAM.width, 3), shade, np.uint8))) for k in range(20)]
+    assert out[12].sources == () and out[12].pose is not None and rotation_error_deg(out[12].pose, truth(12)) < 1.0
+    assert out[12].status == ("lost" if lit else "tracking")
+    assert [e.status for e in out[1:12] + out[13:]] == ["tracking"] * 18

@@ -296,6 +296,11 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
         gap = held[1][0] - held[0][0] if len(held) > 1 else 0.0
         return VideoFile(out / "overlay", 1.0 / gap if gap > 0 else OVERLAY_FPS, size)
 
+    def write_held() -> None:
+        for _, image in held:
+            video.write(image)
+        held.clear()
+
     try:
         try:
             for k, frame in enumerate(frames):
@@ -312,8 +317,8 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
                 held.append((frame.timestamp, overlay))
                 if video is None and len(held) > 1:
                     video = open_video(size)
-                while video is not None and held:
-                    video.write(held.pop(0)[1])
+                if video is not None:
+                    write_held()
                 if on_frame:
                     on_frame(frame, result, overlay)
                 if progress:
@@ -328,8 +333,7 @@ def _loop(frames: Iterator[Frame], step: Callable[[Frame], tuple], out: Path, fi
             raise ValueError("source: no frames to track")
         if video is None:
             video = open_video(size)
-        while held:
-            video.write(held.pop(0)[1])
+        write_held()
         path = video.close()
         video = None
         wall_ms = 1000 * (time.perf_counter() - after_first) / (len(rows) - 1) if len(rows) > 1 else float("nan")
